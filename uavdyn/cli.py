@@ -23,8 +23,8 @@ class CliError(Exception):
 
 def _add_airframe(parser: argparse.ArgumentParser, default: str | None = "aerosonde") -> None:
     parser.add_argument("--airframe", default=default, required=default is None,
-                        help="preset name (%s) or path of a TOML/JSON parameter file"
-                             % ", ".join(list_presets()))
+                        help=f"preset name ({', '.join(list_presets())}) or path of a "
+                             "TOML/JSON parameter file")
 
 
 def _add_trim_args(parser: argparse.ArgumentParser) -> None:

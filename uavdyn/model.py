@@ -142,7 +142,8 @@ def rigid_body_rates(x, X, Z, M, mass, Jy, g, with_position: bool, ops=CASADI_OP
         q,
     ]
     if with_position:
-        rates += [ub * ops.cos(theta) + wb * ops.sin(theta), ub * ops.sin(theta) - wb * ops.cos(theta)]
+        rates += [ub * ops.cos(theta) + wb * ops.sin(theta),
+                  ub * ops.sin(theta) - wb * ops.cos(theta)]
     return ops.vertcat(*rates)
 
 

@@ -90,7 +90,7 @@ class MultirotorParams:
     pitch_mix: float
 
 
-ParamsType = Union[FixedWingParams, MultirotorParams]
+ParamsType = Union[FixedWingParams, MultirotorParams]  # noqa: UP007 (runtime alias, py3.10)
 PARAM_CLASSES: dict[str, type] = {"fixed_wing": FixedWingParams, "multirotor": MultirotorParams}
 
 # Keys that must be strictly positive (a zero or negative value makes the model meaningless).
@@ -247,7 +247,8 @@ def _check_values(values: dict[str, float], kind: str, origin: str) -> None:
             raise AirframeError(f"{origin}: parameter '{name}' must be >= 0, got {values[name]}")
 
 
-def perturb(airframe: Airframe, scale: float = 1.15, names: Iterable[str] | None = None) -> Airframe:
+def perturb(airframe: Airframe, scale: float = 1.15,
+            names: Iterable[str] | None = None) -> Airframe:
     """Scale parameters (default: the kind's stability derivatives and mass terms) by ``scale``;
     the paper's robustness scenario is ``scale=1.15``."""
     chosen = tuple(names) if names is not None else PERTURBATION_KEYS[airframe.kind]
