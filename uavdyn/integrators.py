@@ -81,3 +81,19 @@ def simulate(step: ca.Function, x0, controls, p, dt: float) -> np.ndarray:
     traj = np.asarray(rollout(step, n)(np.asarray(x0, float), controls.T, np.asarray(p, float),
                                        dt))
     return np.vstack([np.asarray(x0, float).reshape(1, -1), traj.T])
+
+
+def rk4_numpy(rhs, x0, controls, p, dt: float) -> np.ndarray:
+    """Plain Python/NumPy RK4 loop (the baseline a user would write by hand), same signature
+    and output as :func:`simulate`; ``rhs`` is e.g. :func:`uavdyn.model.numpy_rhs`."""
+    controls = np.atleast_2d(np.asarray(controls, dtype=float))
+    p = np.asarray(p, dtype=float)
+    out = np.empty((controls.shape[0] + 1, len(x0)))
+    x = out[0] = np.asarray(x0, dtype=float)
+    for k, u in enumerate(controls):
+        k1 = rhs(x, u, p)
+        k2 = rhs(x + dt / 2 * k1, u, p)
+        k3 = rhs(x + dt / 2 * k2, u, p)
+        k4 = rhs(x + dt * k3, u, p)
+        x = out[k + 1] = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return out

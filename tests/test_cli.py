@@ -1,0 +1,76 @@
+"""The command line: every command has --help, works on presets and user files, and reports
+bad input as one line with a non-zero exit code."""
+
+import json
+
+import numpy as np
+import pytest
+
+from uavdyn.airframes import load_airframe, to_toml_dict
+from uavdyn.cli import main
+
+COMMANDS = ["airframes", "trim", "modes", "simulate"]
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_help(command, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main([command, "--help"])
+    assert exit_info.value.code == 0
+    assert "usage: uavdyn " + command in capsys.readouterr().out
+
+
+def test_airframes_and_modes(capsys):
+    assert main(["airframes"]) == 0
+    out = capsys.readouterr().out
+    assert "aerosonde" in out and "f450" in out
+    assert main(["modes", "--airframe", "aerosonde"]) == 0
+    out = capsys.readouterr().out
+    assert "short period" in out and "phugoid" in out
+    assert main(["modes", "--airframe", "quadrotor", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert len(data["A"]) == 4 and data["modes"]
+
+
+def test_trim_json(capsys):
+    assert main(["trim", "--airframe", "aerosonde", "--airspeed", "22", "--gamma-deg", "3"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["airspeed_mps"] == 22 and data["residual"] < 1e-9
+
+
+def test_simulate_writes_interchange_csv(tmp_path, capsys):
+    out = tmp_path / "doublet.csv"
+    assert main(["simulate", "--airframe", "aerosonde", "--input", "3211", "--dt", "0.01",
+                 "--duration", "3", "--out", str(out)]) == 0
+    header = out.read_text().splitlines()[0]
+    assert header == "time,u,w,q,theta,elevator,throttle"
+    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert data.shape == (301, 7)
+    np.testing.assert_allclose(np.diff(data[:, 0]), 0.01, atol=1e-12)
+    assert np.ptp(data[:, 5]) > 0.05  # the 3-2-1-1 input is there
+    assert np.ptp(data[:, 4]) > 1e-3  # and the aircraft responded
+
+
+def test_user_parameter_file(tmp_path, capsys):
+    data = to_toml_dict(load_airframe("f450"))
+    data["name"] = "heavy_quad"
+    data["params"]["mass"]["value"] = 2.0
+    path = tmp_path / "heavy.json"
+    path.write_text(json.dumps(data))
+    assert main(["trim", "--airframe", str(path), "--airspeed", "0"]) == 0
+    heavy = json.loads(capsys.readouterr().out)
+    assert main(["trim", "--airframe", "f450", "--airspeed", "0"]) == 0
+    light = json.loads(capsys.readouterr().out)
+    assert heavy["airframe"] == "heavy_quad" and heavy["collective"] > light["collective"]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["trim", "--airframe", "nosuch"], "neither a preset"),
+    (["trim", "--airspeed", "5"], "below the stall speed"),
+    (["simulate", "--dt", "-1"], "--dt must be a positive number"),
+    (["simulate", "--duration", "nan"], "--duration must be a positive number"),
+])
+def test_errors_are_one_line(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and err.count("\n") == 0 and err.startswith("uavdyn ")
