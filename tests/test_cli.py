@@ -9,7 +9,7 @@ import pytest
 from uavdyn.airframes import load_airframe, to_toml_dict
 from uavdyn.cli import main
 
-COMMANDS = ["airframes", "trim", "modes", "simulate"]
+COMMANDS = ["airframes", "trim", "modes", "simulate", "export-c"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)
@@ -74,3 +74,14 @@ def test_errors_are_one_line(argv, message, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and err.count("\n") == 0 and err.startswith("uavdyn ")
+
+
+def test_export_c_writes_a_bundle(tmp_path, capsys):
+    out = tmp_path / "bundle"
+    assert main(["export-c", "--airframe", "aerosonde", "--real", "float", "--rollout", "50",
+                 "--out", str(out)]) == 0
+    assert {"uav_step.h", "uav_step.c", "uav_step_generated.c", "main.c", "Makefile"} <= {
+        f.name for f in out.iterdir()}
+    header = (out / "uav_step.h").read_text()
+    assert "#define UAV_STEP_ROLLOUT_STEPS 50" in header and "float" in header
+    assert main(["export-c", "--rollout", "-1"]) == 2

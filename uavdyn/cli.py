@@ -119,6 +119,32 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export_c(args: argparse.Namespace) -> int:
+    """Write a dependency-free C bundle (step or rollout, double or float) and say how to build."""
+    from uavdyn.deploy import BundleSpec, export_bundle
+    from uavdyn.integrators import rk4_step
+    from uavdyn.model import build_model
+
+    if not (args.dt > 0 and math.isfinite(args.dt)):
+        raise CliError(f"--dt must be a positive number of seconds, got {args.dt}")
+    if args.rollout < 0:
+        raise CliError(f"--rollout must be >= 0 steps, got {args.rollout}")
+    airframe, point = _trim(args)
+    model = build_model(airframe)
+    step = rk4_step(model.f)
+    amplitude, channel = ((math.radians(2.0), 0) if airframe.kind == "fixed_wing"
+                          else (0.05, 1))
+    spec = BundleSpec(args.name, model.state_names, model.control_names, model.param_names,
+                      airframe.p, point.x, point.u, args.dt, amplitude, doublet_channel=channel,
+                      real=args.real, rollout_steps=args.rollout)
+    out = export_bundle(step, spec, args.out)
+    what = f"rollout of {args.rollout} steps" if args.rollout else "one step"
+    print(f"wrote {out}/ ({args.name}.h, {args.name}.c, {args.name}_generated.c, main.c, "
+          f"Makefile; {args.real}, {what})")
+    print(f"build and run: make -C {out} && {out}/example > trajectory.csv")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="uavdyn", description="Nonlinear longitudinal UAV flight dynamics with a "
@@ -154,6 +180,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=10.0, help="seconds (default 10)")
     p.add_argument("--out", default="results/simulation.csv", help="output CSV path")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("export-c", help="write a dependency-free C bundle of the step")
+    _add_airframe(p)
+    _add_trim_args(p)
+    p.add_argument("--real", choices=["double", "float"], default="double",
+                   help="floating-point type of the generated code (default double)")
+    p.add_argument("--rollout", type=int, default=0,
+                   help="export a rollout of N steps instead of one step (default 0: one step)")
+    p.add_argument("--dt", type=float, default=0.005, help="default step in s (default 0.005)")
+    p.add_argument("--name", default="uav_step", help="C name of the exported function")
+    p.add_argument("--out", default="results/c_bundle", help="output folder")
+    p.set_defaults(func=cmd_export_c)
     return parser
 
 
