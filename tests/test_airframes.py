@@ -49,12 +49,14 @@ def test_user_file_round_trip(tmp_path, aerosonde):
 @pytest.mark.parametrize(
     "mutate, message",
     [
-        (lambda d: d["params"].update(wingspan={"value": 1.0}), "unknown parameter key(s) ['wingspan']"),
+        (lambda d: d["params"].update(wingspan={"value": 1.0}),
+         "unknown parameter key(s) ['wingspan']"),
         (lambda d: d["params"].pop("Jy"), "missing parameter key(s) ['Jy']"),
         (lambda d: d["params"]["mass"].update(value=0.0), "parameter 'mass' must be > 0, got 0.0"),
         (lambda d: d["params"]["Jy"].update(value=-1.0), "parameter 'Jy' must be > 0, got -1.0"),
         (lambda d: d["params"]["S_wing"].update(value=0), "parameter 'S_wing' must be > 0"),
-        (lambda d: d["params"]["C_m_q"].update(value=float("nan")), "parameter 'C_m_q' is not finite"),
+        (lambda d: d["params"]["C_m_q"].update(value=float("nan")),
+         "parameter 'C_m_q' is not finite"),
         (lambda d: d["params"]["c"].update(value="0.2"), "parameter 'c' must be a number"),
         (lambda d: d.update(kind="helicopter"), "key 'kind' is 'helicopter'"),
         (lambda d: d.pop("kind"), "missing top-level key 'kind'"),

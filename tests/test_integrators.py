@@ -71,9 +71,9 @@ def test_fine_rk4_matches_cvodes_and_dop853(name, request):
     dop = [x]
     for a, b in zip(edges[:-1], edges[1:]):
         t_eval = np.arange(a, b + 1) * dt
-        sol = scipy.integrate.solve_ivp(lambda t, y: rhs(y, U[a], af.p), (t_eval[0], t_eval[-1]),
-                                        x, method="DOP853", t_eval=t_eval, rtol=1e-12,
-                                        atol=1e-12)
+        sol = scipy.integrate.solve_ivp(lambda t, y, u=U[a]: rhs(y, u, af.p),
+                                        (t_eval[0], t_eval[-1]), x, method="DOP853",
+                                        t_eval=t_eval, rtol=1e-12, atol=1e-12)
         assert sol.success
         dop.extend(sol.y.T[1:])
         x = sol.y[:, -1]

@@ -43,9 +43,9 @@ def test_jacobians_match_central_differences(name, request):
     for x, u in zip(xs, us):
         A, B, P = (np.array(m) for m in model.jacobians(x, u, af.p))
         for exact, fd in (
-            (A, central_difference(lambda z: f(z, u, af.p), x)),
-            (B, central_difference(lambda z: f(x, z, af.p), u)),
-            (P, central_difference(lambda z: f(x, u, z), af.p.copy())),
+            (A, central_difference(lambda z, u=u: f(z, u, af.p), x)),
+            (B, central_difference(lambda z, x=x: f(x, z, af.p), u)),
+            (P, central_difference(lambda z, x=x, u=u: f(x, u, z), af.p.copy())),
         ):
             scale = np.abs(exact).max()
             np.testing.assert_allclose(exact, fd, rtol=1e-6, atol=1e-6 * scale)

@@ -31,7 +31,8 @@ def test_trim_errors_say_why(aerosonde, f450):
     v_stall = stall_speed(aerosonde)[0]
     with pytest.raises(TrimError, match=r"below the stall speed 11\.\d\d m/s"):
         trim(aerosonde, 0.9 * v_stall)
-    with pytest.raises(TrimError, match=r"needs throttle = 1\.\d+, outside \[0, 1\] \(thrust limit\)"):
+    with pytest.raises(TrimError,
+                       match=r"needs throttle = 1\.\d+, outside \[0, 1\] \(thrust limit\)"):
         trim(aerosonde, 40.0)
     with pytest.raises(TrimError, match=r"needs elevator = .*\(control limit\)"):
         trim(aerosonde, 14.0)
