@@ -145,6 +145,77 @@ def cmd_export_c(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_generate_data(args: argparse.Namespace) -> int:
+    """Generate an emulated flight-data set (manifest.json + CSVs) from a recipe and options."""
+    from dataclasses import asdict
+
+    from uavdyn.datagen import Recipe, file_checksums, generate_dataset
+
+    recipe = Recipe.from_json(args.recipe) if args.recipe else Recipe()
+    overrides = {"airframe": args.airframe, "sorties": args.sorties, "seed": args.seed,
+                 "duration_s": args.duration, "sample_rate_hz": args.rate,
+                 "internal_dt_s": args.internal_dt, "turbulent_fraction": args.turbulent_fraction,
+                 "noise_scale": args.noise_scale,
+                 "missions": args.missions.split(",") if args.missions else None}
+    values = asdict(recipe)
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    recipe = Recipe(**values)
+    if args.workers is not None and args.workers < 1:
+        raise CliError(f"--workers must be >= 1, got {args.workers}")
+    manifest = generate_dataset(recipe, args.out, workers=args.workers,
+                                progress=not args.no_progress)
+    sums = file_checksums(args.out)
+    if args.write_checksums:
+        lines = "".join(f"{digest}  {name}\n" for name, digest in sums.items())
+        Path(args.write_checksums).write_text(lines)
+    print(f"wrote {manifest} ({recipe.sorties} sorties x {recipe.duration_s:g} s at "
+          f"{recipe.sample_rate_hz:g} Hz, seed {recipe.seed})")
+    if args.verify:
+        reference = Path(args.verify)
+        expected = {}
+        for line in reference.read_text().splitlines():
+            if line.strip():
+                digest, name = line.split(maxsplit=1)
+                expected[name.strip()] = digest
+        wrong = sorted(n for n, d in expected.items() if sums.get(n) != d)
+        if wrong:
+            raise CliError(f"{len(wrong)} of {len(expected)} files differ from {reference} "
+                           f"(first: {wrong[0]}); a different compiler or libm can change the "
+                           "last digits")
+        print(f"all {len(expected)} files match the checksums in {reference}")
+    return 0
+
+
+def _training_module():
+    """Import ``training.train`` (torch needed); in a source checkout the ``training/`` folder
+    beside the package is used even when the package is installed elsewhere on the path."""
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        raise CliError("training needs PyTorch: pip install -e '.[train]'") from None
+    try:
+        from training import train as module
+    except ImportError:
+        root = Path(__file__).resolve().parents[1]
+        if not (root / "training" / "train.py").exists():
+            raise CliError("the training/ package is not available (it ships with the source "
+                           "checkout)") from None
+        sys.path.insert(0, str(root))
+        from training import train as module
+    return module
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """Train the learned correction; write weights (.npz), loss history JSON and PNG."""
+    module = _training_module()
+    if args.dataset is None:
+        print("no --dataset given: training on generated perturbed-model sorties",
+              file=sys.stderr)
+    summary = module.run(args)
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="uavdyn", description="Nonlinear longitudinal UAV flight dynamics with a "
@@ -181,6 +252,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="results/simulation.csv", help="output CSV path")
     p.set_defaults(func=cmd_simulate)
 
+    p = sub.add_parser("generate-data", help="generate an emulated flight-data set (SPEC 3 "
+                       "format: manifest.json + one CSV per sortie)")
+    p.add_argument("--recipe", default=None,
+                   help="JSON recipe (e.g. data/datagen_quadrotor.json); options given here "
+                        "override it")
+    p.add_argument("--airframe", default=None,
+                   help=f"preset ({', '.join(list_presets())}, quadrotor, fixed_wing) or "
+                        "parameter file (default quadrotor)")
+    p.add_argument("--sorties", type=int, default=None, help="number of sorties (default 100)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    p.add_argument("--duration", type=float, default=None, help="seconds per sortie (60)")
+    p.add_argument("--rate", type=float, default=None, help="log rate in Hz (default 100)")
+    p.add_argument("--internal-dt", type=float, default=None,
+                   help="emulator RK4 step in s (default 0.001)")
+    p.add_argument("--missions", default=None,
+                   help="comma-separated mission names (default: all for the airframe kind)")
+    p.add_argument("--turbulent-fraction", type=float, default=None,
+                   help="fraction of turbulent sorties (default 0.5)")
+    p.add_argument("--noise-scale", type=float, default=None,
+                   help="sensor-noise multiplier (default 1, 0 = noise-free logs)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes (default: all cores)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--verify", default=None, metavar="SHA256FILE",
+                   help="compare the files with a sha256sum-format checksum file")
+    p.add_argument("--write-checksums", default=None, metavar="SHA256FILE",
+                   help="write the files' SHA-256 checksums (sha256sum format)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_generate_data)
+
     p = sub.add_parser("export-c", help="write a dependency-free C bundle of the step")
     _add_airframe(p)
     _add_trim_args(p)
@@ -192,6 +293,45 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", default="uav_step", help="C name of the exported function")
     p.add_argument("--out", default="results/c_bundle", help="output folder")
     p.set_defaults(func=cmd_export_c)
+
+    p = sub.add_parser("train", help="train the learned correction (torch) and export its "
+                       "weights as .npz")
+    _add_airframe(p)
+    p.add_argument("--dataset", default=None,
+                   help="dataset folder (manifest.json + CSVs, with a train/validation split); "
+                        "default: generate perturbed-model sorties")
+    p.add_argument("--sorties", type=int, default=20,
+                   help="generated sorties when no --dataset (default 20)")
+    p.add_argument("--duration", type=float, default=20.0,
+                   help="seconds per generated sortie (default 20)")
+    p.add_argument("--formulation", default="improved",
+                   choices=["improved", "paper", "hypersolver"],
+                   help="improved (default): residual force/moment inside RK4; paper: "
+                        "x_base + NN(t, x_base); hypersolver: RK4 + dt^5 g(x, u)")
+    p.add_argument("--target", default="data", choices=["data", "reference"],
+                   help="data (default): model-discrepancy correction; reference: fine-step "
+                        "baseline (pure numerical correction)")
+    p.add_argument("--activation", default="relu", choices=["relu", "tanh"])
+    p.add_argument("--hidden", type=int, default=16, help="hidden-layer width (default 16)")
+    p.add_argument("--dt", type=float, default=0.005, help="hybrid step in s (default 0.005)")
+    p.add_argument("--epochs", type=int, default=60, help="maximum epochs (default 60)")
+    p.add_argument("--rollout-horizon", type=int, default=25,
+                   help="rollout-loss window in samples (default 25)")
+    p.add_argument("--rollout-weight", type=float, default=1.0,
+                   help="weight of the rollout loss (default 1, 0 = one-step loss only)")
+    p.add_argument("--lr", type=float, default=3e-3, help="initial Adam learning rate")
+    p.add_argument("--patience", type=int, default=12,
+                   help="early stopping: epochs without validation improvement (default 12)")
+    p.add_argument("--max-seconds", type=float, default=270.0,
+                   help="wall-clock budget in s (default 270)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--out", default=None,
+                   help="weight file (default results/weights/<airframe>_<formulation>.npz)")
+    p.add_argument("--history", default=None,
+                   help="loss-history JSON (default beside --out; a PNG is written too)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_train)
     return parser
 
 
