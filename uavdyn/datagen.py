@@ -20,7 +20,14 @@ import numpy as np
 
 from uavdyn.airframes import Airframe, load_airframe
 from uavdyn.emulator import Emulator, dryden_gusts, emulator_rollout
-from uavdyn.flightdata import Sortie, csv_columns, write_csv, write_manifest
+from uavdyn.flightdata import (
+    FlightDataError,
+    Sortie,
+    check_values,
+    csv_columns,
+    write_csv,
+    write_manifest,
+)
 from uavdyn.missions import missions_for, plan_mission
 
 SPLITS = ("train", "validation", "test")
@@ -110,14 +117,15 @@ def assign_sorties(recipe: Recipe, kind: str) -> list[dict]:
     return plan
 
 
-def _generate_one(args: tuple[dict, dict, str]) -> dict:
-    recipe_dict, item, out = args
-    recipe = Recipe(**recipe_dict)
-    airframe = load_airframe(recipe.airframe)
-    emulator = Emulator(airframe, sample_rate_hz=recipe.sample_rate_hz,
-                        internal_dt=recipe.internal_dt_s)
+MAX_ATTEMPTS = 5
+
+
+def _fly_one(recipe: Recipe, airframe: Airframe, emulator: Emulator, item: dict, attempt: int):
+    """Fly one sortie for draw ``attempt`` (0 keeps the original seed); the result must pass
+    the loader's own checks, so a generated dataset always loads."""
     i = item["index"]
-    rng = np.random.default_rng([recipe.seed, 1, i])
+    seed = [recipe.seed, 1, i] + ([attempt] if attempt else [])
+    rng = np.random.default_rng(seed)
     plan = plan_mission(item["mission"], airframe, recipe.duration_s, recipe.sample_rate_hz, rng)
     n = plan.references.shape[0]
     intensity = wind = 0.0
@@ -134,6 +142,30 @@ def _generate_one(args: tuple[dict, dict, str]) -> dict:
     flight = emulator.fly(x0, plan.references, gusts, rng, recipe.noise_scale)
     if not (np.all(np.isfinite(flight.true_states)) and np.all(np.isfinite(flight.controls))):
         raise RuntimeError(f"sortie {i} ({item['mission']}) produced non-finite values")
+    for states in (flight.true_states, flight.measured_states):
+        check_values(f"sortie {i} ({item['mission']}, draw {attempt})", airframe.kind,
+                     flight.time, states, flight.controls, recipe.sample_rate_hz)
+    return flight, plan, intensity, wind, seed
+
+
+def _generate_one(args: tuple[dict, dict, str]) -> dict:
+    recipe_dict, item, out = args
+    recipe = Recipe(**recipe_dict)
+    airframe = load_airframe(recipe.airframe)
+    emulator = Emulator(airframe, sample_rate_hz=recipe.sample_rate_hz,
+                        internal_dt=recipe.internal_dt_s)
+    i = item["index"]
+    last_error = None
+    for attempt in range(MAX_ATTEMPTS):
+        try:
+            flight, plan, intensity, wind, seed = _fly_one(recipe, airframe, emulator, item,
+                                                           attempt)
+            break
+        except FlightDataError as exc:  # e.g. a gust turned a zoom climb into a loop
+            last_error = exc
+    else:
+        raise RuntimeError(f"sortie {i} ({item['mission']}) failed the flight-data checks in "
+                           f"{MAX_ATTEMPTS} draws; last: {last_error}")
     name = f"sortie_{i:03d}"
     meas = Sortie(name, airframe.kind, flight.time, flight.measured_states, flight.controls,
                   item["mission"])
@@ -143,10 +175,10 @@ def _generate_one(args: tuple[dict, dict, str]) -> dict:
     write_csv(true, Path(out) / f"{name}_true.csv")
     return {
         "file": f"{name}.csv", "true_file": f"{name}_true.csv", "mission": item["mission"],
-        "duration_s": float(flight.time[-1] - flight.time[0]), "rows": int(n),
+        "duration_s": float(flight.time[-1] - flight.time[0]), "rows": int(len(flight.time)),
         "split": item["split"], "condition": item["condition"],
         "turbulence_intensity": round(intensity, 6), "mean_wind_mps": round(wind, 6),
-        "seed": [recipe.seed, 1, i], "max_alpha_air_deg": round(float(np.degrees(
+        "seed": seed, "draws": attempt + 1, "max_alpha_air_deg": round(float(np.degrees(
             np.max(flight.alpha_air))), 3) if airframe.kind == "fixed_wing" else None,
         "mission_params": plan.params,
     }
