@@ -216,6 +216,36 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """The validation pipeline: dataset, weights, Tables 1-4, figures, report."""
+    from uavdyn.reproduce import ReproduceConfig, run
+
+    if args.cost_repeats < 1:
+        raise CliError(f"--cost-repeats must be >= 1, got {args.cost_repeats}")
+    config = ReproduceConfig(airframes=tuple(args.airframes), out=args.out, quick=args.quick,
+                             retrain=args.retrain, cache=args.cache,
+                             cost_repeats=args.cost_repeats, sorties=args.sorties,
+                             duration_s=args.duration)
+    result = run(config)
+    print(f"report: {Path(args.out) / 'report.md'} ({result['wall_s']:.0f} s)")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Table 1 and Table 4 for any dataset folder, as JSON and Markdown."""
+    from uavdyn.reproduce import _json, evaluate_dataset, evaluation_markdown
+
+    airframe = load_airframe(args.airframe)
+    result = evaluate_dataset(airframe, args.dataset, args.weights or [])
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2, default=_json) + "\n")
+    md = out.with_suffix(".md")
+    md.write_text(evaluation_markdown(result))
+    print(f"wrote {out} and {md}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="uavdyn", description="Nonlinear longitudinal UAV flight dynamics with a "
@@ -294,12 +324,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="results/c_bundle", help="output folder")
     p.set_defaults(func=cmd_export_c)
 
+    p = sub.add_parser("reproduce", help="run the validation pipeline (Tables 1-4, figures, "
+                       "report) on the shipped recipe and weights")
+    p.add_argument("--airframes", nargs="+", default=["quadrotor", "fixed_wing"],
+                   choices=["quadrotor", "fixed_wing"], help="which airframes (default both)")
+    p.add_argument("--out", default="results", help="output folder (default results/)")
+    p.add_argument("--quick", action="store_true", help="tiny configuration (seconds)")
+    p.add_argument("--retrain", action="store_true",
+                   help="train the networks here (needs torch) instead of the shipped weights")
+    p.add_argument("--cache", default=None, help="dataset cache folder (default: user cache)")
+    p.add_argument("--cost-repeats", type=int, default=5, help="timing repeats (default 5)")
+    p.add_argument("--sorties", type=int, default=None, help="override the recipe's count")
+    p.add_argument("--duration", type=float, default=None,
+                   help="override the recipe's sortie duration (s)")
+    p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser("evaluate", help="Table 1 and Table 4 metrics on any dataset folder")
+    _add_airframe(p, default=None)
+    p.add_argument("--dataset", required=True, help="dataset folder (manifest.json + CSVs)")
+    p.add_argument("--weights", nargs="*", default=None, help="weight file(s) of the hybrid")
+    p.add_argument("--out", default="results/metrics.json", help="JSON output (Markdown beside)")
+    p.set_defaults(func=cmd_evaluate)
+
     p = sub.add_parser("train", help="train the learned correction (torch) and export its "
                        "weights as .npz")
     _add_airframe(p)
     p.add_argument("--dataset", default=None,
                    help="dataset folder (manifest.json + CSVs, with a train/validation split); "
                         "default: generate perturbed-model sorties")
+    p.add_argument("--lowpass-hz", type=float, default=None,
+                   help="zero-phase low-pass filter of the dataset's measured states (Hz)")
     p.add_argument("--sorties", type=int, default=20,
                    help="generated sorties when no --dataset (default 20)")
     p.add_argument("--duration", type=float, default=20.0,

@@ -237,3 +237,48 @@ def emulator_plant(emulator, dt: float):
         return xe_next, observe(xe_next)
 
     return step
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A closed-loop test: pitch step (altitude free) or climb (altitude ramp)."""
+
+    name: str
+    duration: float
+    pitch_step_deg: float = 0.0
+    climb_rate: float = 0.0
+    start: float = 0.5
+
+    def weights(self) -> tuple[float, float, float]:
+        return (100.0, 0.0, 1.0) if self.pitch_step_deg else (1.0, 1.0, 1.0)
+
+    def references(self, theta_trim: float, h0: float):
+        def theta_ref(t):
+            return theta_trim + np.where(t >= self.start, np.radians(self.pitch_step_deg), 0.0)
+
+        def h_ref(t):
+            return h0 + self.climb_rate * np.clip(t - self.start, 0.0, None)
+
+        return theta_ref, h_ref
+
+    @property
+    def tracked(self) -> str:
+        return "theta" if self.pitch_step_deg else "h"
+
+
+SCENARIOS = (Scenario("pitch step +5 deg", 8.0, pitch_step_deg=5.0),
+             Scenario("climb 2 m/s", 10.0, climb_rate=2.0))
+
+
+def run_scenario(scenario: Scenario, prediction_step: ca.Function, airframe, point,
+                 config: MPCConfig, altitude: float = 100.0) -> ClosedLoopResult:
+    """Fly one scenario on the calm emulator with the given prediction model."""
+    from uavdyn.emulator import Emulator
+
+    emulator = Emulator(airframe)
+    x0 = emulator.initial_state(point.x, point.u, altitude)
+    mpc = TrackingMPC(prediction_step, airframe.kind, airframe.p, point.u, config)
+    theta_ref, h_ref = scenario.references(point.x[3], altitude)
+    n = int(round(scenario.duration / config.dt))
+    return fly_closed_loop(mpc, emulator_plant(emulator, config.dt), x0, point.u, n, theta_ref,
+                           h_ref, float(np.hypot(point.x[0], point.x[1])), scenario.weights())

@@ -62,7 +62,8 @@ def _trim_functions(kind: str) -> tuple[ca.Function, ca.Function]:
     residual = model.f(x, z[1:], p)[:3]
     g = ca.Function("trim_residual", [z, pars], [residual])
     solver = ca.rootfinder("trim_solver", "newton", g,
-                           {"abstol": 1e-13, "max_iter": 100, "error_on_fail": False})
+                           {"abstol": 1e-13, "max_iter": 100, "error_on_fail": False,
+                            "show_eval_warnings": False})
     return g, solver
 
 
