@@ -73,6 +73,8 @@ def cmd_modes(args: argparse.Namespace) -> int:
     airframe, point = _trim(args)
     A, B = linearise(airframe, point)
     found = modes(A, airframe.kind, B)
+    if args.hybrid:
+        return _hybrid_modes(args, airframe, point)
     if args.json:
         print(json.dumps({"trim": point.as_dict(), "A": A.tolist(), "B": B.tolist(),
                           "modes": [m.as_dict() for m in found]}, indent=2))
@@ -80,6 +82,38 @@ def cmd_modes(args: argparse.Namespace) -> int:
         print(f"{airframe.name} trimmed at {point.airspeed:g} m/s, gamma "
               f"{math.degrees(point.gamma):g} deg (residual {point.residual:.1e})\n")
         print(mode_table(found))
+    return 0
+
+
+def _hybrid_modes(args: argparse.Namespace, airframe, point) -> int:
+    """Modes of the hybrid discrete map beside the physics model and exp(A dt)."""
+    from uavdyn.hybrid import hybrid_step, shipped_weights
+    from uavdyn.stability import discrete_map_modes, mode_table
+
+    if not (args.dt > 0 and math.isfinite(args.dt)):
+        raise CliError(f"--dt must be a positive number of seconds, got {args.dt}")
+    weights = Path(args.weights) if args.weights else shipped_weights(airframe.name)
+    if not weights.exists():
+        raise CliError(f"no weight file {weights}; give --weights FILE")
+    comp = discrete_map_modes(hybrid_step(weights, airframe, compile=False), airframe, point,
+                              args.dt)
+    if args.json:
+        print(json.dumps({
+            "trim": point.as_dict(), "dt": args.dt, "weights": str(weights),
+            "map_eigenvalues": [[z.real, z.imag] for z in comp.map_eigenvalues],
+            "exp_A_dt_eigenvalues": [[z.real, z.imag] for z in comp.exact_eigenvalues],
+            "hybrid_modes": [m.as_dict() for m in comp.map_modes],
+            "physics_modes": [m.as_dict() for m in comp.physics_modes],
+            "unstable": comp.unstable, "made_unstable": comp.made_unstable}, indent=2))
+        return 0
+    print(f"{airframe.name} trimmed at {point.airspeed:g} m/s; hybrid map at dt {args.dt:g} s "
+          f"({weights.name})\n")
+    print("Physics model:\n\n" + mode_table(comp.physics_modes))
+    print("\nHybrid map (continuous equivalents log(lambda)/dt):\n\n"
+          + mode_table(comp.map_modes))
+    print("\nHybrid map eigenvalues beside exp(A dt):\n\n" + comp.table())
+    if comp.made_unstable:
+        print(f"\nWARNING: the correction made map eigenvalue(s) {comp.made_unstable} unstable")
     return 0
 
 
@@ -265,6 +299,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_airframe(p)
     _add_trim_args(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--hybrid", action="store_true",
+                   help="also linearise the hybrid discrete map (eigenvalues, log(lambda)/dt, "
+                        "exp(A dt))")
+    p.add_argument("--weights", default=None,
+                   help="weight file for --hybrid (default: the shipped weights)")
+    p.add_argument("--dt", type=float, default=0.005, help="map step for --hybrid (0.005)")
     p.set_defaults(func=cmd_modes)
 
     p = sub.add_parser("simulate", help="simulate an input profile from trim, write a CSV")
@@ -365,7 +405,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--target", default="data", choices=["data", "reference"],
                    help="data (default): model-discrepancy correction; reference: fine-step "
                         "baseline (pure numerical correction)")
-    p.add_argument("--activation", default="relu", choices=["relu", "tanh"])
+    p.add_argument("--activation", default="relu", choices=["relu", "tanh"],
+                   help="hidden-layer activation (default relu: cheapest in C; tanh is smooth "
+                        "and bounded)")
     p.add_argument("--hidden", type=int, default=16, help="hidden-layer width (default 16)")
     p.add_argument("--dt", type=float, default=0.005, help="hybrid step in s (default 0.005)")
     p.add_argument("--epochs", type=int, default=60, help="maximum epochs (default 60)")

@@ -128,3 +128,69 @@ def mode_table(mode_list: list[Mode]) -> str:
         rows.append(f"| {m.name} | {ev_text} | {m.natural_frequency:.4g} | {m.damping:.4g} | "
                     f"{fmt(m.period)} | {fmt(m.time_to_half)} | {fmt(m.time_to_double)} |")
     return "\n".join(rows)
+
+
+@dataclass(frozen=True)
+class DiscreteModeComparison:
+    """Modes of a discrete step map ``x_next = F(x, u, p, dt)`` at a trim point, next to the
+    continuous physics model and its exact discretisation ``exp(A dt)``."""
+
+    dt: float
+    map_eigenvalues: np.ndarray  # eigenvalues of dF/dx
+    map_continuous: np.ndarray  # log(lambda)/dt
+    exact_eigenvalues: np.ndarray  # eigenvalues of exp(A dt), matched to map_eigenvalues
+    physics_modes: list[Mode]
+    map_modes: list[Mode]
+
+    @property
+    def unstable(self) -> list[int]:
+        """Indices of map eigenvalues outside the unit circle (the map diverges there)."""
+        return [i for i, lam in enumerate(self.map_eigenvalues) if abs(lam) > 1.0 + 1e-12]
+
+    @property
+    def made_unstable(self) -> list[int]:
+        """Map eigenvalues outside the unit circle whose exact counterpart is inside it."""
+        return [i for i in self.unstable if abs(self.exact_eigenvalues[i]) <= 1.0]
+
+    def table(self) -> str:
+        rows = ["| # | map eigenvalue | log(lambda)/dt | exp(A dt) eigenvalue | |lambda| | flag |",
+                "|---|---|---|---|---|---|"]
+        for i, (lam, s, ex) in enumerate(zip(self.map_eigenvalues, self.map_continuous,
+                                             self.exact_eigenvalues)):
+            flag = ("UNSTABLE (made so by the correction)" if i in self.made_unstable
+                    else "unstable" if i in self.unstable else "")
+            rows.append(f"| {i} | {lam.real:.8f}{lam.imag:+.8f}j | {s.real:.5g}{s.imag:+.5g}j | "
+                        f"{ex.real:.8f}{ex.imag:+.8f}j | {abs(lam):.8f} | {flag} |")
+        return "\n".join(rows)
+
+
+def _match(reference: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Reorder ``values`` to pair each entry of ``reference`` with its nearest partner."""
+    remaining = list(values)
+    out = []
+    for r in reference:
+        j = int(np.argmin([abs(r - v) for v in remaining]))
+        out.append(remaining.pop(j))
+    return np.array(out)
+
+
+def discrete_map_modes(step, airframe: Airframe, point: TrimPoint, dt: float
+                       ) -> DiscreteModeComparison:
+    """Linearise a step map (hybrid or plain RK4) at a trim point: eigenvalues of its Jacobian,
+    their continuous equivalents ``log(lambda)/dt``, and the exact ``exp(A dt)`` beside them."""
+    import casadi as ca
+    import scipy.linalg
+
+    x = ca.SX.sym("x", 4)
+    jac = ca.Function("map_jacobian", [x], [ca.jacobian(step(x, point.u, airframe.p, dt), x)])
+    F = np.array(jac(point.x))
+    lam = np.linalg.eigvals(F)
+    A, B = linearise(airframe, point)
+    exact = _match(lam, np.linalg.eigvals(scipy.linalg.expm(A * dt)))
+    with np.errstate(divide="ignore"):
+        cont = np.log(lam.astype(complex)) / dt
+    A_equiv = np.real_if_close(scipy.linalg.logm(F) / dt) if np.all(np.abs(lam) > 0) else F
+    return DiscreteModeComparison(
+        dt=dt, map_eigenvalues=lam, map_continuous=cont, exact_eigenvalues=exact,
+        physics_modes=modes(A, airframe.kind, B),
+        map_modes=modes(np.real(A_equiv), airframe.kind))
