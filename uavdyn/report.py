@@ -25,11 +25,13 @@ def _row(table: dict, solver: str) -> dict | None:
 def headline(af: dict) -> dict:
     """The measured numbers the first paragraph quotes, for one airframe."""
     t1 = af["table1"]
-    calm = t1.get("flight data (calm)") or t1.get("flight data")
+    group = next((g for g in ("flight data (calm)", "flight data", "flight data (turbulent)")
+                  if g in t1), None)
+    calm = t1.get(group) if group else None
     # fixed wing: whole-sortie free run; quadrotor (neutrally stable in pitch open loop):
     # 1 s predictions restarted from the recorded state
     mode = "free_run" if af["kind"] == "fixed_wing" else "horizon_1s"
-    out = {"airframe": af["airframe"], "mode": mode}
+    out = {"airframe": af["airframe"], "mode": mode, "group": group}
     if calm:
         for key, name in (("rk4", "RK4 (physics only) @ 0.005 s"),
                           ("hybrid", "hybrid improved @ 0.005 s"),
@@ -77,7 +79,8 @@ def first_paragraph(results: dict) -> str:
         how = ("free run over whole sorties" if h["mode"] == "free_run" else
                "1 s predictions restarted from the recorded state, since an open-loop "
                "quadrotor is neutrally stable in pitch")
-        text = (f"**{h['airframe']}** (calm test sorties, {how}, at "
+        which = (h["group"] or "").replace("flight data", "").strip(" ()") or "all"
+        text = (f"**{h['airframe']}** ({which} test sorties, {how}, at "
                 f"dt = 0.005 s, against the emulated flight data): hybrid pitch RMSE "
                 f"**{_e(h['hybrid_rmse'])} rad** (MAE {_e(h['hybrid_mae'])}, max "
                 f"{_e(h['hybrid_max'])}) against physics-only RK4 **{_e(h['rk4_rmse'])} rad** "
@@ -162,14 +165,14 @@ def _table3(af: dict) -> list[str]:
 
 def _table4(af: dict) -> list[str]:
     lines = ["| scenario | solver | sorties | pitch-error growth (rad/s) | max error (rad) | "
-             "diverged |", "|---|---|---|---|---|---|"]
+             "diverged (error > 0.5 rad) | first divergence (s) |", "|---|---|---|---|---|---|---|"]
     for r in af["table4"]:
         if not r.get("sorties"):
-            lines.append(f"| {r['scenario']} | {r['solver']} | 0 | | | |")
+            lines.append(f"| {r['scenario']} | {r['solver']} | 0 | | | | |")
             continue
         lines.append(f"| {r['scenario']} | {r['solver']} | {r['sorties']} | "
                      f"{_e(r['slope_rad_per_s'])} | {_e(r['max_error_rad'])} | "
-                     f"{r['diverged']} |")
+                     f"{r['diverged']} of {r['sorties']} | {_e(r.get('first_divergence_s'))} |")
     return lines + [""]
 
 

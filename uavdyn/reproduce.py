@@ -25,6 +25,7 @@ from uavdyn.validation import (
     MODES,
     Solver,
     error_growth,
+    error_stats,
     evaluate_trajectory,
     fine_reference,
     pooled_stats,
@@ -369,12 +370,9 @@ def work_precision(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int)
             flight = evaluate_trajectory(solver, sortie.time, truth, sortie.controls, p)[mode]
             free = evaluate_trajectory(solver, sortie.time, ref, sortie.controls, p)["free_run"]
             points.append({
-                "family": family, "dt": dt, "wall_ms": wall * 1e3,
-                "theta_rmse_vs_flight": float(np.sqrt(np.mean((flight[0][:, 3]
-                                                               - flight[1][:, 3]) ** 2))),
-                "flight_mode": mode,
-                "theta_rmse_vs_reference": float(np.sqrt(np.mean((free[0][:, 3]
-                                                                  - free[1][:, 3]) ** 2))),
+                "family": family, "dt": dt, "wall_ms": wall * 1e3, "flight_mode": mode,
+                "theta_rmse_vs_flight": error_stats(*flight)["theta_rmse"],
+                "theta_rmse_vs_reference": error_stats(*free)["theta_rmse"],
             })
     return points
 
@@ -423,6 +421,8 @@ def robustness_table(airframe: Airframe, ds: Dataset, nets: dict, config: Reprod
                 "slope_rad_per_s": float(np.mean([g["slope_rad_per_s"] for g in growth])),
                 "max_error_rad": float(np.max([g["max_error_rad"] for g in growth])),
                 "diverged": int(sum(g["diverged"] for g in growth)),
+                "first_divergence_s": min((g["time_to_divergence_s"] for g in growth
+                                           if g["diverged"]), default=None),
             })
     return rows
 

@@ -52,7 +52,9 @@ def error_stats(predicted: np.ndarray, target: np.ndarray) -> dict[str, float]:
     """RMSE, MAE and maximum absolute error of pitch, pitch rate and forward speed."""
     out = {}
     for name, i in METRIC_STATES.items():
-        err = predicted[..., i] - target[..., i]
+        with np.errstate(over="ignore", invalid="ignore"):
+            err = predicted[..., i] - target[..., i]
+            err = np.where(np.abs(err) < 1e100, err, np.inf)  # a diverged run is infinite
         if not np.all(np.isfinite(err)):
             out.update({f"{name}_rmse": float("inf"), f"{name}_mae": float("inf"),
                         f"{name}_max": float("inf")})
@@ -157,13 +159,18 @@ def pooled_stats(pairs: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]
 def error_growth(time: np.ndarray, predicted: np.ndarray, target: np.ndarray,
                  divergence_rad: float = 0.5) -> dict[str, float | bool]:
     """Pitch-error growth of a free run: slope of a straight-line fit of |error| against time
-    (rad/s), maximum error, and a divergence flag (non-finite state or error above
-    ``divergence_rad``)."""
-    err = np.abs(predicted[:, 3] - target[:, 3])
-    finite = np.all(np.isfinite(predicted))
-    if not finite:
-        return {"slope_rad_per_s": float("inf"), "max_error_rad": float("inf"),
-                "diverged": True}
-    slope = float(np.polyfit(time - time[0], err, 1)[0]) if len(time) > 1 else 0.0
-    return {"slope_rad_per_s": slope, "max_error_rad": float(err.max()),
-            "diverged": bool(err.max() > divergence_rad)}
+    (rad/s) up to divergence, maximum error over the finite part, and a divergence flag with its
+    time (error above ``divergence_rad`` or a non-finite state)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        err = np.abs(predicted[:, 3] - target[:, 3])
+    bad = ~np.isfinite(err) | (err > divergence_rad)
+    k_div = int(np.argmax(bad)) if bad.any() else len(err)
+    finite = np.isfinite(err) & (err < 1e100)
+    upto = slice(0, max(k_div, 2))
+    ok = finite[upto]
+    t, e = (time - time[0])[upto][ok], err[upto][ok]
+    slope = float(np.polyfit(t, e, 1)[0]) if len(t) > 1 else 0.0
+    return {"slope_rad_per_s": slope,
+            "max_error_rad": float(err[finite].max()) if finite.any() else float("nan"),
+            "diverged": bool(bad.any()),
+            "time_to_divergence_s": float(time[k_div] - time[0]) if bad.any() else None}
