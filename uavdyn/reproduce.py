@@ -265,10 +265,9 @@ def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> 
     def add(name, dt, run, n_rep, compiled):
         traj = run()  # warm-up; also the accuracy
         wall = _median_time(run, n_rep)
-        theta = traj[:, 3]
         rows.append({"solver": name, "dt": dt, "compiled": compiled, "wall_ms": wall * 1e3,
-                     "theta_rmse_vs_flight": float(np.sqrt(np.mean((theta - truth[:, 3]) ** 2))),
-                     "theta_rmse_vs_reference": float(np.sqrt(np.mean((theta - ref[:, 3]) ** 2)))})
+                     "theta_rmse_vs_flight": error_stats(traj, truth)["theta_rmse"],
+                     "theta_rmse_vs_reference": error_stats(traj, ref)["theta_rmse"]})
 
     physics = rk4_step(build_model(airframe).f)
     steps = {"RK4": physics}
