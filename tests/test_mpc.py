@@ -61,3 +61,22 @@ def test_bad_configuration(aerosonde, aerosonde_trim):
     mpc = TrackingMPC(step, aerosonde.kind, aerosonde.p, aerosonde_trim.u, MPCConfig(horizon=3))
     with pytest.raises(ValueError, match=r"x0 must be \[u, w, q, theta, h\]"):
         mpc.solve(aerosonde_trim.x, aerosonde_trim.u, 0.0, 100.0, 25.0)
+
+
+def test_hybrid_prediction_model_solves(aerosonde, aerosonde_trim):
+    """The hybrid step (shipped weights, ReLU smoothed for SQP) inside the MPC: every solve
+    succeeds and the pitch settles."""
+    from uavdyn.hybrid import hybrid_step, shipped_weights
+    from uavdyn.mpc import RELU_SMOOTHING
+
+    step = hybrid_step(shipped_weights("aerosonde"), aerosonde, compile=False,
+                       relu_smoothing=RELU_SMOOTHING)
+    emulator = Emulator(aerosonde)
+    x0 = emulator.initial_state(aerosonde_trim.x, aerosonde_trim.u, 100.0)
+    mpc = TrackingMPC(step, aerosonde.kind, aerosonde.p, aerosonde_trim.u,
+                      MPCConfig(horizon=20, dt=0.05))
+    result = fly_closed_loop(mpc, emulator_plant(emulator, 0.05), x0, aerosonde_trim.u, 40,
+                             lambda t: aerosonde_trim.x[3] + np.where(t >= 0.5, 0.05, 0.0),
+                             lambda t: np.full_like(t, 100.0), 25.0, weights=(100.0, 0.0, 1.0))
+    assert result.success.all()
+    assert abs(result.states[-1, 3] - result.theta_ref[-1]) < math.radians(0.3)

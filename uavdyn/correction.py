@@ -222,17 +222,22 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
     return net
 
 
-def _activation(name: str, z):
+def _activation(name: str, z, relu_smoothing: float | None = None):
     if name == "relu":
+        if relu_smoothing:  # softplus of sharpness k: differentiable twice, error <= ln2 / k
+            k = relu_smoothing
+            return ca.fmax(z, 0) + ca.log1p(ca.exp(-k * ca.fabs(z))) / k
         return ca.fmax(z, 0)
     return ca.tanh(z)
 
 
-def mlp_expression(net: CorrectionNet, inp):
-    """The network applied to a CasADi column ``inp`` (SX or MX), weights as constants."""
+def mlp_expression(net: CorrectionNet, inp, relu_smoothing: float | None = None):
+    """The network applied to a CasADi column ``inp`` (SX or MX), weights as constants.
+    ``relu_smoothing`` (sharpness k) replaces ReLU by a softplus for gradient-based optimisers,
+    which stall on ReLU kinks; the default keeps the exact trained network."""
     z = (inp - ca.DM(net.in_mean)) / ca.DM(net.in_scale)
     for w, b in zip(net.weights[:-1], net.biases[:-1]):
-        z = _activation(net.activation, ca.mtimes(ca.DM(w), z) + ca.DM(b))
+        z = _activation(net.activation, ca.mtimes(ca.DM(w), z) + ca.DM(b), relu_smoothing)
     y = ca.mtimes(ca.DM(net.weights[-1]), z) + ca.DM(net.biases[-1])
     return y * ca.DM(net.out_scale) + ca.DM(net.out_mean)
 

@@ -65,7 +65,7 @@ def time_histories(airframe: Airframe, sortie, nets: dict, out: Path) -> dict[st
         ax.set_title(f"Fig. {number}: {airframe.name}, {sortie.name} ({sortie.mission}), {how}",
                      fontsize=9)
         ax.legend(fontsize=8)
-        ax_err.set_ylabel("error")
+        ax_err.set_ylabel("error " + label[label.index("("):])
         ax_err.set_xlabel("time (s)")
         for a in (ax, ax_err):
             a.grid(alpha=0.3)

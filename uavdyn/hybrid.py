@@ -46,12 +46,14 @@ def _rk4_with_residual(f: ca.Function, x, u, p, dt, accel):
 
 
 def hybrid_step(net: CorrectionNet | str | Path, airframe=None, compile: bool = True,
-                name: str = "hybrid_step") -> ca.Function:
+                name: str = "hybrid_step", relu_smoothing: float | None = None
+                ) -> ca.Function:
     """Build the hybrid step of ``net`` (a :class:`CorrectionNet` or a weight-file path).
 
     ``airframe`` (optional) is checked against the weights' airframe hash when loading a file.
     The result is one SX Function (one C function when ``compile``), so its Jacobians are exact
     and it can be embedded in ``rollout``/``Opti``/``nlpsol`` like the plain RK4 step.
+    ``relu_smoothing`` (see :func:`uavdyn.correction.mlp_expression`) is for optimisers only.
     """
     if not isinstance(net, CorrectionNet):
         net = load_weights(net, airframe)
@@ -62,17 +64,18 @@ def hybrid_step(net: CorrectionNet | str | Path, airframe=None, compile: bool = 
     nx, nu, n_p = (f.size1_in(i) for i in range(3))
     x, u, p, dt = ca.SX.sym("x", nx), ca.SX.sym("u", nu), ca.SX.sym("p", n_p), ca.SX.sym("dt")
     if net.formulation == "improved":
-        accel = mlp_expression(net, ca.vertcat(x, u))
+        accel = mlp_expression(net, ca.vertcat(x, u), relu_smoothing)
         x_next = _rk4_with_residual(f, x, u, p, dt, accel)
         inputs, names = [x, u, p, dt], list(STEP_INPUTS)
     else:
         base = rk4_step(f)(x, u, p, dt)
         if net.formulation == "paper":
             t = ca.SX.sym("t")
-            x_next = base + mlp_expression(net, ca.vertcat(t, base))
+            x_next = base + mlp_expression(net, ca.vertcat(t, base), relu_smoothing)
             inputs, names = [x, u, p, dt, t], [*STEP_INPUTS, "t"]
         else:  # hypersolver
-            x_next = base + dt**HYPERSOLVER_ORDER * mlp_expression(net, ca.vertcat(x, u))
+            x_next = base + dt**HYPERSOLVER_ORDER * mlp_expression(net, ca.vertcat(x, u),
+                                                                   relu_smoothing)
             inputs, names = [x, u, p, dt], list(STEP_INPUTS)
     step = ca.Function(name, inputs, [x_next], names, ["x_next"])
     if compile:
