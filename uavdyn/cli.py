@@ -165,12 +165,21 @@ def cmd_export_c(args: argparse.Namespace) -> int:
         raise CliError(f"--rollout must be >= 0 steps, got {args.rollout}")
     airframe, point = _trim(args)
     model = build_model(airframe)
-    step = rk4_step(model.f)
+    if args.model == "hybrid":
+        from uavdyn.hybrid import hybrid_step, shipped_weights
+
+        weights = Path(args.weights) if args.weights else shipped_weights(airframe.name)
+        if not weights.exists():
+            raise CliError(f"no weight file {weights}; give --weights FILE")
+        step = hybrid_step(weights, airframe, compile=False)
+    else:
+        step = rk4_step(model.f)
     amplitude, channel = ((math.radians(2.0), 0) if airframe.kind == "fixed_wing"
                           else (0.05, 1))
     spec = BundleSpec(args.name, model.state_names, model.control_names, model.param_names,
                       airframe.p, point.x, point.u, args.dt, amplitude, doublet_channel=channel,
-                      real=args.real, rollout_steps=args.rollout)
+                      real=args.real, rollout_steps=args.rollout,
+                      has_time_input=step.n_in() == 5)
     out = export_bundle(step, spec, args.out)
     what = f"rollout of {args.rollout} steps" if args.rollout else "one step"
     print(f"wrote {out}/ ({args.name}.h, {args.name}.c, {args.name}_generated.c, main.c, "
@@ -355,6 +364,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export-c", help="write a dependency-free C bundle of the step")
     _add_airframe(p)
     _add_trim_args(p)
+    p.add_argument("--model", choices=["hybrid", "rk4"], default="hybrid",
+                   help="hybrid step (default; shipped or --weights) or plain physics RK4")
+    p.add_argument("--weights", default=None, help="weight file for --model hybrid")
     p.add_argument("--real", choices=["double", "float"], default="double",
                    help="floating-point type of the generated code (default double)")
     p.add_argument("--rollout", type=int, default=0,

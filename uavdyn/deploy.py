@@ -64,7 +64,7 @@ def _renamed(func: ca.Function, name: str) -> ca.Function:
 
 def export_bundle(step: ca.Function, spec: BundleSpec, out_dir: str | Path) -> Path:
     """Write the bundle for ``step`` (signature ``(x, u, p, dt) -> x_next``, or
-    ``(x, t, u, p, dt)`` for the paper formulation) into ``out_dir``."""
+    ``(x, u, p, dt, t)`` for the paper formulation) into ``out_dir``."""
     if spec.real not in ("double", "float"):
         raise ValueError(f"real must be 'double' or 'float', got {spec.real!r}")
     if not re.fullmatch(r"[A-Za-z_]\w*", spec.name):
@@ -87,7 +87,7 @@ def export_bundle(step: ca.Function, spec: BundleSpec, out_dir: str | Path) -> P
     source.write_text(silence_unused_parameters(source.read_text()))
     real = spec.real
     nx, nu, n_p = len(spec.state_names), len(spec.control_names), len(spec.param_names)
-    t_param = f"{real} t, " if spec.has_time_input else ""
+    t_param = f"{real} t, " if spec.has_time_input else ""  # after dt, as in the step
     t_doc = "t is the absolute time in s (paper formulation). " if spec.has_time_input else ""
     if spec.rollout_steps:
         doc = (f"Rollout of {N}_ROLLOUT_STEPS steps: u holds NU x N controls, step k uses "
@@ -118,11 +118,11 @@ extern const {real} {n}_default_dt;
 
 /* {doc}
  * {t_doc}Returns 0 on success. */
-int {n}(const {real}* x, {t_param}const {real}* u, const {real}* p, {real} dt, {real}* x_out);
+int {n}(const {real}* x, const {real}* u, const {real}* p, {real} dt, {t_param}{real}* x_out);
 
 #endif
 """)
-    inputs = ["x", "&t", "u", "p", "&dt"] if spec.has_time_input else ["x", "u", "p", "&dt"]
+    inputs = ["x", "u", "p", "&dt"] + (["&t"] if spec.has_time_input else [])
     assign = " ".join(f"arg_buf[{i}] = {a};" for i, a in enumerate(inputs))
     (out / f"{n}.c").write_text(f"""\
 /* {n}.c: allocation-free wrapper around the CasADi-generated code in {n}_generated.c. */
@@ -143,7 +143,7 @@ static casadi_real* res_buf[{max(func.sz_res(), 1)}];
 static casadi_int iw_buf[{max(func.sz_iw(), 1)}];
 static casadi_real w_buf[{max(func.sz_w(), 1)}];
 
-int {n}(const {real}* x, {t_param}const {real}* u, const {real}* p, {real} dt, {real}* x_out) {{
+int {n}(const {real}* x, const {real}* u, const {real}* p, {real} dt, {t_param}{real}* x_out) {{
   {assign}
   res_buf[0] = x_out;
   return {n}_casadi(arg_buf, res_buf, iw_buf, w_buf, 0);
@@ -189,7 +189,7 @@ def _write_example(spec: BundleSpec, out: Path) -> None:
   for (k = 0; k <= STEPS; ++k) {{
     printf("{",".join([fmt] * n_cols)}\\n", {row_args});
     if (k == STEPS) break;
-    if ({n}(x, {t_arg}u + k * {N}_NU, {n}_default_p, dt, x_next) != 0) return 1;
+    if ({n}(x, u + k * {N}_NU, {n}_default_p, dt, {t_arg}x_next) != 0) return 1;
     for (i = 0; i < {N}_NX; ++i) x[i] = x_next[i];
   }}"""
     (out / "main.c").write_text(f"""\
