@@ -246,27 +246,29 @@ def autopilot(kind: str, x, ref, gust):
 
 
 @cache
-def emulator_rhs(kind: str) -> ca.Function:
-    """The emulator's continuous dynamics ``(x, v=[cmd; gust], pe=[p; truth]) -> (xdot)`` as
-    an SX Function with the RK4-step signature of :mod:`uavdyn.integrators`."""
+def _emulator_expressions(kind: str):
+    """Symbols and expressions of the emulator's dynamics, built once per kind."""
     n_p, n_e = len(param_names(kind)), len(truth_param_names(kind))
     nx = 6 + len(EXTRA_STATE_NAMES[kind])
     x, v, pe = ca.SX.sym("x", nx), ca.SX.sym("v", 5), ca.SX.sym("pe", n_p + n_e)
     e = {name: pe[n_p + i] for i, name in enumerate(truth_param_names(kind))}
     rates = _fixed_wing_rates if kind == "fixed_wing" else _multirotor_rates
-    xdot, _ = rates(x, v[:2], v[2:], pe[:n_p], e)
+    xdot, aux = rates(x, v[:2], v[2:], pe[:n_p], e)
+    return x, v, pe, xdot, aux
+
+
+@cache
+def emulator_rhs(kind: str) -> ca.Function:
+    """The emulator's continuous dynamics ``(x, v=[cmd; gust], pe=[p; truth]) -> (xdot)`` as
+    an SX Function with the RK4-step signature of :mod:`uavdyn.integrators`."""
+    x, v, pe, xdot, _ = _emulator_expressions(kind)
     return ca.Function("emulator_f", [x, v, pe], [xdot], ["x", "u", "p"], ["xdot"])
 
 
 @cache
 def emulator_aux(kind: str) -> ca.Function:
     """``(x, v, pe) -> [alpha_air, V_air, actuator0, actuator1]`` for logging."""
-    n_p, n_e = len(param_names(kind)), len(truth_param_names(kind))
-    nx = 6 + len(EXTRA_STATE_NAMES[kind])
-    x, v, pe = ca.SX.sym("x", nx), ca.SX.sym("v", 5), ca.SX.sym("pe", n_p + n_e)
-    e = {name: pe[n_p + i] for i, name in enumerate(truth_param_names(kind))}
-    rates = _fixed_wing_rates if kind == "fixed_wing" else _multirotor_rates
-    _, aux = rates(x, v[:2], v[2:], pe[:n_p], e)
+    x, v, pe, _, aux = _emulator_expressions(kind)
     return ca.Function("emulator_aux", [x, v, pe], [aux])
 
 
