@@ -20,14 +20,12 @@ from uavdyn.validation import Solver, evaluate_trajectory  # noqa: E402
 
 
 def _solvers(airframe: Airframe, nets: dict, dt: float = 0.005) -> list[tuple[Solver, str]]:
-    from uavdyn.hybrid import hybrid_step
+    from uavdyn.reproduce import hybrid_steps
 
+    styles = {"hybrid improved": "C3-", "hybrid paper": "C2:"}
     out = [(Solver("RK4 (physics only)", rk4_step(build_model(airframe).f), dt), "C0--")]
-    for formulation, style in (("improved", "C3-"), ("paper", "C2:")):
-        path = nets.get((formulation, "data"))
-        if path is not None:
-            out.append((Solver(f"hybrid {formulation}", hybrid_step(path, airframe,
-                                                                   compile=False), dt), style))
+    out += [(Solver(name, step, dt), styles.get(name, "C4-."))
+            for name, step in hybrid_steps(airframe, nets).items()]
     return out
 
 

@@ -125,20 +125,42 @@ def condition(sortie: Sortie) -> str:
 # ----------------------------------------------------------------------------- Table 1
 
 
-def build_solvers(airframe: Airframe, nets: dict, dts) -> dict[str, list[Solver]]:
-    """Solvers per target: physics RK4 and each available hybrid formulation at each dt."""
+def hybrid_steps(airframe: Airframe, nets: dict, target: str = "data") -> dict:
+    """``{"hybrid <formulation>": step}`` for every formulation with weights for ``target``
+    (uncompiled SX steps: exact derivatives, compiled where a rollout is timed)."""
     from uavdyn.hybrid import hybrid_step
 
+    return {f"hybrid {f}": hybrid_step(nets[(f, target)], airframe, compile=False)
+            for f in FORMULATIONS if nets.get((f, target)) is not None}
+
+
+def free_run_runner(step, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
+                    sample_dt: float, dt: float, compiled: bool = True):
+    """A callable running one whole-sortie free run of ``step`` (``controls`` one row per log
+    interval) and returning the ``(N+1) x 4`` states at the log times: what is timed."""
+    from uavdyn.codegen import compile_function
+    from uavdyn.hybrid import hybrid_rollout
+
+    sub = int(round(sample_dt / dt))
+    U = np.repeat(controls, sub, axis=0).T
+    func = hybrid_rollout(step, U.shape[1])
+    func = compile_function(func) if compiled else func
+    extra = [0.0] if step.n_in() == 5 else []
+
+    def run() -> np.ndarray:
+        return np.vstack([x0, np.asarray(func(x0, U, p, dt, *extra))[:, sub - 1::sub].T])
+
+    return run
+
+
+def build_solvers(airframe: Airframe, nets: dict, dts) -> dict[str, list[Solver]]:
+    """Solvers per target: physics RK4 and each available hybrid formulation at each dt."""
     physics = rk4_step(build_model(airframe).f)
     out: dict[str, list[Solver]] = {}
     for target in TARGETS:
         solvers = [Solver(f"RK4 (physics only) @ {dt:g} s", physics, dt) for dt in dts]
-        for formulation in FORMULATIONS:
-            path = nets.get((formulation, target))
-            if path is None:
-                continue
-            step = hybrid_step(path, airframe, compile=False)
-            solvers += [Solver(f"hybrid {formulation} @ {dt:g} s", step, dt) for dt in dts]
+        for name, step in hybrid_steps(airframe, nets, target).items():
+            solvers += [Solver(f"{name} @ {dt:g} s", step, dt) for dt in dts]
         out[target] = solvers
     return out
 
@@ -248,9 +270,7 @@ def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> 
     and against the baseline fine-step reference."""
     import scipy.integrate
 
-    from uavdyn.codegen import compile_function
     from uavdyn.emulator import Emulator, open_loop_references
-    from uavdyn.hybrid import hybrid_rollout, hybrid_step
     from uavdyn.integrators import reference_step, rollout
     from uavdyn.model import numpy_rhs
 
@@ -269,26 +289,14 @@ def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> 
                      "theta_rmse_vs_flight": error_stats(traj, truth)["theta_rmse"],
                      "theta_rmse_vs_reference": error_stats(traj, ref)["theta_rmse"]})
 
-    physics = rk4_step(build_model(airframe).f)
-    steps = {"RK4": physics}
-    if nets.get(("improved", "data")):
-        steps["hybrid improved"] = hybrid_step(nets[("improved", "data")], airframe,
-                                               compile=False)
-    if nets.get(("paper", "data")):
-        steps["hybrid paper"] = hybrid_step(nets[("paper", "data")], airframe, compile=False)
+    steps = {"RK4": rk4_step(build_model(airframe).f), **hybrid_steps(airframe, nets)}
     plan = [("RK4", 0.001), ("RK4", 0.0005), ("RK4", 0.005), ("hybrid improved", 0.005),
             ("hybrid paper", 0.005)]
     for name, dt in plan:
         if name not in steps:
             continue
-        sub = int(round(sample_dt / dt))
-        U = np.repeat(controls, sub, axis=0).T
-        vm = hybrid_rollout(steps[name], U.shape[1])
-        extra = [0.0] if steps[name].n_in() == 5 else []
-        for compiled, func in ((True, compile_function(vm)), (False, vm)):
-            def run(func=func, U=U, sub=sub, dt=dt, extra=extra):
-                out = np.asarray(func(x0, U, p, dt, *extra))[:, sub - 1::sub].T
-                return np.vstack([x0, out])
+        for compiled in (True, False):
+            run = free_run_runner(steps[name], x0, controls, p, sample_dt, dt, compiled)
             add(f"{name} {'compiled' if compiled else 'CasADi VM'}", dt, run,
                 repeats if compiled else max(1, repeats // 2), compiled)
     # CVODES on the same zero-order-held grid (one integrator call per log interval)
@@ -338,31 +346,19 @@ def work_precision(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int)
     """Error against wall time for every solver and step size, on one test sortie: wall time of
     the compiled whole-sortie free run; pitch RMSE against the flight data (see
     :func:`flight_mode`) and, free run, against the baseline fine-step reference."""
-    from uavdyn.codegen import compile_function
-    from uavdyn.hybrid import hybrid_rollout, hybrid_step
-
     truth = target_states(sortie)
     ref = fine_reference(airframe.kind, sortie.time, truth[0], sortie.controls, airframe.p)
     controls, x0, p, sample_dt = sortie.controls[:-1], truth[0], airframe.p, sortie.dt
     mode = flight_mode(airframe.kind)
     families = {"RK4": (rk4_step(build_model(airframe).f), (0.01, 0.005, 0.0025, 0.002, 0.001,
                                                              0.0005))}
-    for formulation in FORMULATIONS:
-        for target, label in (("data", ""), ("reference", " (numerical)")):
-            path = nets.get((formulation, target))
-            if path is not None:
-                families[f"hybrid {formulation}{label}"] = (
-                    hybrid_step(path, airframe, compile=False), (0.01, 0.005, 0.0025))
+    for target, label in (("data", ""), ("reference", " (numerical)")):
+        for name, step in hybrid_steps(airframe, nets, target).items():
+            families[f"{name}{label}"] = (step, (0.01, 0.005, 0.0025))
     points = []
     for family, (step, dts) in families.items():
         for dt in dts:
-            sub = int(round(sample_dt / dt))
-            U = np.repeat(controls, sub, axis=0).T
-            func = compile_function(hybrid_rollout(step, U.shape[1]))
-            extra = [0.0] if step.n_in() == 5 else []
-
-            def run(func=func, U=U, dt=dt, extra=extra):
-                return func(x0, U, p, dt, *extra)
+            run = free_run_runner(step, x0, controls, p, sample_dt, dt)
             run()
             wall = _median_time(run, repeats)
             solver = Solver(family, step, dt)
@@ -384,15 +380,8 @@ def robustness_table(airframe: Airframe, ds: Dataset, nets: dict, config: Reprod
     """Table 4: error growth, maximum error and divergence of RK4 and the hybrid in the nominal
     test sorties, the high-angle-of-attack sorties (fixed wing) and sorties flown by a truth
     model whose stability derivatives and mass terms are 15 % off (the solvers keep nominal p)."""
-    from uavdyn.hybrid import hybrid_step
-
     solvers = [Solver("RK4 (physics only)", rk4_step(build_model(airframe).f), dt)]
-    if nets.get(("improved", "data")):
-        solvers.append(Solver("hybrid improved", hybrid_step(nets[("improved", "data")],
-                                                             airframe, compile=False), dt))
-    if nets.get(("paper", "data")):
-        solvers.append(Solver("hybrid paper", hybrid_step(nets[("paper", "data")], airframe,
-                                                          compile=False), dt))
+    solvers += [Solver(name, step, dt) for name, step in hybrid_steps(airframe, nets).items()]
     test = [s for s in ds.test if condition(s) != "turbulent"] or ds.test
     scenarios = {"nominal (calm test sorties)": test}
     high = [s for s in ds.sorties if s.mission == "high_alpha" and s.split == "test"]
