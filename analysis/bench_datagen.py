@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         if args.cold:
             os.environ["UAVDYN_CACHE"] = str(Path(tmp) / "cache")
-        from uavdyn.datagen import Recipe, generate_dataset
+        from uavdyn.emulation.datagen import Recipe, generate_dataset
         from uavdyn.flightdata import load_dataset
 
         recipe = Recipe(airframe=args.airframe, sorties=args.sorties, seed=0,

@@ -29,10 +29,10 @@ if str(ROOT) not in sys.path:  # training/ of the source checkout
     sys.path.insert(0, str(ROOT))
 
 from uavdyn.airframes import load_airframe  # noqa: E402
-from uavdyn.codegen import compile_function  # noqa: E402
-from uavdyn.correction import load_weights  # noqa: E402
-from uavdyn.hybrid import hybrid_rollout, hybrid_step, shipped_weights, sortie_free_run  # noqa: E402
-from uavdyn.integrators import rk4_step, rollout  # noqa: E402
+from uavdyn.integrate import compile_function  # noqa: E402
+from uavdyn.learned import load_weights  # noqa: E402
+from uavdyn.learned import hybrid_rollout, hybrid_step, shipped_weights, sortie_free_run  # noqa: E402
+from uavdyn.integrate import rk4_step, rollout  # noqa: E402
 from uavdyn.model import build_model  # noqa: E402
 
 DT = 0.005
@@ -75,7 +75,7 @@ def load_sorties(args, airframe):
         if not calm:
             raise SystemExit(f"{args.dataset}: no calm sorties in the test split")
         return ds.train, ds.validation, calm, f"dataset {args.dataset} (calm test sorties)"
-    from training.data import split_sorties, synthetic_sorties
+    from uavdyn.learned.data import split_sorties, synthetic_sorties
 
     train_val = synthetic_sorties(airframe, 20, seed=0, duration=20.0)
     tr, va, _ = split_sorties(train_val, seed=0)
@@ -105,8 +105,8 @@ def variant_net(args, airframe, formulation, activation, width, tr, va):
     cache = Path(args.cache) / f"{airframe.name}_{formulation}_{activation}{width}.npz"
     if cache.exists() and not args.retrain:
         return load_weights(cache, airframe), "cached"
-    from training.train import TrainConfig, train
-    from uavdyn.correction import save_weights
+    from uavdyn.learned.train import TrainConfig, train
+    from uavdyn.learned import save_weights
 
     cfg = TrainConfig(formulation=formulation, activation=activation, hidden=width, dt=DT,
                       max_seconds=args.train_seconds, progress=False)

@@ -21,11 +21,11 @@ import numpy as np
 import scipy.integrate
 
 from uavdyn.airframes import load_airframe
-from uavdyn.codegen import compile_function
-from uavdyn.inputs import chirp, doublet
-from uavdyn.integrators import reference_step, rk4_numpy, rk4_step, rollout, simulate
+from uavdyn.integrate import compile_function
+from uavdyn.integrate.inputs import chirp, doublet
+from uavdyn.integrate import reference_step, rk4_numpy, rk4_step, rollout, simulate
 from uavdyn.model import build_model, numpy_rhs
-from uavdyn.trim import trim
+from uavdyn.linear import trim
 
 DT = 0.005
 DURATION = 10.0

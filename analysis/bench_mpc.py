@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mpc_demo import fly_all, prediction_models, summarise  # noqa: E402
 
 from uavdyn.airframes import load_airframe  # noqa: E402
-from uavdyn.trim import trim  # noqa: E402
+from uavdyn.linear import trim  # noqa: E402
 
 
 def main() -> None:

@@ -18,11 +18,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from uavdyn.airframes import load_airframe  # noqa: E402
-from uavdyn.hybrid import hybrid_step, shipped_weights  # noqa: E402
-from uavdyn.integrators import rk4_step  # noqa: E402
+from uavdyn.learned import hybrid_step, shipped_weights  # noqa: E402
+from uavdyn.integrate import rk4_step  # noqa: E402
 from uavdyn.model import build_model  # noqa: E402
 from uavdyn.mpc import RELU_SMOOTHING, SCENARIOS, MPCConfig, run_scenario  # noqa: E402
-from uavdyn.trim import trim  # noqa: E402
+from uavdyn.linear import trim  # noqa: E402
 
 
 def prediction_models(airframe, weights: Path | None) -> dict:

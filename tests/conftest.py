@@ -3,7 +3,7 @@
 import pytest
 
 from uavdyn.airframes import load_airframe
-from uavdyn.trim import trim
+from uavdyn.linear import trim
 
 
 @pytest.fixture(scope="session")

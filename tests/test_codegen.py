@@ -6,7 +6,7 @@ import warnings
 import numpy as np
 import pytest
 
-import uavdyn.codegen as codegen
+import uavdyn.integrate.codegen as codegen
 from uavdyn.model import build_model
 
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from uavdyn.airframes import perturb
-from uavdyn.codegen import compile_function, find_compiler
-from uavdyn.correction import (
+from uavdyn.integrate import compile_function, find_compiler
+from uavdyn.learned import (
     FORMULATIONS,
     CorrectionNet,
     WeightFileError,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from uavdyn.deploy import BundleSpec, doublet_controls, export_bundle, silence_unused_parameters
-from uavdyn.integrators import rk4_step, simulate
+from uavdyn.integrate import rk4_step, simulate
 from uavdyn.model import build_model
 
 CC = shutil.which("cc") or shutil.which("gcc")
@@ -63,7 +63,7 @@ def test_bundle_matches_python(tmp_path, request, name, real, rollout_steps, tol
 ])
 def test_hybrid_bundle_matches_python_hybrid_rollout(tmp_path, aerosonde, aerosonde_trim,
                                                      formulation, real, rollout_steps, tol):
-    from uavdyn.hybrid import WEIGHTS_DIR, free_run, hybrid_step
+    from uavdyn.learned import WEIGHTS_DIR, free_run, hybrid_step
 
     step = hybrid_step(WEIGHTS_DIR / f"aerosonde_{formulation}.npz", aerosonde, compile=False)
     model = build_model(aerosonde)

@@ -7,16 +7,16 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from uavdyn.emulator import (
+from uavdyn.emulation import (
     TRUTH_DEFAULTS,
     Emulator,
     dryden_gusts,
     open_loop_references,
     soft_clip,
 )
-from uavdyn.inputs import control_sequence, doublet, multistep_3211
-from uavdyn.integrators import rk4_step, simulate
-from uavdyn.missions import plan_mission
+from uavdyn.integrate.inputs import control_sequence, doublet, multistep_3211
+from uavdyn.integrate import rk4_step, simulate
+from uavdyn.emulation import plan_mission
 from uavdyn.model import build_model
 
 

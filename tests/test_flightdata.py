@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from uavdyn.cli import main
-from uavdyn.datagen import (
+from uavdyn.emulation.datagen import (
     Recipe,
     _generate_one,
     assign_sorties,

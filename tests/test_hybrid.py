@@ -11,15 +11,15 @@ import pytest
 from test_correction import random_net
 
 from uavdyn.airframes import perturb
-from uavdyn.codegen import compile_function, find_compiler
-from uavdyn.correction import WeightFileError, load_weights, mlp_expression
-from uavdyn.hybrid import (
+from uavdyn.integrate import compile_function, find_compiler
+from uavdyn.learned import WeightFileError, load_weights, mlp_expression
+from uavdyn.learned import (
     hybrid_jacobian,
     hybrid_rollout,
     hybrid_step,
     shipped_weights,
 )
-from uavdyn.integrators import rk4_step
+from uavdyn.integrate import rk4_step
 from uavdyn.model import build_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,7 +63,7 @@ def _scale_net(net, point, control_ref):
 @pytest.mark.parametrize("formulation", ["improved", "paper", "hypersolver"])
 def test_torch_vm_and_c_agree(airframe_name, formulation, request):
     torch = pytest.importorskip("torch")
-    from training.torch_model import TorchCorrection
+    from uavdyn.learned.torch_model import TorchCorrection
 
     af = request.getfixturevalue(airframe_name)
     point = request.getfixturevalue("aerosonde_trim" if airframe_name == "aerosonde"

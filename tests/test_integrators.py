@@ -9,9 +9,9 @@ import pytest
 import scipy.integrate
 import scipy.linalg
 
-from uavdyn.codegen import compile_function, find_compiler, generate_c
-from uavdyn.inputs import control_sequence
-from uavdyn.integrators import (
+from uavdyn.integrate import compile_function, find_compiler, generate_c
+from uavdyn.integrate.inputs import control_sequence
+from uavdyn.integrate import (
     reference_step,
     rk4_numpy,
     rk4_step,
@@ -20,7 +20,7 @@ from uavdyn.integrators import (
     substepped,
 )
 from uavdyn.model import build_model, numpy_rhs
-from uavdyn.stability import linearise
+from uavdyn.linear import linearise
 
 CASES = {"aerosonde": ("aerosonde_trim", 0, math.radians(2.0)),
          "f450": ("f450_hover", 1, 0.02)}

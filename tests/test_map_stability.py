@@ -4,9 +4,9 @@ whose eigenvalues are the RK4 stability polynomial of A dt and, to RK4 truncatio
 import numpy as np
 import pytest
 
-from uavdyn.correction import CorrectionNet
-from uavdyn.hybrid import hybrid_step
-from uavdyn.stability import discrete_map_modes, linearise
+from uavdyn.learned import CorrectionNet
+from uavdyn.learned import hybrid_step
+from uavdyn.linear import discrete_map_modes, linearise
 
 
 def zero_correction(airframe, formulation="improved"):

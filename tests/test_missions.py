@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from uavdyn.emulator import REFERENCE_NAMES, Emulator
+from uavdyn.emulation import REFERENCE_NAMES, Emulator
 from uavdyn.flightdata import check_values
-from uavdyn.missions import MISSIONS, MissionError, missions_for, plan_mission
+from uavdyn.emulation import MISSIONS, MissionError, missions_for, plan_mission
 
 CASES = [(af, m) for af, kind in (("aerosonde", "fixed_wing"), ("f450", "multirotor"))
          for m in missions_for(kind)]

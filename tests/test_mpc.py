@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from uavdyn.emulator import Emulator
-from uavdyn.integrators import rk4_step
+from uavdyn.emulation import Emulator
+from uavdyn.integrate import rk4_step
 from uavdyn.model import build_model
 from uavdyn.mpc import MPCConfig, TrackingMPC, emulator_plant, fly_closed_loop
 
@@ -66,7 +66,7 @@ def test_bad_configuration(aerosonde, aerosonde_trim):
 def test_hybrid_prediction_model_solves(aerosonde, aerosonde_trim):
     """The hybrid step (shipped weights, ReLU smoothed for SQP) inside the MPC: every solve
     succeeds and the pitch settles."""
-    from uavdyn.hybrid import hybrid_step, shipped_weights
+    from uavdyn.learned import hybrid_step, shipped_weights
     from uavdyn.mpc import RELU_SMOOTHING
 
     step = hybrid_step(shipped_weights("aerosonde"), aerosonde, compile=False,

@@ -12,10 +12,10 @@ import pytest
 
 from uavdyn.airframes import load_airframe, perturb
 from uavdyn.cli import main
-from uavdyn.integrators import rk4_step, simulate
+from uavdyn.integrate import rk4_step, simulate
 from uavdyn.model import build_model
-from uavdyn.reproduce import ReproduceConfig, run
-from uavdyn.trim import trim
+from uavdyn.experiments.reproduce import ReproduceConfig, run
+from uavdyn.linear import trim
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

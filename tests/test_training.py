@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # the training/ folder of the source checkout
     sys.path.insert(0, str(ROOT))
 
-from training.data import (  # noqa: E402
+from uavdyn.learned.data import (  # noqa: E402
     DatasetError,
     grid_for,
     one_step_pairs,
@@ -24,10 +24,10 @@ from training.data import (  # noqa: E402
     synthetic_sorties,
     target_trajectories,
 )
-from training.train import TrainConfig, train  # noqa: E402
-from uavdyn.correction import load_weights, save_weights  # noqa: E402
-from uavdyn.hybrid import hybrid_step, pitch_rmse  # noqa: E402
-from uavdyn.integrators import rk4_step  # noqa: E402
+from uavdyn.learned.train import TrainConfig, train  # noqa: E402
+from uavdyn.learned import load_weights, save_weights  # noqa: E402
+from uavdyn.learned import hybrid_step, pitch_rmse  # noqa: E402
+from uavdyn.integrate import rk4_step  # noqa: E402
 from uavdyn.model import build_model  # noqa: E402
 
 

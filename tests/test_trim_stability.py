@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from uavdyn.model import build_model
-from uavdyn.stability import linearise, mode_table, modes
-from uavdyn.trim import TrimError, stall_speed, trim
+from uavdyn.linear import linearise, mode_table, modes
+from uavdyn.linear import TrimError, stall_speed, trim
 
 
 @pytest.mark.parametrize("name, airspeed, gamma", [

@@ -24,7 +24,7 @@ def imported():
 
 @needs_logs
 def test_each_ulog_imports_on_a_uniform_grid(imported):
-    from uavdyn.ulog import summary
+    from uavdyn.flightdata.ulog import summary
 
     assert len(imported) == 3
     rows = []
@@ -50,7 +50,7 @@ def test_each_ulog_imports_on_a_uniform_grid(imported):
 def test_integrated_pitch_rate_follows_pitch(imported):
     """Integrating q reproduces pitch: over 1 s windows to a few mrad; over the whole log the
     drift stays small (gyro bias, and roll coupling in the hand-moved log)."""
-    from uavdyn.ulog import integrated_pitch_rms
+    from uavdyn.flightdata.ulog import integrated_pitch_rms
 
     for name, s in imported.items():
         full, windowed = integrated_pitch_rms(s), integrated_pitch_rms(s, 1.0)
@@ -71,7 +71,7 @@ def test_pitch_from_quaternion_matches_independent_sources(imported):
     from pyulog import ULog
     from scipy.spatial.transform import Rotation
 
-    from uavdyn.ulog import pitch_from_quaternion
+    from uavdyn.flightdata.ulog import pitch_from_quaternion
 
     for path in ULOGS:
         ulog = ULog(str(path))
@@ -142,7 +142,7 @@ def test_bad_inputs_and_export(imported, tmp_path):
 def test_alfa_fixed_wing_import():
     """ALFA: the quaternion pitch matches the autopilot's logged Euler pitch; the banked flight
     fails the pitch-plane kinematic check, as it should (d theta/dt = q cos(phi) - r sin(phi))."""
-    from uavdyn.ulog import import_alfa, integrated_pitch_rms, summary
+    from uavdyn.flightdata.ulog import import_alfa, integrated_pitch_rms, summary
 
     s = import_alfa(ALFA[0])
     row = summary(s)

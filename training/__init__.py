@@ -1,5 +1,6 @@
-"""Training of the learned correction (PyTorch, CPU, float64): datasets of one-step pairs and
-rollout windows built from sorties, the torch twin of the hybrid step, and the training loop.
+"""Thin, documented entry points for training the learned correction.
 
-Torch is needed only here; the trained weights are used through :mod:`uavdyn.hybrid`.
+The training code itself lives in the package (:mod:`uavdyn.learned.train`, needs the
+``[train]`` extra); this folder holds the command-line entry point and the exact recipe that
+made the shipped weights (``ship_weights.py``).
 """

@@ -8,13 +8,17 @@ Typical use::
     model = uavdyn.build_model(af)          # CasADi f(x, u, p) -> x_dot, Jacobians
     point = uavdyn.trim(af, airspeed=25.0)
     step = uavdyn.rk4_step(model.f)         # (x, u, p, dt) -> x_next
+
+Sub-packages, each importing only those before it: ``airframes``, ``model``, ``linear``,
+``integrate``, ``flightdata``, ``emulation``, ``learned``, ``evaluation``, ``mpc``, ``deploy``,
+``experiments``, ``cli``. torch and matplotlib are imported only where they are used.
 """
 
 from uavdyn.airframes import Airframe, load_airframe, perturb
-from uavdyn.integrators import reference_step, rk4_step, rollout, simulate
+from uavdyn.integrate import free_run, reference_step, rk4_step, rollout, simulate
+from uavdyn.linear import trim
 from uavdyn.model import build_model
-from uavdyn.trim import trim
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 __all__ = ["Airframe", "load_airframe", "perturb", "build_model", "trim", "rk4_step",
-           "rollout", "reference_step", "simulate", "__version__"]
+           "rollout", "reference_step", "simulate", "free_run", "__version__"]

@@ -1,0 +1,455 @@
+"""The ``uavdyn`` command line: one subcommand per step of the pipeline.
+
+Errors are reported as one readable line on stderr with a non-zero exit code; ``--help`` works
+on every command. Every ``--airframe`` takes a preset name or the path of a parameter file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from uavdyn.airframes import AirframeError, list_presets, load_airframe
+from uavdyn.deploy import BundleSpec, export_bundle
+from uavdyn.emulation.datagen import Recipe, generate_dataset
+from uavdyn.emulation.fingerprint import (
+    DEFAULT_TOLERANCE,
+    compare_fingerprints,
+    dataset_fingerprint,
+    read_fingerprint,
+    shipped_reference,
+    write_fingerprint,
+)
+from uavdyn.experiments.reproduce import (
+    ReproduceConfig,
+    _json,
+    evaluate_dataset,
+    evaluation_markdown,
+    run,
+)
+from uavdyn.flightdata import Sortie, write_csv
+from uavdyn.integrate import compile_function, rk4_step, rollout
+from uavdyn.integrate.inputs import control_sequence
+from uavdyn.learned import hybrid_step, shipped_weights
+from uavdyn.linear import TrimError, discrete_map_modes, linearise, mode_table, modes, trim
+from uavdyn.model import build_model
+
+
+class CliError(Exception):
+    """A user-facing error: printed as one line, exit code 2."""
+
+
+def _add_airframe(parser: argparse.ArgumentParser, default: str | None = "aerosonde") -> None:
+    parser.add_argument("--airframe", default=default, required=default is None,
+                        help=f"preset name ({', '.join(list_presets())}) or path of a "
+                             "TOML/JSON parameter file")
+
+
+def _add_trim_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--airspeed", type=float, default=None,
+                        help="trim airspeed in m/s (default: the airframe's nominal; 0 = hover)")
+    parser.add_argument("--gamma-deg", type=float, default=0.0,
+                        help="flight-path angle in degrees, climb positive (default 0)")
+
+
+def _trim(args):
+
+    airframe = load_airframe(args.airframe)
+    return airframe, trim(airframe, args.airspeed, math.radians(args.gamma_deg))
+
+
+def cmd_airframes(args: argparse.Namespace) -> int:
+    """List the presets and their key numbers."""
+
+    rows = ["| name | kind | mass (kg) | Jy (kg m^2) | nominal airspeed (m/s) | trim controls |",
+            "|---|---|---|---|---|---|"]
+    for name in list_presets():
+        af = load_airframe(name)
+        tp = trim(af)
+        ctrl = ", ".join(f"{n}={v:.4f}" for n, v in zip(
+            ("elevator", "throttle") if af.kind == "fixed_wing" else ("collective", "pitch_cmd"),
+            tp.u))
+        rows.append(f"| {af.name} | {af.kind} | {af.params.mass:g} | {af.params.Jy:g} | "
+                    f"{af.nominal_airspeed:g} | {ctrl} |")
+    print("\n".join(rows))
+    return 0
+
+
+def cmd_trim(args: argparse.Namespace) -> int:
+    """Trim and print the trim point as JSON."""
+    _, point = _trim(args)
+    print(json.dumps(point.as_dict(), indent=2))
+    return 0
+
+
+def cmd_modes(args: argparse.Namespace) -> int:
+    """Trim, linearise and print the modes as a Markdown table (or JSON)."""
+
+    airframe, point = _trim(args)
+    A, B = linearise(airframe, point)
+    found = modes(A, airframe.kind, B)
+    if args.hybrid:
+        return _hybrid_modes(args, airframe, point)
+    if args.json:
+        print(json.dumps({"trim": point.as_dict(), "A": A.tolist(), "B": B.tolist(),
+                          "modes": [m.as_dict() for m in found]}, indent=2))
+    else:
+        print(f"{airframe.name} trimmed at {point.airspeed:g} m/s, gamma "
+              f"{math.degrees(point.gamma):g} deg (residual {point.residual:.1e})\n")
+        print(mode_table(found))
+    return 0
+
+
+def _hybrid_modes(args: argparse.Namespace, airframe, point) -> int:
+    """Modes of the hybrid discrete map beside the physics model and exp(A dt)."""
+
+    if not (args.dt > 0 and math.isfinite(args.dt)):
+        raise CliError(f"--dt must be a positive number of seconds, got {args.dt}")
+    weights = Path(args.weights) if args.weights else shipped_weights(airframe.name)
+    if not weights.exists():
+        raise CliError(f"no weight file {weights}; give --weights FILE")
+    comp = discrete_map_modes(hybrid_step(weights, airframe, compile=False), airframe, point,
+                              args.dt)
+    if args.json:
+        print(json.dumps({
+            "trim": point.as_dict(), "dt": args.dt, "weights": str(weights),
+            "map_eigenvalues": [[z.real, z.imag] for z in comp.map_eigenvalues],
+            "exp_A_dt_eigenvalues": [[z.real, z.imag] for z in comp.exact_eigenvalues],
+            "hybrid_modes": [m.as_dict() for m in comp.map_modes],
+            "physics_modes": [m.as_dict() for m in comp.physics_modes],
+            "unstable": comp.unstable, "made_unstable": comp.made_unstable}, indent=2))
+        return 0
+    print(f"{airframe.name} trimmed at {point.airspeed:g} m/s; hybrid map at dt {args.dt:g} s "
+          f"({weights.name})\n")
+    print("Physics model:\n\n" + mode_table(comp.physics_modes))
+    print("\nHybrid map (continuous equivalents log(lambda)/dt):\n\n"
+          + mode_table(comp.map_modes))
+    print("\nHybrid map eigenvalues beside exp(A dt):\n\n" + comp.table())
+    if comp.made_unstable:
+        print(f"\nWARNING: the correction made map eigenvalue(s) {comp.made_unstable} unstable")
+    return 0
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    """Simulate an input profile from trim with the compiled RK4 and write an interchange CSV."""
+
+    if not (args.dt > 0 and math.isfinite(args.dt)):
+        raise CliError(f"--dt must be a positive number of seconds, got {args.dt}")
+    if not (args.duration > 0 and math.isfinite(args.duration)):
+        raise CliError(f"--duration must be a positive number of seconds, got {args.duration}")
+    n = int(round(args.duration / args.dt))
+    if n < 1:
+        raise CliError("--duration must be at least one step long")
+    airframe, point = _trim(args)
+    amplitude = args.amplitude
+    if amplitude is None:
+        amplitude = math.radians(2.0) if airframe.kind == "fixed_wing" else 0.05
+    t = np.arange(n + 1) * args.dt
+    controls = control_sequence(args.input, t, point.u, amplitude, channel=args.channel)
+    model = build_model(airframe)
+    sim = compile_function(rollout(rk4_step(model.f), n))
+    traj = np.array(sim(point.x, controls[:-1].T, airframe.p, args.dt)).T
+    states = np.vstack([point.x, traj])
+    if not np.all(np.isfinite(states)):
+        raise CliError("the simulation diverged (non-finite state); reduce --dt or --amplitude")
+    sortie = Sortie(name=Path(args.out).stem, kind=airframe.kind, time=t, states=states,
+                    controls=controls, mission=args.input)
+    path = write_csv(sortie, args.out)
+    theta = states[:, 3]
+    print(f"wrote {path} ({n + 1} rows, dt {args.dt:g} s); pitch range "
+          f"{math.degrees(theta.min()):.2f} .. {math.degrees(theta.max()):.2f} deg")
+    return 0
+
+
+def cmd_export_c(args: argparse.Namespace) -> int:
+    """Write a dependency-free C bundle (step or rollout, double or float) and say how to build."""
+
+    if not (args.dt > 0 and math.isfinite(args.dt)):
+        raise CliError(f"--dt must be a positive number of seconds, got {args.dt}")
+    if args.rollout < 0:
+        raise CliError(f"--rollout must be >= 0 steps, got {args.rollout}")
+    airframe, point = _trim(args)
+    model = build_model(airframe)
+    if args.model == "hybrid":
+
+        weights = Path(args.weights) if args.weights else shipped_weights(airframe.name)
+        if not weights.exists():
+            raise CliError(f"no weight file {weights}; give --weights FILE")
+        step = hybrid_step(weights, airframe, compile=False)
+    else:
+        step = rk4_step(model.f)
+    amplitude, channel = ((math.radians(2.0), 0) if airframe.kind == "fixed_wing"
+                          else (0.05, 1))
+    spec = BundleSpec(args.name, model.state_names, model.control_names, model.param_names,
+                      airframe.p, point.x, point.u, args.dt, amplitude, doublet_channel=channel,
+                      real=args.real, rollout_steps=args.rollout,
+                      has_time_input=step.n_in() == 5)
+    out = export_bundle(step, spec, args.out)
+    what = f"rollout of {args.rollout} steps" if args.rollout else "one step"
+    print(f"wrote {out}/ ({args.name}.h, {args.name}.c, {args.name}_generated.c, main.c, "
+          f"Makefile; {args.real}, {what})")
+    print(f"build and run: make -C {out} && {out}/example > trajectory.csv")
+    return 0
+
+
+def cmd_generate_data(args: argparse.Namespace) -> int:
+    """Generate an emulated flight-data set (manifest.json + CSVs) from a recipe and options."""
+
+
+    recipe = Recipe.from_json(args.recipe) if args.recipe else Recipe()
+    overrides = {"airframe": args.airframe, "sorties": args.sorties, "seed": args.seed,
+                 "duration_s": args.duration, "sample_rate_hz": args.rate,
+                 "internal_dt_s": args.internal_dt, "turbulent_fraction": args.turbulent_fraction,
+                 "noise_scale": args.noise_scale,
+                 "missions": args.missions.split(",") if args.missions else None}
+    values = asdict(recipe)
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    recipe = Recipe(**values)
+    if args.workers is not None and args.workers < 1:
+        raise CliError(f"--workers must be >= 1, got {args.workers}")
+    manifest = generate_dataset(recipe, args.out, workers=args.workers,
+                                progress=not args.no_progress)
+    print(f"wrote {manifest} ({recipe.sorties} sorties x {recipe.duration_s:g} s at "
+          f"{recipe.sample_rate_hz:g} Hz, seed {recipe.seed})")
+    if args.write_fingerprint or args.verify:
+        found = dataset_fingerprint(args.out)
+    if args.write_fingerprint:
+        print(f"wrote {write_fingerprint(found, args.write_fingerprint)}")
+    if args.verify:
+        reference = (shipped_reference(Path(args.recipe).stem) if args.verify == "shipped"
+                     and args.recipe else read_fingerprint(args.verify))
+        comparison = compare_fingerprints(found, reference)
+        message = comparison.describe(args.tolerance)
+        if not comparison.matches(args.tolerance):
+            raise CliError(f"dataset {args.out} differs from the reference: {message}")
+        print(f"dataset matches the reference: {message}")
+    return 0
+
+
+def _training_module():
+    """Import ``training.train`` (torch needed); in a source checkout the ``training/`` folder
+    beside the package is used even when the package is installed elsewhere on the path."""
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        raise CliError("training needs PyTorch: pip install -e '.[train]'") from None
+    from uavdyn.learned import train as module
+
+    return module
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """Train the learned correction; write weights (.npz), loss history JSON and PNG."""
+    module = _training_module()
+    if args.dataset is None:
+        print("no --dataset given: training on generated perturbed-model sorties",
+              file=sys.stderr)
+    summary = module.run(args)
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """The validation pipeline: dataset, weights, Tables 1-4, figures, report."""
+
+    if args.cost_repeats < 1:
+        raise CliError(f"--cost-repeats must be >= 1, got {args.cost_repeats}")
+    config = ReproduceConfig(airframes=tuple(args.airframes), out=args.out, quick=args.quick,
+                             retrain=args.retrain, cache=args.cache,
+                             cost_repeats=args.cost_repeats, sorties=args.sorties,
+                             duration_s=args.duration)
+    result = run(config)
+    print(f"report: {Path(args.out) / 'report.md'} ({result['wall_s']:.0f} s)")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Table 1 and Table 4 for any dataset folder, as JSON and Markdown."""
+
+    airframe = load_airframe(args.airframe)
+    result = evaluate_dataset(airframe, args.dataset, args.weights or [])
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2, default=_json) + "\n")
+    md = out.with_suffix(".md")
+    md.write_text(evaluation_markdown(result))
+    print(f"wrote {out} and {md}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="uavdyn", description="Nonlinear longitudinal UAV flight dynamics with a "
+        "learned-residual, compiled RK4 integrator.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    p = sub.add_parser("airframes", help="list the preset airframes and their key numbers")
+    p.set_defaults(func=cmd_airframes)
+
+    p = sub.add_parser("trim", help="trim an airframe (level/climb at an airspeed, or hover)")
+    _add_airframe(p)
+    _add_trim_args(p)
+    p.set_defaults(func=cmd_trim)
+
+    p = sub.add_parser("modes", help="trim, linearise and list the modes (short period, ...)")
+    _add_airframe(p)
+    _add_trim_args(p)
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--hybrid", action="store_true",
+                   help="also linearise the hybrid discrete map (eigenvalues, log(lambda)/dt, "
+                        "exp(A dt))")
+    p.add_argument("--weights", default=None,
+                   help="weight file for --hybrid (default: the shipped weights)")
+    p.add_argument("--dt", type=float, default=0.005, help="map step for --hybrid (0.005)")
+    p.set_defaults(func=cmd_modes)
+
+    p = sub.add_parser("simulate", help="simulate an input profile from trim, write a CSV")
+    _add_airframe(p)
+    _add_trim_args(p)
+    p.add_argument("--input", default="doublet", choices=["step", "doublet", "3211", "chirp",
+                                                          "none"], help="input profile")
+    p.add_argument("--amplitude", type=float, default=None,
+                   help="profile amplitude (rad for elevator, 0..1 units otherwise; default "
+                        "2 deg elevator or 0.05)")
+    p.add_argument("--channel", type=int, default=0, choices=[0, 1],
+                   help="control channel (0: elevator/collective, 1: throttle/pitch_cmd)")
+    p.add_argument("--dt", type=float, default=0.01, help="RK4 step in s (default 0.01)")
+    p.add_argument("--duration", type=float, default=10.0, help="seconds (default 10)")
+    p.add_argument("--out", default="results/simulation.csv", help="output CSV path")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("generate-data", help="generate an emulated flight-data set (SPEC 3 "
+                       "format: manifest.json + one CSV per sortie)")
+    p.add_argument("--recipe", default=None,
+                   help="JSON recipe (e.g. data/datagen_quadrotor.json); options given here "
+                        "override it")
+    p.add_argument("--airframe", default=None,
+                   help=f"preset ({', '.join(list_presets())}, quadrotor, fixed_wing) or "
+                        "parameter file (default quadrotor)")
+    p.add_argument("--sorties", type=int, default=None, help="number of sorties (default 100)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    p.add_argument("--duration", type=float, default=None, help="seconds per sortie (60)")
+    p.add_argument("--rate", type=float, default=None, help="log rate in Hz (default 100)")
+    p.add_argument("--internal-dt", type=float, default=None,
+                   help="emulator RK4 step in s (default 0.001)")
+    p.add_argument("--missions", default=None,
+                   help="comma-separated mission names (default: all for the airframe kind)")
+    p.add_argument("--turbulent-fraction", type=float, default=None,
+                   help="fraction of turbulent sorties (default 0.5)")
+    p.add_argument("--noise-scale", type=float, default=None,
+                   help="sensor-noise multiplier (default 1, 0 = noise-free logs)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes (default: all cores)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--verify", default=None, metavar="FINGERPRINT",
+                   help="compare the values with a reference fingerprint JSON (by tolerance, "
+                        "not bytes)")
+    p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE,
+                   help="largest allowed absolute difference for --verify (default 1e-9)")
+    p.add_argument("--write-fingerprint", default=None, metavar="FINGERPRINT",
+                   help="write the dataset's value fingerprint (JSON)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_generate_data)
+
+    p = sub.add_parser("export-c", help="write a dependency-free C bundle of the step")
+    _add_airframe(p)
+    _add_trim_args(p)
+    p.add_argument("--model", choices=["hybrid", "rk4"], default="hybrid",
+                   help="hybrid step (default; shipped or --weights) or plain physics RK4")
+    p.add_argument("--weights", default=None, help="weight file for --model hybrid")
+    p.add_argument("--real", choices=["double", "float"], default="double",
+                   help="floating-point type of the generated code (default double)")
+    p.add_argument("--rollout", type=int, default=0,
+                   help="export a rollout of N steps instead of one step (default 0: one step)")
+    p.add_argument("--dt", type=float, default=0.005, help="default step in s (default 0.005)")
+    p.add_argument("--name", default="uav_step", help="C name of the exported function")
+    p.add_argument("--out", default="results/c_bundle", help="output folder")
+    p.set_defaults(func=cmd_export_c)
+
+    p = sub.add_parser("reproduce", help="run the validation pipeline (Tables 1-4, figures, "
+                       "report) on the shipped recipe and weights")
+    p.add_argument("--airframes", nargs="+", default=["quadrotor", "fixed_wing"],
+                   choices=["quadrotor", "fixed_wing"], help="which airframes (default both)")
+    p.add_argument("--out", default="results", help="output folder (default results/)")
+    p.add_argument("--quick", action="store_true", help="tiny configuration (seconds)")
+    p.add_argument("--retrain", action="store_true",
+                   help="train the networks here (needs torch) instead of the shipped weights")
+    p.add_argument("--cache", default=None, help="dataset cache folder (default: user cache)")
+    p.add_argument("--cost-repeats", type=int, default=5, help="timing repeats (default 5)")
+    p.add_argument("--sorties", type=int, default=None, help="override the recipe's count")
+    p.add_argument("--duration", type=float, default=None,
+                   help="override the recipe's sortie duration (s)")
+    p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser("evaluate", help="Table 1 and Table 4 metrics on any dataset folder")
+    _add_airframe(p, default=None)
+    p.add_argument("--dataset", required=True, help="dataset folder (manifest.json + CSVs)")
+    p.add_argument("--weights", nargs="*", default=None, help="weight file(s) of the hybrid")
+    p.add_argument("--out", default="results/metrics.json", help="JSON output (Markdown beside)")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("train", help="train the learned correction (torch) and export its "
+                       "weights as .npz")
+    _add_airframe(p)
+    p.add_argument("--dataset", default=None,
+                   help="dataset folder (manifest.json + CSVs, with a train/validation split); "
+                        "default: generate perturbed-model sorties")
+    p.add_argument("--lowpass-hz", type=float, default=None,
+                   help="zero-phase low-pass filter of the dataset's measured states (Hz)")
+    p.add_argument("--sorties", type=int, default=20,
+                   help="generated sorties when no --dataset (default 20)")
+    p.add_argument("--duration", type=float, default=20.0,
+                   help="seconds per generated sortie (default 20)")
+    p.add_argument("--formulation", default="improved",
+                   choices=["improved", "paper", "hypersolver"],
+                   help="improved (default): residual force/moment inside RK4; paper: "
+                        "x_base + NN(t, x_base); hypersolver: RK4 + dt^5 g(x, u)")
+    p.add_argument("--target", default="data", choices=["data", "reference"],
+                   help="data (default): model-discrepancy correction; reference: fine-step "
+                        "baseline (pure numerical correction)")
+    p.add_argument("--activation", default="relu", choices=["relu", "tanh"],
+                   help="hidden-layer activation (default relu: cheapest in C; tanh is smooth "
+                        "and bounded)")
+    p.add_argument("--hidden", type=int, default=16, help="hidden-layer width (default 16)")
+    p.add_argument("--dt", type=float, default=0.005, help="hybrid step in s (default 0.005)")
+    p.add_argument("--epochs", type=int, default=60, help="maximum epochs (default 60)")
+    p.add_argument("--rollout-horizon", type=int, default=25,
+                   help="rollout-loss window in samples (default 25)")
+    p.add_argument("--rollout-weight", type=float, default=1.0,
+                   help="weight of the rollout loss (default 1, 0 = one-step loss only)")
+    p.add_argument("--lr", type=float, default=3e-3, help="initial Adam learning rate")
+    p.add_argument("--patience", type=int, default=12,
+                   help="early stopping: epochs without validation improvement (default 12)")
+    p.add_argument("--max-seconds", type=float, default=270.0,
+                   help="wall-clock budget in s (default 270)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--out", default=None,
+                   help="weight file (default results/weights/<airframe>_<formulation>.npz)")
+    p.add_argument("--history", default=None,
+                   help="loss-history JSON (default beside --out; a PNG is written too)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_train)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+
+    try:
+        return int(args.func(args) or 0)
+    except (CliError, AirframeError, TrimError, FileNotFoundError, ValueError) as exc:
+        print(f"uavdyn {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,10 @@
+"""Flight-data emulation: a richer truth model, wind and turbulence, autopilot, missions and the
+seeded dataset generator."""
+
+from uavdyn.emulation.datagen import Recipe, generate_dataset, shipped_recipe
+from uavdyn.emulation.emulator import REFERENCE_NAMES, Emulator, dryden_gusts, open_loop_references
+from uavdyn.emulation.missions import MISSIONS, MissionError, missions_for, plan_mission
+
+__all__ = ["Recipe", "generate_dataset", "shipped_recipe", "REFERENCE_NAMES", "Emulator",
+           "dryden_gusts", "open_loop_references", "MISSIONS", "MissionError", "missions_for",
+           "plan_mission"]

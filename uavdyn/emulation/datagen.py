@@ -1,0 +1,244 @@
+"""Reproducible emulated flight-data sets: a recipe (airframe, sortie count, seed, missions,
+turbulence, noise, split) in, a SPEC section 3 dataset folder out (manifest.json, one measured
+CSV and one noise-free ``*_true.csv`` per sortie).
+
+Every sortie draws from its own generator seeded by ``(seed, sortie index)``, so the files do not
+depend on the number of worker processes or their scheduling: the same recipe gives
+byte-identical files on the same platform (compiler and libm).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from uavdyn.airframes import Airframe, load_airframe
+from uavdyn.emulation.emulator import Emulator, dryden_gusts, emulator_rollout
+from uavdyn.emulation.missions import missions_for, plan_mission
+from uavdyn.flightdata import (
+    FlightDataError,
+    Sortie,
+    check_values,
+    csv_columns,
+    write_csv,
+    write_manifest,
+)
+
+SPLITS = ("train", "validation", "test")
+
+
+@dataclass
+class Recipe:
+    """Everything that determines a generated dataset."""
+
+    airframe: str = "quadrotor"
+    sorties: int = 100
+    seed: int = 0
+    duration_s: float = 60.0
+    sample_rate_hz: float = 100.0
+    internal_dt_s: float = 1e-3
+    missions: list[str] = field(default_factory=list)  # empty: all missions of the kind
+    turbulent_fraction: float = 0.5
+    turbulence_intensity: tuple[float, float] = (0.5, 2.0)  # x light turbulence, uniform
+    mean_wind_mps: tuple[float, float] = (0.0, 6.0)         # head wind in turbulent sorties
+    noise_scale: float = 1.0
+    split: dict[str, float] = field(
+        default_factory=lambda: {"train": 0.7, "validation": 0.15, "test": 0.15})
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> Recipe:
+        """Read a recipe file (unknown keys are an error, missing keys take defaults)."""
+        data = json.loads(Path(path).read_text())
+        data.pop("checksums", None)
+        data.pop("comment", None)
+        known = set(cls.__dataclass_fields__)
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"{path}: unknown recipe key(s) {sorted(unknown)}; expected "
+                             f"{sorted(known)}")
+        for key in ("turbulence_intensity", "mean_wind_mps"):
+            if key in data:
+                data[key] = tuple(data[key])
+        return cls(**data)
+
+    def validate(self, airframe: Airframe) -> None:
+        """Reject impossible recipes with a message naming the field."""
+        if self.sorties < 1:
+            raise ValueError(f"sorties must be >= 1, got {self.sorties}")
+        if not (self.duration_s > 0 and self.sample_rate_hz > 0):
+            raise ValueError("duration_s and sample_rate_hz must be positive")
+        if not 0.0 <= self.turbulent_fraction <= 1.0:
+            raise ValueError(f"turbulent_fraction must be in [0, 1], got "
+                             f"{self.turbulent_fraction}")
+        if set(self.split) != set(SPLITS) or any(v < 0 for v in self.split.values()) \
+                or abs(sum(self.split.values()) - 1.0) > 1e-9:
+            raise ValueError(f"split must give non-negative fractions of {SPLITS} summing to 1, "
+                             f"got {self.split}")
+        allowed = missions_for(airframe.kind)
+        bad = [m for m in self.missions if m not in allowed]
+        if bad:
+            raise ValueError(f"mission(s) {bad} do not apply to {airframe.kind}; "
+                             f"choose from {allowed}")
+
+    def mission_list(self, kind: str) -> list[str]:
+        """The missions to cycle through (all of the kind's missions if none are named)."""
+        return list(self.missions) or missions_for(kind)
+
+
+def assign_sorties(recipe: Recipe, kind: str) -> list[dict]:
+    """Mission, condition (calm/turbulent) and split of every sortie. Missions cycle so each
+    appears equally often; calm/turbulent and the split are stratified per mission, so every
+    split holds every mission and both conditions where the counts allow."""
+    rng = np.random.default_rng([recipe.seed, 0])
+    missions = recipe.mission_list(kind)
+    plan = [{"index": i, "mission": missions[i % len(missions)]} for i in range(recipe.sorties)]
+    fractions = [recipe.split[s] for s in SPLITS]
+    for mission in missions:
+        members = [p for p in plan if p["mission"] == mission]
+        order = rng.permutation(len(members))
+        n = len(members)
+        n_turb = int(round(recipe.turbulent_fraction * n))
+        counts = np.floor(np.array(fractions) * n).astype(int)
+        for k in np.argsort(-(np.array(fractions) * n - counts))[: n - counts.sum()]:
+            counts[k] += 1  # largest remainders
+        bounds = np.cumsum(counts)
+        for rank, j in enumerate(order):
+            members[j]["split"] = SPLITS[int(np.searchsorted(bounds, rank, side="right"))]
+        # Alternate calm/turbulent along the split order so each split gets both.
+        for rank, j in enumerate(order):
+            members[j]["condition"] = "turbulent" if (rank * n_turb) // n != \
+                ((rank + 1) * n_turb) // n else "calm"
+    return plan
+
+
+MAX_ATTEMPTS = 5
+
+
+def _fly_one(recipe: Recipe, airframe: Airframe, emulator: Emulator, item: dict, attempt: int):
+    """Fly one sortie for draw ``attempt`` (0 keeps the original seed); the result must pass
+    the loader's own checks, so a generated dataset always loads."""
+    i = item["index"]
+    seed = [recipe.seed, 1, i] + ([attempt] if attempt else [])
+    rng = np.random.default_rng(seed)
+    plan = plan_mission(item["mission"], airframe, recipe.duration_s, recipe.sample_rate_hz, rng)
+    n = plan.references.shape[0]
+    intensity = wind = 0.0
+    gusts = None
+    if item["condition"] == "turbulent":
+        intensity = float(rng.uniform(*recipe.turbulence_intensity))
+        wind = float(rng.uniform(*recipe.mean_wind_mps))
+        speed = float(np.abs(plan.references[:, 3]).mean())
+        convection = max(speed + wind, 5.0)  # frozen turbulence swept past at this speed
+        span = 2.9 if airframe.kind == "fixed_wing" else 0.45
+        gusts = dryden_gusts(rng, n, 1.0 / recipe.sample_rate_hz, convection, intensity, span)
+        gusts[:, 0] -= wind  # head wind: air moves towards -x
+    x0 = emulator.initial_state(plan.x0, plan.u0, plan.altitude)
+    flight = emulator.fly(x0, plan.references, gusts, rng, recipe.noise_scale)
+    if not (np.all(np.isfinite(flight.true_states)) and np.all(np.isfinite(flight.controls))):
+        raise RuntimeError(f"sortie {i} ({item['mission']}) produced non-finite values")
+    for states in (flight.true_states, flight.measured_states):
+        check_values(f"sortie {i} ({item['mission']}, draw {attempt})", airframe.kind,
+                     flight.time, states, flight.controls, recipe.sample_rate_hz)
+    return flight, plan, intensity, wind, seed
+
+
+def _generate_one(args: tuple[dict, dict, str]) -> dict:
+    recipe_dict, item, out = args
+    recipe = Recipe(**recipe_dict)
+    airframe = load_airframe(recipe.airframe)
+    emulator = Emulator(airframe, sample_rate_hz=recipe.sample_rate_hz,
+                        internal_dt=recipe.internal_dt_s)
+    i = item["index"]
+    last_error = None
+    for attempt in range(MAX_ATTEMPTS):
+        try:
+            flight, plan, intensity, wind, seed = _fly_one(recipe, airframe, emulator, item,
+                                                           attempt)
+            break
+        except FlightDataError as exc:  # e.g. a gust turned a zoom climb into a loop
+            last_error = exc
+    else:
+        raise RuntimeError(f"sortie {i} ({item['mission']}) failed the flight-data checks in "
+                           f"{MAX_ATTEMPTS} draws; last: {last_error}")
+    name = f"sortie_{i:03d}"
+    meas = Sortie(name, airframe.kind, flight.time, flight.measured_states, flight.controls,
+                  item["mission"])
+    true = Sortie(name + "_true", airframe.kind, flight.time, flight.true_states,
+                  flight.controls, item["mission"])
+    write_csv(meas, Path(out) / f"{name}.csv")
+    write_csv(true, Path(out) / f"{name}_true.csv")
+    return {
+        "file": f"{name}.csv", "true_file": f"{name}_true.csv", "mission": item["mission"],
+        "duration_s": float(flight.time[-1] - flight.time[0]), "rows": int(len(flight.time)),
+        "split": item["split"], "condition": item["condition"],
+        "turbulence_intensity": round(intensity, 6), "mean_wind_mps": round(wind, 6),
+        "seed": seed, "draws": attempt + 1, "max_alpha_air_deg": round(float(np.degrees(
+            np.max(flight.alpha_air))), 3) if airframe.kind == "fixed_wing" else None,
+        "mission_params": plan.params,
+    }
+
+
+def generate_dataset(recipe: Recipe, out: str | Path, workers: int | None = None,
+                     progress: bool = True) -> Path:
+    """Generate the dataset of ``recipe`` into folder ``out``; returns the manifest path.
+    ``workers`` processes (default: all cores) share the sorties; a tqdm bar shows progress."""
+
+    airframe = load_airframe(recipe.airframe)
+    recipe.validate(airframe)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    items = assign_sorties(recipe, airframe.kind)
+    # Compile the rollout once here so the workers only load the cached library.
+    emulator = Emulator(airframe, sample_rate_hz=recipe.sample_rate_hz,
+                        internal_dt=recipe.internal_dt_s)
+    n_rows = int(round(recipe.duration_s * recipe.sample_rate_hz)) + 1
+    emulator_rollout(airframe.kind, n_rows, emulator.substeps, True)
+    workers = workers or os.cpu_count() or 1
+    recipe_dict = asdict(recipe)
+    jobs = [(recipe_dict, item, str(out)) for item in items]
+    bar = tqdm(total=len(jobs), desc=f"generating {airframe.name} sorties", unit="sortie",
+               disable=not progress)
+    entries: list[dict] = []
+    if workers == 1:
+        for job in jobs:
+            entries.append(_generate_one(job))
+            bar.update()
+    else:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for entry in pool.map(_generate_one, jobs, chunksize=2):
+                entries.append(entry)
+                bar.update()
+    bar.close()
+    splits = {s: [e["file"] for e in entries if e["split"] == s] for s in SPLITS}
+    return write_manifest(
+        out, airframe=airframe.name, kind=airframe.kind, sample_rate_hz=recipe.sample_rate_hz,
+        source="uavdyn flight-data emulator (uavdyn.emulator), truth model richer than the "
+               "baseline; measured states with sensor noise, noise-free states in true_file",
+        sorties=entries, columns=list(csv_columns(airframe.kind)), splits=splits,
+        true_states="each sortie's true_file holds the noise-free states, same header",
+        controls="commanded inputs, held over each log interval (zero-order hold)",
+        emulator={"internal_dt_s": emulator.internal_dt, "truth_params": emulator.truth,
+                  "sensor_noise_std": asdict(emulator.noise.scaled(recipe.noise_scale))},
+        recipe=recipe_dict,
+    )
+
+
+def shipped_recipe(name: str) -> Recipe:
+    """A recipe shipped with the package (``datagen_quadrotor``, ``datagen_fixed_wing``).
+
+    Raises
+    ------
+    ValueError
+        If no such recipe ships with the package.
+    """
+    res = resources.files("uavdyn.emulation.recipes").joinpath(f"{name}.json")
+    if not res.is_file():
+        raise ValueError(f"no shipped recipe '{name}'")
+    return Recipe.from_json(Path(str(res)))

@@ -1,0 +1,20 @@
+"""Evaluation: one-step, horizon and free-run predictions of any step Function against target
+trajectories, and the error metrics."""
+
+from uavdyn.evaluation.metrics import (
+    METRIC_STATES,
+    MODES,
+    Solver,
+    error_growth,
+    error_stats,
+    evaluate_trajectory,
+    fine_reference,
+    pitch_rmse,
+    pooled_stats,
+    predict_windows,
+    sortie_free_run,
+)
+
+__all__ = ["METRIC_STATES", "MODES", "Solver", "error_growth", "error_stats",
+           "evaluate_trajectory", "fine_reference", "pitch_rmse", "pooled_stats",
+           "predict_windows", "sortie_free_run"]

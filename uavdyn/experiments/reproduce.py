@@ -1,0 +1,578 @@
+"""The validation pipeline behind ``uavdyn reproduce`` and ``uavdyn evaluate``: the paper's
+Table 1 (accuracy), Table 2 (convergence), Table 3 (cost), Table 4 (robustness), Figures 2-6 and
+a work-precision diagram, measured on held-out sorties and written as Markdown, JSON and PNG.
+
+Numbers are measured, never copied: the paper's figures appear only in their own column, as the
+paper's. Saved trajectories (``trajectories/*.npz``) let anyone recompute the accuracy metrics.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import scipy.integrate
+from tqdm import tqdm
+
+from uavdyn.airframes import Airframe, load_airframe, perturb
+from uavdyn.emulation import Emulator, open_loop_references, plan_mission
+from uavdyn.emulation.datagen import generate_dataset, shipped_recipe
+from uavdyn.evaluation import (
+    MODES,
+    Solver,
+    error_growth,
+    error_stats,
+    evaluate_trajectory,
+    fine_reference,
+    pooled_stats,
+)
+from uavdyn.experiments.common import FORMULATIONS, TARGETS, condition, hybrid_steps, target_states
+from uavdyn.experiments.report import _table1, _table4, write_report
+from uavdyn.flightdata import Dataset, Sortie, load_dataset
+from uavdyn.integrate import (
+    EvalGrid,
+    StepUseError,
+    cache_dir,
+    check_use,
+    compile_function,
+    reference_step,
+    rk4_step,
+    rollout,
+    takes_time,
+)
+from uavdyn.learned import (
+    WeightFileError,
+    hybrid_step,
+    load_weights,
+    save_weights,
+    shipped_weights,
+)
+from uavdyn.model import build_model, numpy_rhs
+
+PAPER = {"rmse": 1.82e-3, "mae": 1.47e-3, "max": 2.31e-3, "cost_reduction": 0.38,
+         "rk4_0.001_ms": 148.0, "rk4_0.0005_ms": 287.0, "hybrid_0.005_ms": 92.0}
+RECIPES = {"quadrotor": "datagen_quadrotor", "fixed_wing": "datagen_fixed_wing"}
+
+
+@dataclass
+class ReproduceConfig:
+    """What the pipeline runs. ``quick`` shrinks everything for tests."""
+
+    airframes: tuple[str, ...] = ("quadrotor", "fixed_wing")
+    out: str = "results"
+    dts: tuple[float, ...] = (0.005, 0.01, 0.02)
+    quick: bool = False
+    sorties: int | None = None  # override the recipe's sortie count
+    duration_s: float | None = None  # override the recipe's sortie duration
+    retrain: bool = False
+    weights_dir: str | None = None  # None: the weights shipped with the package
+    cache: str | None = None
+    cost_repeats: int = 5
+    progress: bool = True
+    extra: dict = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------- data
+
+
+def dataset_for(airframe_name: str, config: ReproduceConfig) -> Dataset:
+    """The emulated dataset of the shipped recipe (or its quick variant), generated once and
+    reused from the cache folder while the recipe is unchanged."""
+
+    recipe = shipped_recipe(RECIPES[airframe_name])
+    if config.quick:  # few, short sorties of a few missions, still split by sortie
+        recipe.sorties, recipe.duration_s = 12, 20.0
+        recipe.missions = ["sysid_3211", "survey"] + (
+            ["high_alpha"] if airframe_name == "fixed_wing" else [])
+        recipe.split = {"train": 0.5, "validation": 0.25, "test": 0.25}
+    if config.sorties:
+        recipe.sorties = config.sorties
+    if config.duration_s:
+        recipe.duration_s = config.duration_s
+    key = hashlib.sha256(json.dumps(asdict(recipe), sort_keys=True).encode()).hexdigest()[:12]
+    folder = Path(config.cache or cache_dir() / "datasets") / f"{airframe_name}_{key}"
+    if not (folder / "manifest.json").exists():
+        generate_dataset(recipe, folder, progress=config.progress)
+    return load_dataset(folder)
+
+
+def weights_path(airframe: Airframe, formulation: str, target: str,
+                 config: ReproduceConfig) -> Path:
+    """Where the weights of one (formulation, target) live: ``<airframe>_<formulation>.npz``
+    for the shipped default target (flight data), ``<airframe>_<formulation>_reference.npz``
+    for the pure numerical correction."""
+    if config.weights_dir is None:
+        try:
+            return shipped_weights(airframe.name, formulation, target)
+        except WeightFileError:
+            return Path(f"<no shipped {airframe.name} {formulation} {target} weights>")
+    suffix = "" if target == "data" else "_reference"
+    return Path(config.weights_dir) / f"{airframe.name}_{formulation}{suffix}.npz"
+
+
+def obtain_weights(airframe: Airframe, ds: Dataset, formulation: str, target: str,
+                   config: ReproduceConfig, log) -> Path | None:
+    """Shipped weights, or freshly trained ones with ``retrain`` (needs torch)."""
+    path = weights_path(airframe, formulation, target, config)
+    if config.retrain:
+        from uavdyn.learned.train import TrainConfig, train, write_history
+
+        out = Path(config.out) / "weights" / path.name
+        cfg = TrainConfig(formulation=formulation, target=target, progress=config.progress)
+        if config.quick:
+            cfg.epochs, cfg.max_seconds = 8, 40.0
+        log(f"training {formulation}/{target} weights for {airframe.name} ...")
+        result = train(ds.train, ds.validation, airframe, cfg,
+                       history_path=out.with_name(out.stem + "_history.json"))
+        save_weights(result.net, out)
+        write_history(result, out.with_name(out.stem + "_history.json"))
+        return out
+    return path if path.exists() else None
+
+
+
+# ----------------------------------------------------------------------------- Table 1
+
+
+def free_run_runner(step, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
+                    sample_dt: float, dt: float, compiled: bool = True):
+    """A callable running one whole-sortie free run of ``step`` (``controls`` one row per log
+    interval) and returning the ``(N+1) x 4`` states at the log times: what is timed (inputs
+    converted once, outside the callable)."""
+    g = EvalGrid(sample_dt, dt)
+    check_use(step, dt, 0.0, len(controls) * sample_dt)
+    func = rollout(step, len(controls), g.substeps)
+    func = compile_function(func) if compiled else func
+    args = [ca.DM(x0), ca.DM(np.ascontiguousarray(controls.T)), ca.DM(p), dt]
+    if takes_time(step):
+        args.append(0.0)
+
+    def run() -> np.ndarray:
+        return np.vstack([x0, np.asarray(func(*args)).T])
+
+    return run
+
+
+def usable(step, dt: float) -> bool:
+    """Whether ``step`` may be used at ``dt`` (a dt-bound correction only at its own)."""
+    try:
+        check_use(step, dt)
+    except StepUseError:
+        return False
+    return True
+
+
+def build_solvers(airframe: Airframe, nets: dict, dts) -> dict[str, list[Solver]]:
+    """Solvers per target: physics RK4 and each available hybrid formulation at each dt."""
+    physics = rk4_step(build_model(airframe).f)
+    out: dict[str, list[Solver]] = {}
+    for target in TARGETS:
+        solvers = [Solver(f"RK4 (physics only) @ {dt:g} s", physics, dt) for dt in dts]
+        for name, step in hybrid_steps(airframe, nets, target).items():
+            solvers += [Solver(f"{name} @ {dt:g} s", step, dt) for dt in dts if usable(step, dt)]
+        out[target] = solvers
+    return out
+
+
+def accuracy_tables(airframe: Airframe, sorties: list[Sortie], solvers: dict,
+                    traj_dir: Path | None = None, progress=None) -> dict:
+    """Table 1: pooled error statistics per target group, solver and mode."""
+    groups: dict[str, list[tuple[Sortie, np.ndarray, str]]] = {}
+    for s in sorties:
+        truth = target_states(s)
+        cond = condition(s)
+        label = f"flight data ({cond})" if cond in ("calm", "turbulent") else "flight data"
+        groups.setdefault(label, []).append((s, truth, "data"))
+        ref = fine_reference(airframe.kind, s.time, truth[0], s.controls, airframe.p)
+        groups.setdefault("baseline fine-step reference", []).append((s, ref, "reference"))
+    tables: dict = {}
+    for label, members in groups.items():
+        target = members[0][2]
+        rows = []
+        for solver in solvers[target]:
+            pairs: dict[str, list] = {m: [] for m in MODES}
+            refusals: dict[str, list] = {m: [] for m in MODES}
+            saved = {}
+            for s, states, _ in members:
+                res = evaluate_trajectory(solver, s.time, states, s.controls, airframe.p)
+                for m in MODES:
+                    if m in res:
+                        pairs[m].append(res[m])
+                    elif m in res.get("refused", {}):
+                        refusals[m].append(res["refused"][m])
+                saved[s.name] = res
+                if progress:
+                    progress()
+            row = {"solver": solver.name, "dt": solver.dt}
+            for m in MODES:
+                if pairs[m]:
+                    row[m] = pooled_stats(pairs[m])
+                elif refusals[m]:
+                    row[m] = {"missing": refusals[m][0]}
+            rows.append(row)
+            if traj_dir is not None:
+                _save_trajectories(traj_dir, airframe.name, label, solver.name, saved)
+        tables[label] = {"target": target, "sorties": [m[0].name for m in members],
+                         "rows": rows}
+    return tables
+
+
+def _slug(text: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in text).strip("_")
+
+
+def _save_trajectories(folder: Path, airframe: str, group: str, solver: str, saved: dict
+                       ) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    arrays = {}
+    for sortie, res in saved.items():
+        for m in MODES:
+            if m in res:
+                arrays[f"{sortie}__{m}__predicted"] = res[m][0]
+                arrays[f"{sortie}__{m}__target"] = res[m][1]
+    np.savez_compressed(folder / f"{airframe}__{_slug(group)}__{_slug(solver)}.npz", **arrays)
+
+
+# ----------------------------------------------------------------------------- Table 2
+
+
+def convergence_table(weight_files: dict) -> list[dict]:
+    """Table 2 from the saved training histories beside the weights."""
+    rows = []
+    for (formulation, target), path in weight_files.items():
+        if path is None:
+            continue
+        hist_path = Path(path).with_name(Path(path).stem + "_history.json")
+        if not hist_path.exists():
+            rows.append({"weights": str(path), "note": "no training history saved"})
+            continue
+        doc = json.loads(hist_path.read_text())
+        hist = doc["history"]
+        train_key = "train_total" if "train_total" in hist[-1] else "train_one_step"
+        val = [h.get("val_total") for h in hist if h.get("val_total") is not None]
+        train = [h.get(train_key) for h in hist if h.get(train_key) is not None]
+        rows.append({
+            "weights": Path(path).name, "formulation": formulation, "target": target,
+            "initial_train_loss": train[0] if train else None,
+            "final_train_loss": train[-1] if train else None,
+            "initial_val_loss": val[0] if val else None,
+            "best_val_loss": min(val) if val else None,
+            "epochs": len(hist) - 1, "best_epoch": doc.get("best_epoch"),
+            "stopped": doc.get("stopped"),
+            "monotonic_train": bool(np.all(np.diff(train) <= 0)) if len(train) > 1 else None,
+            "monotonic_val": bool(np.all(np.diff(val) <= 0)) if len(val) > 1 else None,
+            "history_file": str(hist_path),
+        })
+    return rows
+
+
+# ----------------------------------------------------------------------------- Table 3
+
+
+def _median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> dict:
+    """Table 3: wall time of one test sortie's free run for every solver that matters,
+    compiled and VM, with the pitch RMSE each reaches against the flight data (true states)
+    and against the baseline fine-step reference."""
+
+
+    truth = target_states(sortie)
+    ref = fine_reference(airframe.kind, sortie.time, truth[0], sortie.controls, airframe.p)
+    sample_dt = sortie.dt
+    controls = sortie.controls[:-1]
+    x0 = truth[0]
+    p = airframe.p
+    rows = []
+
+    def add(name, dt, run, n_rep, compiled):
+        traj = run()  # warm-up; also the accuracy
+        wall = _median_time(run, n_rep)
+        rows.append({"solver": name, "dt": dt, "compiled": compiled, "wall_ms": wall * 1e3,
+                     "theta_rmse_vs_flight": error_stats(traj, truth)["theta_rmse"],
+                     "theta_rmse_vs_reference": error_stats(traj, ref)["theta_rmse"]})
+
+    steps = {"RK4": rk4_step(build_model(airframe).f), **hybrid_steps(airframe, nets)}
+    plan = [("RK4", 0.001), ("RK4", 0.0005), ("RK4", 0.005), ("hybrid improved", 0.005),
+            ("hybrid paper", 0.005)]
+    for name, dt in plan:
+        if name not in steps:
+            continue
+        for compiled in (True, False):
+            run = free_run_runner(steps[name], x0, controls, p, sample_dt, dt, compiled)
+            add(f"{name} {'compiled' if compiled else 'CasADi VM'}", dt, run,
+                repeats if compiled else max(1, repeats // 2), compiled)
+    # CVODES on the same zero-order-held grid (one integrator call per log interval)
+    cv = rollout(reference_step(build_model(airframe).f, tol=1e-8), len(controls))
+
+    def run_cvodes():
+        return np.vstack([x0, np.asarray(cv(x0, controls.T, p, sample_dt)).T])
+
+    add("CVODES (tol 1e-8)", None, run_cvodes, 1, False)
+    rhs = numpy_rhs(airframe.kind)
+
+    def run_rk45():
+        out = [x0]
+        x = x0
+        for u in controls:
+            sol = scipy.integrate.solve_ivp(lambda t, y, u=u: rhs(y, u, p), (0.0, sample_dt), x,
+                                            method="RK45", rtol=1e-6, atol=1e-8)
+            x = sol.y[:, -1]
+            out.append(x)
+        return np.array(out)
+
+    add("scipy RK45 (rtol 1e-6)", None, run_rk45, 1, False)
+    emulator = Emulator(airframe)
+    xe0 = emulator.initial_state(x0, controls[0], 100.0)
+    refs = open_loop_references(sortie.controls)
+
+    def run_emulator():
+        return emulator.fly(xe0, refs).true_states
+
+    add("emulator (truth model, RK4 @ 0.001 s + actuators, unsteady aero)", 0.001,
+        run_emulator, 1, True)
+    base = next((r for r in rows if r["solver"] == "hybrid improved compiled"), None)
+    for r in rows:
+        r["ratio_to_hybrid_0.005"] = r["wall_ms"] / base["wall_ms"] if base else None
+    return {"sortie": sortie.name, "duration_s": sortie.duration, "rows": rows,
+            "grid": f"logged controls held over each {sample_dt:g} s interval (ZOH)"}
+
+
+def flight_mode(kind: str) -> str:
+    """How accuracy against flight data is measured: whole-sortie free run for the fixed wing;
+    1 s predictions restarted from the recorded state for the quadrotor, whose open-loop pitch
+    is neutrally stable (a replay of logged commands drifts away for any imperfect model)."""
+    return "free_run" if kind == "fixed_wing" else "horizon_1s"
+
+
+def work_precision(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> list[dict]:
+    """Error against wall time for every solver and step size, on one test sortie: wall time of
+    the compiled whole-sortie free run; pitch RMSE against the flight data (see
+    :func:`flight_mode`) and, free run, against the baseline fine-step reference."""
+    truth = target_states(sortie)
+    ref = fine_reference(airframe.kind, sortie.time, truth[0], sortie.controls, airframe.p)
+    controls, x0, p, sample_dt = sortie.controls[:-1], truth[0], airframe.p, sortie.dt
+    mode = flight_mode(airframe.kind)
+    families = {"RK4": (rk4_step(build_model(airframe).f), (0.01, 0.005, 0.0025, 0.002, 0.001,
+                                                             0.0005))}
+    for target, label in (("data", ""), ("reference", " (numerical)")):
+        for name, step in hybrid_steps(airframe, nets, target).items():
+            families[f"{name}{label}"] = (step, (0.01, 0.005, 0.0025))
+    points = []
+    for family, (step, dts) in families.items():
+        for dt in dts:
+            run = free_run_runner(step, x0, controls, p, sample_dt, dt)
+            run()
+            wall = _median_time(run, repeats)
+            solver = Solver(family, step, dt)
+            flight = evaluate_trajectory(solver, sortie.time, truth, sortie.controls, p)[mode]
+            free = evaluate_trajectory(solver, sortie.time, ref, sortie.controls, p)["free_run"]
+            points.append({
+                "family": family, "dt": dt, "wall_ms": wall * 1e3, "flight_mode": mode,
+                "theta_rmse_vs_flight": error_stats(*flight)["theta_rmse"],
+                "theta_rmse_vs_reference": error_stats(*free)["theta_rmse"],
+            })
+    return points
+
+
+# ----------------------------------------------------------------------------- Table 4
+
+
+def robustness_table(airframe: Airframe, ds: Dataset, nets: dict, config: ReproduceConfig,
+                     dt: float = 0.005) -> list[dict]:
+    """Table 4: error growth, maximum error and divergence of RK4 and the hybrid in the nominal
+    test sorties, the high-angle-of-attack sorties (fixed wing) and sorties flown by a truth
+    model whose stability derivatives and mass terms are 15 % off (the solvers keep nominal p)."""
+    solvers = [Solver("RK4 (physics only)", rk4_step(build_model(airframe).f), dt)]
+    solvers += [Solver(name, step, dt) for name, step in hybrid_steps(airframe, nets).items()]
+    test = [s for s in ds.test if condition(s) != "turbulent"] or ds.test
+    scenarios = {"nominal (calm test sorties)": test}
+    high = [s for s in ds.sorties if s.mission == "high_alpha" and s.split == "test"]
+    if airframe.kind == "fixed_wing":
+        high = high or [s for s in ds.sorties if s.mission == "high_alpha"]
+        scenarios["alpha > 20 deg (high-alpha sorties)"] = high
+    scenarios["+15 % stability derivatives and mass"] = perturbed_sorties(
+        airframe, [s.mission for s in test][:4 if not config.quick else 2],
+        test[0].duration if test else 20.0)
+    rows = []
+    for scenario, sorties in scenarios.items():
+        for solver in solvers:
+            if not sorties:
+                rows.append({"scenario": scenario, "solver": solver.name, "sorties": 0})
+                continue
+            growth = []
+            for s in sorties:
+                res = evaluate_trajectory(solver, s.time, target_states(s), s.controls,
+                                          airframe.p)
+                pred, targ = res["free_run"]
+                growth.append(error_growth(res["free_run_time"], pred, targ))
+            rows.append({
+                "scenario": scenario, "solver": f"{solver.name} @ {dt:g} s",
+                "sorties": len(sorties),
+                "slope_rad_per_s": float(np.mean([g["slope_rad_per_s"] for g in growth])),
+                "max_error_rad": float(np.max([g["max_error_rad"] for g in growth])),
+                "diverged": int(sum(g["diverged"] for g in growth)),
+                "first_divergence_s": min((g["time_to_divergence_s"] for g in growth
+                                           if g["diverged"]), default=None),
+            })
+    return rows
+
+
+def perturbed_sorties(airframe: Airframe, missions: list[str], duration: float
+                      ) -> list[Sortie]:
+    """Calm, noise-free sorties flown by the emulator on an airframe whose stability
+    derivatives and mass terms are scaled by 1.15 (the paper's robustness case)."""
+
+    truth_airframe = perturb(airframe, 1.15)
+    emulator = Emulator(truth_airframe)
+    out = []
+    for i, mission in enumerate(missions):
+        rng = np.random.default_rng([7, i])
+        plan = plan_mission(mission, truth_airframe, duration, emulator.sample_rate_hz, rng)
+        flight = emulator.fly(emulator.initial_state(plan.x0, plan.u0, plan.altitude),
+                              plan.references)
+        out.append(Sortie(f"perturbed_{i}_{mission}", airframe.kind, flight.time,
+                          flight.true_states, flight.controls, mission,
+                          {"condition": "calm"}, true_states=flight.true_states))
+    return out
+
+
+# ----------------------------------------------------------------------------- pipeline
+
+
+def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
+    """Everything for one airframe: dataset, weights, Tables 1-4, work-precision, figures."""
+
+    from uavdyn.experiments import figures
+
+    airframe = load_airframe(name)
+    out = Path(config.out)
+    log(f"[{airframe.name}] dataset ...")
+    ds = dataset_for(name, config)
+    nets = {(f, t): obtain_weights(airframe, ds, f, t, config, log)
+            for f in FORMULATIONS for t in TARGETS}
+    solvers = build_solvers(airframe, nets, config.dts)
+    test = ds.test
+    n_work = sum(len(v) for v in solvers.values()) * len(test) * 2
+    bar = tqdm(total=n_work, desc=f"[{airframe.name}] Table 1", disable=not config.progress,
+               unit="run")
+    table1 = accuracy_tables(airframe, test, solvers, out / "trajectories", bar.update)
+    bar.close()
+    log(f"[{airframe.name}] Tables 2-4, work-precision ...")
+    table2 = convergence_table(nets)
+    calm = [s for s in test if condition(s) == "calm"] or test
+    table3 = cost_table(airframe, calm[0], nets, config.cost_repeats)
+    wp = work_precision(airframe, calm[0], nets, max(1, config.cost_repeats // 2))
+    table4 = robustness_table(airframe, ds, nets, config)
+    result = {"airframe": airframe.name, "kind": airframe.kind,
+              "dataset": {"path": str(ds.path), "sorties": len(ds.sorties),
+                          "test_sorties": [s.name for s in test],
+                          "sample_rate_hz": ds.sample_rate_hz},
+              "weights": {f"{f}/{t}": (str(p) if p else None) for (f, t), p in nets.items()},
+              "table1": table1, "table2": table2, "table3": table3,
+              "work_precision": wp, "table4": table4}
+    result["figures"] = figures.make_all(airframe, ds, nets, result, out)
+    return result
+
+
+def run(config: ReproduceConfig) -> dict:
+    """The whole pipeline; writes ``metrics.json`` and ``report.md`` under ``config.out``."""
+
+    t0 = time.perf_counter()
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    def log(msg: str) -> None:
+        if config.progress:
+            print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", flush=True)
+
+    results = {"config": asdict(config), "paper": PAPER,
+               "airframes": [run_airframe(a, config, log) for a in config.airframes]}
+    results["wall_s"] = time.perf_counter() - t0
+    (out / "metrics.json").write_text(json.dumps(results, indent=2, default=_json) + "\n")
+    write_report(results, out / "report.md")
+    log(f"wrote {out / 'report.md'} and {out / 'metrics.json'} "
+        f"(total {results['wall_s']:.0f} s)")
+    return results
+
+
+def _json(value):
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    return str(value)
+
+
+# ----------------------------------------------------------------------------- evaluate
+
+
+def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str | Path],
+                     dts=(0.005, 0.01, 0.02), split: str = "test") -> dict:
+    """Table 1 and Table 4 figures of physics RK4 and the given hybrid weights on any dataset
+    folder in the interchange format (its ``split`` sorties, or all if it has no split)."""
+
+    ds = load_dataset(dataset)
+    if ds.kind != airframe.kind:
+        raise ValueError(f"dataset {dataset} is of kind '{ds.kind}' but airframe "
+                         f"'{airframe.name}' is '{airframe.kind}'")
+    sorties = ds.split(split) or ds.sorties
+    physics = rk4_step(build_model(airframe).f)
+    solvers = [Solver(f"RK4 (physics only) @ {dt:g} s", physics, dt) for dt in dts]
+    for w in weights:
+        net = load_weights(w, airframe)
+        step = hybrid_step(net, airframe, compile=False)
+        solvers += [Solver(f"hybrid {net.formulation} ({Path(w).name}) @ {dt:g} s", step, dt)
+                    for dt in dts]
+    table1 = accuracy_tables(airframe, sorties, {"data": solvers, "reference": solvers})
+    alpha_max = {s.name: float(np.degrees(np.max(np.arctan2(target_states(s)[:, 1],
+                                                            target_states(s)[:, 0]))))
+                 for s in sorties}
+    groups = {"nominal (all evaluated sorties)": sorties,
+              "alpha > 20 deg (sorties that reach it)": [s for s in sorties
+                                                         if alpha_max[s.name] > 20.0]}
+    table4 = []
+    for scenario, members in groups.items():
+        for solver in solvers:
+            if solver.dt != 0.005:
+                continue
+            growth = [error_growth(r["free_run_time"], *r["free_run"]) for r in (
+                evaluate_trajectory(solver, s.time, target_states(s), s.controls, airframe.p)
+                for s in members)]
+            table4.append({
+                "scenario": scenario, "solver": solver.name, "sorties": len(members),
+                "slope_rad_per_s": float(np.mean([g["slope_rad_per_s"] for g in growth]))
+                if growth else None,
+                "max_error_rad": float(np.max([g["max_error_rad"] for g in growth]))
+                if growth else None,
+                "diverged": int(sum(g["diverged"] for g in growth)),
+            })
+    return {"airframe": airframe.name, "kind": airframe.kind, "dataset": str(dataset),
+            "sorties": [s.name for s in sorties], "split": split if ds.split(split) else "all",
+            "weights": [str(w) for w in weights], "table1": table1, "table4": table4}
+
+
+def evaluation_markdown(result: dict) -> str:
+    """Markdown of :func:`evaluate_dataset` (Table 1 and Table 4)."""
+
+    lines = [f"# Evaluation of {result['airframe']} on {result['dataset']}", "",
+             f"{len(result['sorties'])} sorties ({result['split']}); weights: "
+             + (", ".join(result["weights"]) or "none"), "", "## Table 1: accuracy", ""]
+    lines += _table1(result) + ["## Table 4: robustness (free run, dt = 0.005 s)", ""]
+    lines += _table4(result)
+    return "\n".join(lines)

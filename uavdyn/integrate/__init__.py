@@ -1,0 +1,39 @@
+"""Integration: explicit RK steps from a Butcher tableau, the CVODES reference step, rollouts
+with ``mapaccum``, the evaluation grid, input profiles and the compile-to-C cache."""
+
+from uavdyn.integrate.codegen import (
+    CodegenWarning,
+    CompileError,
+    cache_dir,
+    compile_function,
+    find_compiler,
+    generate_c,
+)
+from uavdyn.integrate.rollout import (
+    DivergenceError,
+    EvalGrid,
+    GridError,
+    StepUseError,
+    StepUseWarning,
+    check_finite,
+    check_use,
+    free_run,
+    rollout,
+    simulate,
+    takes_time,
+)
+from uavdyn.integrate.steps import (
+    STEP_INPUTS,
+    reference_step,
+    rk4_numpy,
+    rk4_step,
+    rk_step,
+    substepped,
+)
+from uavdyn.integrate.tableau import EULER, HEUN, RK4, ButcherTableau, explicit_rk_step
+
+__all__ = ["CodegenWarning", "CompileError", "cache_dir", "compile_function", "find_compiler",
+           "generate_c", "DivergenceError", "EvalGrid", "GridError", "StepUseError",
+           "StepUseWarning", "check_finite", "check_use", "free_run", "rollout", "simulate",
+           "takes_time", "STEP_INPUTS", "reference_step", "rk4_numpy", "rk4_step", "rk_step",
+           "substepped", "EULER", "HEUN", "RK4", "ButcherTableau", "explicit_rk_step"]

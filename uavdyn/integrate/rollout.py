@@ -1,0 +1,219 @@
+"""Rollouts of any step Function: one ``mapaccum`` loop over a per-sample Function that holds
+its sub-steps, the :class:`EvalGrid` that relates a solver step to a log interval, and numeric
+free runs that report divergence instead of returning it silently.
+
+A step Function has inputs ``(x, u, p, dt)`` and, when it depends on time, a fifth input named
+``t`` (time since the start of the sortie). :func:`takes_time` tells them apart by name. A step
+may carry the step size and time range it is valid for (attributes ``trained_dt``, ``t_range``,
+``strict``; see :class:`uavdyn.learned.HybridStep`): :func:`check_use` enforces them.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from uavdyn.integrate.codegen import compile_function
+
+
+class GridError(ValueError):
+    """A solver step does not fit the sample interval of the data."""
+
+
+class DivergenceError(RuntimeError):
+    """A rollout left the finite (or physical) range; ``time`` says when."""
+
+    def __init__(self, message: str, time: float):
+        super().__init__(message)
+        self.time = time
+
+
+class StepUseError(ValueError):
+    """A hybrid step was asked for a step size or time it was not trained for."""
+
+
+class StepUseWarning(UserWarning):
+    """As :class:`StepUseError`, downgraded on request (``strict=False``)."""
+
+
+def check_use(step: ca.Function, dt: float, t_start: float = 0.0, t_end: float = 0.0) -> None:
+    """Refuse (or warn, for a non-strict step) a use of ``step`` at step size ``dt`` over the
+    times ``[t_start, t_end]`` (s since the sortie start) outside what it was trained for.
+    Plain CasADi Functions pass unchecked.
+
+    Raises
+    ------
+    StepUseError
+        Naming the step, the requested and the trained values.
+    """
+    trained_dt = getattr(step, "trained_dt", None)
+    t_range = getattr(step, "t_range", None)
+    problems = []
+    if trained_dt is not None and abs(dt - trained_dt) > 1e-9 * trained_dt:
+        problems.append(f"step size {dt:g} s but it was trained at {trained_dt:g} s")
+    if t_range is not None and (t_start < t_range[0] - 1e-9 or t_end > t_range[1] + 1e-9):
+        problems.append(f"times {t_start:g}..{t_end:g} s but it was trained on "
+                        f"{t_range[0]:g}..{t_range[1]:g} s since the sortie start")
+    if problems:
+        message = f"step '{step.name()}' used at {' and '.join(problems)}"
+        if getattr(step, "strict", True):
+            raise StepUseError(message + " (build it with strict=False to only warn)")
+        warnings.warn(message, StepUseWarning, stacklevel=2)
+
+
+def takes_time(step: ca.Function) -> bool:
+    """Whether ``step`` has a time input (named ``t``)."""
+    return "t" in step.name_in()
+
+
+@dataclass(frozen=True)
+class EvalGrid:
+    """How a solver step ``dt`` sits on data logged every ``sample_dt``.
+
+    ``substeps`` solver steps per log interval when ``dt`` divides it (controls held over the
+    interval), or one solver step every ``stride`` log intervals when ``dt`` is a multiple of
+    it (the solver samples the logged control at its own step start). Exactly one of the two
+    is greater than 1 unless ``dt == sample_dt``.
+
+    Raises
+    ------
+    GridError
+        If ``dt`` neither divides ``sample_dt`` nor is a whole multiple of it.
+    """
+
+    sample_dt: float
+    dt: float
+
+    def __post_init__(self) -> None:
+        for key in ("sample_dt", "dt"):
+            value = getattr(self, key)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise GridError(f"{key} must be a positive finite number of seconds, got {value}")
+        _ = (self.substeps, self.stride)  # raises GridError if dt does not fit
+
+    @property
+    def substeps(self) -> int:
+        if self.dt > self.sample_dt * (1 + 1e-9):
+            return 1
+        n = round(self.sample_dt / self.dt)
+        if n < 1 or abs(n * self.dt - self.sample_dt) > 1e-9 * self.sample_dt:
+            raise GridError(f"solver step {self.dt:g} s must divide the log interval "
+                            f"{self.sample_dt:g} s or be a whole multiple of it")
+        return int(n)
+
+    @property
+    def stride(self) -> int:
+        if self.dt <= self.sample_dt * (1 + 1e-9):
+            return 1
+        n = round(self.dt / self.sample_dt)
+        if abs(n * self.sample_dt - self.dt) > 1e-9 * self.dt:
+            raise GridError(f"solver step {self.dt:g} s must divide the log interval "
+                            f"{self.sample_dt:g} s or be a whole multiple of it")
+        return int(n)
+
+    @property
+    def interval(self) -> float:
+        """Time between two compared grid points (s)."""
+        return self.stride * self.sample_dt
+
+
+def rollout(step: ca.Function, n_samples: int, substeps: int = 1, name: str = "rollout"
+            ) -> ca.Function:
+    """``n_samples`` sample intervals of ``substeps`` steps each, as one MX Function
+    ``(x0, u[nu x N], p, dt[, t0]) -> x[nx x N]`` (states at the end of each interval).
+
+    Control column ``k`` is held over interval ``k``; ``dt`` is the step size (the interval is
+    ``substeps * dt``); a time-dependent step gets ``t0 + elapsed time``. Built with
+    ``mapaccum``, so it is a loop in the generated C, never ``N`` unrolled copies.
+
+    Raises
+    ------
+    ValueError
+        If ``n_samples`` or ``substeps`` is smaller than 1.
+    """
+    if n_samples < 1 or substeps < 1:
+        raise ValueError(f"n_samples and substeps must be >= 1, got {n_samples}, {substeps}")
+    timed = takes_time(step)
+    nx, nu, n_p = (step.size1_in(i) for i in range(3))
+    # one sub-step on z = [x; t]
+    x, u, p, dt, t = (ca.MX.sym("x", nx), ca.MX.sym("u", nu), ca.MX.sym("p", n_p),
+                      ca.MX.sym("dt"), ca.MX.sym("t"))
+    x_next = step(x, u, p, dt, t) if timed else step(x, u, p, dt)
+    z = ca.vertcat(x, t) if timed else x
+    z_next = ca.vertcat(x_next, t + dt) if timed else x_next
+    sub = ca.Function("substep", [z, u, p, dt], [z_next])
+    if substeps > 1:
+        inner = sub.mapaccum("substeps", substeps)
+        z_end = inner(z, ca.repmat(u, 1, substeps), ca.repmat(p, 1, substeps),
+                      ca.repmat(dt, 1, substeps))[:, -1]
+    else:
+        z_end = sub(z, u, p, dt)
+    # Parameters and step size ride in the accumulator so they are not copied N times.
+    acc_in = ca.vertcat(z, p, dt)
+    body = ca.Function("sample", [acc_in, u], [ca.vertcat(z_end, p, dt)])
+    acc = body.mapaccum("samples", n_samples)
+    X0, U, P, DT, T0 = (ca.MX.sym("x0", nx), ca.MX.sym("u", nu, n_samples), ca.MX.sym("p", n_p),
+                        ca.MX.sym("dt"), ca.MX.sym("t0"))
+    Z = acc(ca.vertcat(X0, *([T0] if timed else []), P, DT), U)
+    inputs, names = [X0, U, P, DT], ["x0", "u", "p", "dt"]
+    if timed:
+        inputs, names = [*inputs, T0], [*names, "t0"]
+    return ca.Function(name, inputs, [Z[:nx, :]], names, ["x"])
+
+
+def check_finite(traj: np.ndarray, time: np.ndarray, what: str = "rollout",
+                 bound: float = 1e6) -> None:
+    """Raise :class:`DivergenceError` at the first non-finite (or ``|x| > bound``) sample."""
+    bad = ~np.all(np.isfinite(traj) & (np.abs(traj) <= bound), axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise DivergenceError(f"{what} diverged at t = {time[k]:.3f} s (sample {k}): state "
+                              f"non-finite or beyond {bound:g}", float(time[k]))
+
+
+def free_run(step: ca.Function, x0, controls, p, dt: float, substeps: int = 1,
+             t0: float = 0.0, compile: bool = True, check: bool = True) -> np.ndarray:
+    """Open-loop replay of ``controls`` (``N x nu``, row k held over one interval of
+    ``substeps * dt``): the ``(N+1) x nx`` states at the interval ends, ``x0`` first.
+
+    Parameters
+    ----------
+    step : casadi.Function
+        A step ``(x, u, p, dt[, t])``.
+    x0, controls, p : array_like
+        Initial state, controls per interval, parameters.
+    dt : float
+        Step size (s).
+    substeps : int
+        Steps per control interval.
+    t0 : float
+        Time of ``x0`` since the start of the sortie (for a time-dependent step).
+    compile : bool
+        Compile the rollout to C (cached) first.
+    check : bool
+        Raise :class:`DivergenceError` on a non-finite or exploding state.
+    """
+    controls = np.atleast_2d(np.asarray(controls, dtype=float))
+    x0 = np.asarray(x0, float).ravel()
+    check_use(step, dt, t0, t0 + controls.shape[0] * substeps * dt)
+    sim = rollout(step, controls.shape[0], substeps)
+    if compile:
+        sim = compile_function(sim)
+    args = [x0, controls.T, np.asarray(p, float), float(dt)]
+    if takes_time(step):
+        args.append(float(t0))
+    with np.errstate(all="ignore"):
+        traj = np.vstack([x0.reshape(1, -1), np.array(sim(*args)).T])
+    if check:
+        check_finite(traj, t0 + substeps * dt * np.arange(len(traj)), "free run")
+    return traj
+
+
+def simulate(step: ca.Function, x0, controls, p, dt: float, check: bool = True) -> np.ndarray:
+    """Numeric rollout: the ``(N+1) x nx`` trajectory including ``x0``; ``controls`` is
+    ``N x nu`` (row k held over step k). Raises :class:`DivergenceError` if it diverges."""
+    return free_run(step, x0, controls, p, dt, compile=False, check=check)

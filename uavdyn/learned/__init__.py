@@ -1,0 +1,19 @@
+"""The learned correction: weight files, the one MLP forward, formulations and the hybrid step.
+Training (:mod:`uavdyn.learned.train`, :mod:`uavdyn.learned.torch_model`) needs torch, the
+``[train]`` extra, and is imported only when used."""
+
+from uavdyn.learned.formulations import DEFAULT_FORMULATION, FORMULATIONS, Formulation, formulation
+from uavdyn.learned.hybrid import (
+           HybridStep,
+           hybrid_expression,
+           hybrid_jacobian,
+           hybrid_step,
+           shipped_weights,
+)
+from uavdyn.learned.mlp import ACTIVATIONS, mlp_forward
+from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights, save_weights
+
+__all__ = ["DEFAULT_FORMULATION", "FORMULATIONS", "Formulation", "formulation", "HybridStep",
+           "hybrid_expression", "hybrid_jacobian", "hybrid_step", "shipped_weights",
+           "ACTIVATIONS", "mlp_forward", "CorrectionNet", "WeightFileError", "load_weights",
+           "save_weights"]

@@ -1,0 +1,121 @@
+"""The hybrid step: the physics RK4 step plus the learned correction as ONE CasADi Function
+``(x, u, p, dt) -> x_next`` (a time-dependent formulation adds the named input ``t``), compiled
+to C, with exact Jacobians for ``nlpsol``/``Opti``.
+
+No torch at run time: the network comes from a weight file (:mod:`uavdyn.learned.weights`).
+A formulation valid only at its trained step size or time range returns a :class:`HybridStep`
+that knows those limits; :func:`uavdyn.integrate.check_use` (called by every rollout of the
+library) refuses a use outside them.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+import casadi as ca
+
+from uavdyn.airframes import Airframe, param_names
+from uavdyn.integrate import STEP_INPUTS, compile_function
+from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights
+from uavdyn.model import CASADI_OPS, make_rhs
+
+SHIPPED = "uavdyn.learned.shipped"
+
+
+class HybridStep(ca.Function):
+    """A CasADi Function (use it like any other) that also knows the step size and time range
+    its network was trained at (``None`` where the formulation is not tied to them)."""
+
+    def __init__(self, func: ca.Function, trained_dt: float | None,
+                 t_range: tuple[float, float] | None, strict: bool = True):
+        super().__init__(func)
+        self.trained_dt = trained_dt
+        self.t_range = t_range
+        self.strict = strict
+
+
+def shipped_weights(airframe_name: str, formulation: str = "improved",
+                    target: str = "data") -> Path:
+    """Path of a shipped weight file (package data) for a preset (``aerosonde`` or ``f450``).
+
+    Raises
+    ------
+    WeightFileError
+        If no such file ships with the package.
+    """
+    suffix = "" if target == "data" else f"_{target}"
+    name = f"{airframe_name}_{formulation}{suffix}.npz"
+    path = Path(str(resources.files(SHIPPED).joinpath(name)))
+    if not path.is_file():
+        raise WeightFileError(f"{name}: no shipped weights for airframe '{airframe_name}', "
+                              f"formulation '{formulation}', target '{target}'")
+    return path
+
+
+def _resolve(net: CorrectionNet | str | Path, airframe: Airframe | None) -> CorrectionNet:
+    if not isinstance(net, CorrectionNet):
+        return load_weights(net, airframe)
+    if airframe is not None and airframe.param_hash() != net.airframe_hash:
+        raise WeightFileError(f"correction network key 'airframe_hash' is {net.airframe_hash} "
+                              f"but airframe '{airframe.name}' has {airframe.param_hash()}")
+    return net
+
+
+def hybrid_expression(net: CorrectionNet, relu_smoothing: float | None = None,
+                      name: str = "hybrid_step") -> ca.Function:
+    """The uncompiled SX Function of the hybrid step of ``net``."""
+    form = net.form
+    f = make_rhs(net.kind)
+    x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 2)
+    p, dt, t = ca.SX.sym("p", len(param_names(net.kind))), ca.SX.sym("dt"), ca.SX.sym("t")
+    x_next = form.step(f, x, u, p, dt, lambda inp: net.casadi(inp, relu_smoothing), CASADI_OPS,
+                       t if form.takes_time else None)
+    inputs, names = [x, u, p, dt], list(STEP_INPUTS)
+    if form.takes_time:
+        inputs, names = [*inputs, t], [*names, "t"]
+    return ca.Function(name, inputs, [x_next], names, ["x_next"])
+
+
+def hybrid_step(net: CorrectionNet | str | Path, airframe: Airframe | None = None,
+                compile: bool = True, name: str = "hybrid_step",
+                relu_smoothing: float | None = None, strict: bool = True) -> HybridStep:
+    """Build the hybrid step of ``net`` (a :class:`CorrectionNet` or a weight-file path).
+
+    Parameters
+    ----------
+    net : CorrectionNet or path
+        The correction.
+    airframe : Airframe, optional
+        Checked against the weights' airframe hash.
+    compile : bool
+        Compile to C (cached); the VM with one warning where no compiler exists.
+    relu_smoothing : float, optional
+        Softplus sharpness replacing ReLU, for gradient-based optimisers only.
+    strict : bool
+        Whether a use at another ``dt`` or time range raises (default) or only warns.
+
+    Returns
+    -------
+    HybridStep
+        One Function ``(x, u, p, dt[, t]) -> x_next``.
+    """
+    net = _resolve(net, airframe)
+    step = hybrid_expression(net, relu_smoothing, name)
+    if compile:
+        step = compile_function(step)
+    return HybridStep(step, net.dt if net.form.dt_bound else None,
+                      net.t_range if net.form.takes_time else None, strict)
+
+
+def hybrid_jacobian(net: CorrectionNet | str | Path, airframe: Airframe | None = None,
+                    compile: bool = True, name: str = "hybrid_jacobian") -> ca.Function:
+    """``(x, u, p, dt[, t]) -> (x_next, A = dx_next/dx, B = dx_next/du)`` by exact algorithmic
+    differentiation of the hybrid step, compiled to C like the step itself."""
+    step = hybrid_expression(_resolve(net, airframe))
+    args = [ca.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
+    x_next = step(*args)
+    jac = ca.Function(name, args, [x_next, ca.jacobian(x_next, args[0]),
+                                   ca.jacobian(x_next, args[1])],
+                      [step.name_in(i) for i in range(step.n_in())], ["x_next", "A", "B"])
+    return compile_function(jac) if compile else jac

@@ -1,0 +1,112 @@
+"""Torch twins of the physics RK4 step and of the correction network, for training.
+
+The physics is NOT re-written here: the force functions of :mod:`uavdyn.model` are evaluated
+with a torch ``ops`` namespace (the same pattern as its CasADi/NumPy namespaces), so the torch
+hybrid step uses exactly the equations of the CasADi one. States are handled as ``(4, B)``
+tensors inside the physics (so ``x[0]`` is the batch of ``u`` values) and ``(B, 4)`` outside.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+
+from uavdyn.integrate.tableau import RK4, explicit_rk_step
+from uavdyn.learned.formulations import formulation as get_formulation
+from uavdyn.learned.mlp import mlp_forward
+from uavdyn.learned.weights import N_HIDDEN_LAYERS, CorrectionNet
+from uavdyn.model import make_rhs, torch_ops
+
+DTYPE = torch.float64
+
+
+def torch_rhs(kind: str):
+    """``rhs(x (4,B), u (2,B), p (np,)) -> x_dot (4,B)`` from the model's own equations."""
+    return make_rhs(kind, False, torch_ops())
+
+
+class TorchCorrection(nn.Module):
+    """The correction MLP (normalisation folded in) and the hybrid step it defines; mirrors
+    :func:`uavdyn.correction.mlp_expression` and :func:`uavdyn.hybrid.hybrid_step`."""
+
+    def __init__(self, kind: str, formulation: str, hidden: int, activation: str,
+                 in_mean: np.ndarray, in_scale: np.ndarray, out_scale: np.ndarray,
+                 dt: float, seed: int = 0) -> None:
+        super().__init__()
+        self.form = get_formulation(formulation)
+        if activation not in ("relu", "tanh"):
+            raise ValueError(f"unknown activation '{activation}'; expected relu or tanh")
+        self.kind, self.formulation, self.activation = kind, formulation, activation
+        self.dt = float(dt)
+        n_in, n_out = self.form.n_in, self.form.n_out
+        gen = torch.Generator().manual_seed(seed)
+        sizes = [n_in] + [hidden] * N_HIDDEN_LAYERS + [n_out]
+        self.layers = nn.ModuleList()
+        for i in range(len(sizes) - 1):
+            layer = nn.Linear(sizes[i], sizes[i + 1], dtype=DTYPE)
+            with torch.no_grad():
+                bound = 1.0 / math.sqrt(sizes[i])
+                gain = math.sqrt(2.0) if activation == "relu" else 1.0
+                layer.weight.uniform_(-gain * bound * math.sqrt(3), gain * bound * math.sqrt(3),
+                                      generator=gen)
+                layer.bias.zero_()
+                if i == len(sizes) - 2:  # start from the physics-only step
+                    layer.weight.zero_()
+            self.layers.append(layer)
+        self.register_buffer("in_mean", torch.as_tensor(in_mean, dtype=DTYPE))
+        self.register_buffer("in_scale", torch.as_tensor(in_scale, dtype=DTYPE))
+        self.register_buffer("out_mean", torch.zeros(n_out, dtype=DTYPE))
+        self.register_buffer("out_scale", torch.as_tensor(out_scale, dtype=DTYPE))
+        self.rhs = torch_rhs(kind)
+
+    def forward(self, inp: torch.Tensor) -> torch.Tensor:
+        """The network on a batch ``(B, n_in)`` -> ``(B, n_out)`` (the one MLP forward)."""
+        return self._net(inp.T).T
+
+    def _net(self, inp_t: torch.Tensor) -> torch.Tensor:
+        return mlp_forward([layer.weight for layer in self.layers],
+                           [layer.bias for layer in self.layers], self.in_mean, self.in_scale,
+                           self.out_mean, self.out_scale, inp_t, torch_ops(), self.activation)
+
+    def step(self, x: torch.Tensor, u: torch.Tensor, p: torch.Tensor, dt,
+             t: torch.Tensor | None = None) -> torch.Tensor:
+        """Hybrid step on a batch: ``x (B,4)``, ``u (B,2)``, ``t (B,)`` (time since the sortie
+        start) for a time-dependent formulation; the formulation's own code."""
+        tt = None if t is None else t.reshape(1, -1)
+        return self.form.step(self.rhs, x.T, u.T, p, dt, self._net, torch_ops(), tt).T
+
+    def physics_step(self, x, u, p, dt) -> torch.Tensor:
+        """The physics-only RK4 step on a batch (same tableau routine as the CasADi step)."""
+        xt, ut = x.T, u.T
+        return explicit_rk_step(RK4, lambda xx: self.rhs(xx, ut, p), xt, dt).T
+
+    def export(self, airframe_hash: str, info: dict | None = None,
+               t_range: tuple[float, float] | None = None) -> CorrectionNet:
+        """Frozen weights as a :class:`uavdyn.correction.CorrectionNet` (float64 copies)."""
+        def arr(t: torch.Tensor) -> np.ndarray:
+            return t.detach().cpu().numpy().astype(float).copy()
+
+        return CorrectionNet(
+            formulation=self.formulation, activation=self.activation, kind=self.kind,
+            airframe_hash=airframe_hash, dt=self.dt, t_range=t_range,
+            weights=tuple(arr(layer.weight) for layer in self.layers),
+            biases=tuple(arr(layer.bias) for layer in self.layers),
+            in_mean=arr(self.in_mean), in_scale=arr(self.in_scale),
+            out_mean=arr(self.out_mean), out_scale=arr(self.out_scale), info=info or {})
+
+    @classmethod
+    def from_net(cls, net: CorrectionNet) -> TorchCorrection:
+        """Rebuild a torch module from exported weights (for checks and fine-tuning)."""
+        module = cls(net.kind, net.formulation, net.hidden[0], net.activation, net.in_mean,
+                     net.in_scale, net.out_scale, net.dt)
+        if len(set(net.hidden)) != 1:
+            raise ValueError("TorchCorrection expects equal hidden widths")
+        with torch.no_grad():
+            for layer, w, b in zip(module.layers, net.weights, net.biases):
+                layer.weight.copy_(torch.as_tensor(w))
+                layer.bias.copy_(torch.as_tensor(b))
+            module.out_mean.copy_(torch.as_tensor(net.out_mean))
+        return module

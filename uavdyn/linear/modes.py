@@ -1,0 +1,196 @@
+"""Linearised stability: A, B from CasADi Jacobians at a trim point, and the modes (natural
+frequency, damping, period, time to half/double amplitude) named the way a flight-dynamics
+engineer reads them (short period, phugoid; for the quadrotor the real pitch/speed/heave modes).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import casadi as ca
+import control as ct
+import numpy as np
+import scipy.linalg
+
+from uavdyn.airframes import Airframe
+from uavdyn.linear.trim import TrimPoint
+from uavdyn.model import STATE_NAMES, build_model
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One eigenvalue (or complex pair, listed once with positive imaginary part)."""
+
+    name: str
+    eigenvalue: complex
+    natural_frequency: float  # rad/s
+    damping: float
+    period: float  # s (inf for a real mode)
+    time_to_half: float  # s (inf if not convergent)
+    time_to_double: float  # s (inf if not divergent)
+    dominant_state: str
+
+    @property
+    def stable(self) -> bool:
+        return self.eigenvalue.real < 0
+
+    def as_dict(self) -> dict:
+        return {
+            "name": self.name, "real": self.eigenvalue.real, "imag": self.eigenvalue.imag,
+            "wn_rad_s": self.natural_frequency, "damping": self.damping, "period_s": self.period,
+            "t_half_s": self.time_to_half, "t_double_s": self.time_to_double,
+            "dominant_state": self.dominant_state, "stable": self.stable,
+        }
+
+
+def linearise(airframe: Airframe, point: TrimPoint) -> tuple[np.ndarray, np.ndarray]:
+    """``A = df/dx`` and ``B = df/du`` at a trim point (exact, from CasADi)."""
+    jac = build_model(airframe).jacobians(point.x, point.u, airframe.p)
+    return np.array(jac[0]), np.array(jac[1])
+
+
+def participation(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues and modal participation factors ``|l_ki r_ki|`` (state k in mode i), which
+    unlike raw eigenvectors do not depend on the units of the states."""
+    eig, right = np.linalg.eig(A)
+    try:
+        left = np.linalg.inv(right)
+        factors = np.abs(right * left.T)
+    except np.linalg.LinAlgError:  # defective matrix: fall back to eigenvector magnitudes
+        factors = np.abs(right)
+    return eig, factors
+
+
+def modes(A: np.ndarray, kind: str, B: np.ndarray | None = None) -> list[Mode]:
+    """Modes of ``x_dot = A x``: eigenvalues and damping through python-control; names from the
+    kind, the frequency ordering and the modal participation factors."""
+    A = np.asarray(A, dtype=float)
+    n = A.shape[0]
+    B = np.zeros((n, 1)) if B is None else np.asarray(B, dtype=float)
+    sys = ct.ss(A, B, np.eye(n), np.zeros((n, B.shape[1])))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        wn, zeta, poles = ct.damp(sys, doprint=False)
+    eig, factors = participation(A)
+    state_names = STATE_NAMES + ("x_n", "h")
+    entries = []
+    unused = list(range(len(eig)))
+    for w, z, pole in zip(wn, zeta, poles):
+        pole = complex(pole)
+        idx = min(unused, key=lambda i: abs(eig[i] - pole))
+        unused.remove(idx)
+        if pole.imag < 0:
+            continue
+        dominant = state_names[int(np.argmax(factors[:, idx]))]
+        z = float(z) if np.isfinite(z) else (1.0 if pole.real < 0 else -1.0 if pole.real > 0
+                                             else 0.0)
+        entries.append((pole, float(w), z, dominant))
+    named = _name_modes(entries, kind)
+    out = []
+    for (pole, w, z, dom), name in zip(entries, named):
+        sigma = pole.real
+        period = 2 * math.pi / pole.imag if pole.imag > 1e-12 else math.inf
+        t_half = math.log(2) / -sigma if sigma < 0 else math.inf
+        t_double = math.log(2) / sigma if sigma > 0 else math.inf
+        out.append(Mode(name, pole, w, z, period, t_half, t_double, dom))
+    out.sort(key=lambda m: -m.natural_frequency)
+    return out
+
+
+def _name_modes(entries, kind: str) -> list[str]:
+    names = [""] * len(entries)
+    oscillatory = [i for i, e in enumerate(entries) if e[0].imag > 1e-9]
+    if kind == "fixed_wing" and len(oscillatory) == 2:
+        fast, slow = sorted(oscillatory, key=lambda i: -entries[i][1])
+        names[fast], names[slow] = "short period", "phugoid"
+    labels = {"u": "speed", "w": "heave", "q": "pitch", "theta": "pitch attitude"}
+    for i, (pole, _, _, dom) in enumerate(entries):
+        if names[i]:
+            continue
+        base = labels.get(dom, dom)
+        if abs(pole) < 1e-9:
+            names[i] = f"{base} (neutral)"
+        elif pole.imag > 1e-9:
+            names[i] = f"{base} oscillation"
+        else:
+            names[i] = f"{base} {'subsidence' if pole.real < 0 else 'divergence'}"
+    return names
+
+
+def mode_table(mode_list: list[Mode]) -> str:
+    """A Markdown table of modes."""
+    def fmt(v: float) -> str:
+        return "inf" if math.isinf(v) else f"{v:.4g}"
+
+    rows = ["| mode | eigenvalue | wn (rad/s) | damping | period (s) | t_half (s) | t_double (s) |",
+            "|---|---|---|---|---|---|---|"]
+    for m in mode_list:
+        ev = m.eigenvalue
+        ev_text = f"{ev.real:.4g} ± {ev.imag:.4g}j" if ev.imag > 1e-12 else f"{ev.real:.4g}"
+        rows.append(f"| {m.name} | {ev_text} | {m.natural_frequency:.4g} | {m.damping:.4g} | "
+                    f"{fmt(m.period)} | {fmt(m.time_to_half)} | {fmt(m.time_to_double)} |")
+    return "\n".join(rows)
+
+
+@dataclass(frozen=True)
+class DiscreteModeComparison:
+    """Modes of a discrete step map ``x_next = F(x, u, p, dt)`` at a trim point, next to the
+    continuous physics model and its exact discretisation ``exp(A dt)``."""
+
+    dt: float
+    map_eigenvalues: np.ndarray  # eigenvalues of dF/dx
+    map_continuous: np.ndarray  # log(lambda)/dt
+    exact_eigenvalues: np.ndarray  # eigenvalues of exp(A dt), matched to map_eigenvalues
+    physics_modes: list[Mode]
+    map_modes: list[Mode]
+
+    @property
+    def unstable(self) -> list[int]:
+        """Indices of map eigenvalues outside the unit circle (the map diverges there)."""
+        return [i for i, lam in enumerate(self.map_eigenvalues) if abs(lam) > 1.0 + 1e-12]
+
+    @property
+    def made_unstable(self) -> list[int]:
+        """Map eigenvalues outside the unit circle whose exact counterpart is inside it."""
+        return [i for i in self.unstable if abs(self.exact_eigenvalues[i]) <= 1.0]
+
+    def table(self) -> str:
+        rows = ["| # | map eigenvalue | log(lambda)/dt | exp(A dt) eigenvalue | |lambda| | flag |",
+                "|---|---|---|---|---|---|"]
+        for i, (lam, s, ex) in enumerate(zip(self.map_eigenvalues, self.map_continuous,
+                                             self.exact_eigenvalues)):
+            flag = ("UNSTABLE (made so by the correction)" if i in self.made_unstable
+                    else "unstable" if i in self.unstable else "")
+            rows.append(f"| {i} | {lam.real:.8f}{lam.imag:+.8f}j | {s.real:.5g}{s.imag:+.5g}j | "
+                        f"{ex.real:.8f}{ex.imag:+.8f}j | {abs(lam):.8f} | {flag} |")
+        return "\n".join(rows)
+
+
+def _match(reference: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Reorder ``values`` to pair each entry of ``reference`` with its nearest partner."""
+    remaining = list(values)
+    out = []
+    for r in reference:
+        j = int(np.argmin([abs(r - v) for v in remaining]))
+        out.append(remaining.pop(j))
+    return np.array(out)
+
+
+def discrete_map_modes(step, airframe: Airframe, point: TrimPoint, dt: float
+                       ) -> DiscreteModeComparison:
+    """Linearise a step map (hybrid or plain RK4) at a trim point: eigenvalues of its Jacobian,
+    their continuous equivalents ``log(lambda)/dt``, and the exact ``exp(A dt)`` beside them."""
+
+    x = ca.SX.sym("x", 4)
+    jac = ca.Function("map_jacobian", [x], [ca.jacobian(step(x, point.u, airframe.p, dt), x)])
+    F = np.array(jac(point.x))
+    lam = np.linalg.eigvals(F)
+    A, B = linearise(airframe, point)
+    exact = _match(lam, np.linalg.eigvals(scipy.linalg.expm(A * dt)))
+    with np.errstate(divide="ignore"):
+        cont = np.log(lam.astype(complex)) / dt
+    A_equiv = np.real_if_close(scipy.linalg.logm(F) / dt) if np.all(np.abs(lam) > 0) else F
+    return DiscreteModeComparison(
+        dt=dt, map_eigenvalues=lam, map_continuous=cont, exact_eigenvalues=exact,
+        physics_modes=modes(A, airframe.kind, B),
+        map_modes=modes(np.real(A_equiv), airframe.kind))

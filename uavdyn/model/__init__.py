@@ -1,0 +1,27 @@
+"""The longitudinal model: ``ops`` namespaces, forces per airframe kind, rigid-body equations,
+and :func:`build_model` turning them into CasADi Functions of ``(x, u, p)``."""
+
+from uavdyn.model.build import LongitudinalModel, build_model, numpy_rhs
+from uavdyn.model.equations import (
+    CONTROL_BOUNDS,
+    CONTROL_NAMES,
+    FORCE_MODELS,
+    FORCE_NAMES,
+    POSITION_STATE_NAMES,
+    STATE_NAMES,
+    fixed_wing_forces,
+    make_rhs,
+    multirotor_forces,
+    propeller_thrust,
+    rigid_body_rates,
+    rotor_thrust,
+    stall_blend,
+    symbolic_params,
+)
+from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS, torch_ops
+
+__all__ = ["LongitudinalModel", "build_model", "numpy_rhs", "CONTROL_BOUNDS", "CONTROL_NAMES",
+           "FORCE_MODELS", "FORCE_NAMES", "fixed_wing_forces", "multirotor_forces",
+           "propeller_thrust", "rotor_thrust", "POSITION_STATE_NAMES", "STATE_NAMES", "make_rhs",
+           "rigid_body_rates", "stall_blend", "symbolic_params", "CASADI_OPS", "NUMPY_OPS",
+           "torch_ops"]

@@ -1,0 +1,144 @@
+"""The nonlinear longitudinal equations of motion, written once against an ``ops`` namespace.
+
+State ``x = [u, w, q, theta]`` (body-axis velocities m/s, pitch rate rad/s, pitch angle rad),
+optionally followed by ``[x_n, h]`` (north position and altitude, m). Controls: fixed wing
+``[elevator (rad), throttle (0..1)]``; multirotor ``[collective (0..1), pitch_cmd (-1..1)]``.
+Parameters enter as the symbolic vector ``p`` (order: :func:`uavdyn.airframes.param_names`).
+
+Equations (SPEC section 2; the paper's ``q_dot = M/I_y - g sin(theta)`` is a typo)::
+
+    u_dot = X/m - g sin(theta) - q w        w_dot = Z/m + g cos(theta) + q u
+    q_dot = M/I_y                           theta_dot = q
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from uavdyn.airframes import param_names
+from uavdyn.model.ops import CASADI_OPS
+
+STATE_NAMES = ("u", "w", "q", "theta")
+POSITION_STATE_NAMES = ("x_n", "h")
+CONTROL_NAMES = {"fixed_wing": ("elevator", "throttle"), "multirotor": ("collective", "pitch_cmd")}
+# Physical control ranges (elevator range is the usual +-30 deg surface travel).
+CONTROL_BOUNDS = {
+    "fixed_wing": ((-0.5236, 0.5236), (0.0, 1.0)),
+    "multirotor": ((0.0, 1.0), (-1.0, 1.0)),
+}
+FORCE_NAMES = ("X", "Z", "M", "alpha", "V", "thrust")
+
+
+def symbolic_params(kind: str, p) -> SimpleNamespace:
+    """Name the entries of a symbolic parameter vector so equations read like the textbook."""
+    return SimpleNamespace(**{name: p[i] for i, name in enumerate(param_names(kind))})
+
+
+def stall_blend(alpha, M, alpha0, ops=CASADI_OPS):
+    """Beard & McLain sigmoid (eq. 4.10): 0 for attached flow, 1 past +-alpha0."""
+    e_minus = ops.exp(-M * (alpha - alpha0))
+    e_plus = ops.exp(M * (alpha + alpha0))
+    return (1 + e_minus + e_plus) / ((1 + e_minus) * (1 + e_plus))
+
+
+def propeller_thrust(P: SimpleNamespace, Va, throttle, ops=CASADI_OPS):
+    """McLain's motor/propeller model: motor speed from the torque balance, then thrust from
+    the C_T fit in advance ratio (closed form, smooth in Va and throttle)."""
+    two_pi = 2 * ops.pi
+    KQ = 60.0 / (two_pi * P.KV_rpm_per_volt)
+    V_in = P.V_max * throttle
+    a = P.rho * P.D_prop**5 * P.C_Q0 / two_pi**2
+    b = P.rho * P.D_prop**4 * P.C_Q1 * Va / two_pi + KQ**2 / P.R_motor
+    c = P.rho * P.D_prop**3 * P.C_Q2 * Va**2 - KQ * V_in / P.R_motor + KQ * P.i0
+    omega = (-b + ops.sqrt(b**2 - 4 * a * c)) / (2 * a)
+    return (P.rho * P.D_prop**4 * P.C_T0 * omega**2 / two_pi**2
+            + P.rho * P.D_prop**3 * P.C_T1 * Va * omega / two_pi
+            + P.rho * P.D_prop**2 * P.C_T2 * Va**2)
+
+
+def fixed_wing_forces(x, u, p, ops=CASADI_OPS):
+    """Body-axis aerodynamic + propulsive force X, Z (N) and pitching moment M (N m).
+
+    Lift, drag and moment coefficients follow Beard & McLain ch. 4: attached-flow lift
+    (with the paper's quadratic term) blended to Newtonian flat-plate lift/drag past stall so the
+    model is defined over alpha in [-90, 90] deg; parabolic drag polar; linear moment.
+    """
+    P = symbolic_params("fixed_wing", p)
+    ub, wb, q = x[0], x[1], x[2]
+    elevator, throttle = u[0], u[1]
+    V = ops.sqrt(ub**2 + wb**2)
+    alpha = ops.atan2(wb, ub)
+    qbar = 0.5 * P.rho * V**2
+    q_hat = P.c * q / (2 * V)
+    sigma = stall_blend(alpha, P.M_blend, P.alpha0, ops)
+    aspect = P.b**2 / P.S_wing
+    CL_attached = P.C_L_0 + P.C_L_alpha * alpha + P.C_L_alpha2 * alpha**2
+    sin_a, cos_a = ops.sin(alpha), ops.cos(alpha)
+    CL_plate = 2 * ops.sign(alpha) * sin_a**2 * cos_a
+    CD_attached = P.C_D_0 + CL_attached**2 / (ops.pi * P.e * aspect)
+    CD_plate = P.C_D_0 + 2 * ops.fabs(sin_a) ** 3
+    CL = (1 - sigma) * CL_attached + sigma * CL_plate + P.C_L_q * q_hat + P.C_L_delta_e * elevator
+    CD = (1 - sigma) * CD_attached + sigma * CD_plate + P.C_D_q * q_hat + P.C_D_delta_e * elevator
+    Cm = P.C_m_0 + P.C_m_alpha * alpha + P.C_m_q * q_hat + P.C_m_delta_e * elevator
+    lift = qbar * P.S_wing * CL
+    drag = qbar * P.S_wing * CD
+    thrust = propeller_thrust(P, V, throttle, ops)
+    X = -drag * cos_a + lift * sin_a + thrust
+    Z = -drag * sin_a - lift * cos_a
+    M = qbar * P.S_wing * P.c * Cm
+    return X, Z, M, alpha, V, thrust
+
+
+def rotor_thrust(P: SimpleNamespace, throttle, ops=CASADI_OPS):
+    """Thrust of one rotor from its throttle: w = C_R*sigma + w_b, T = c_T max(w, 0)^2."""
+    omega = P.C_R * throttle + P.omega_b
+    return P.c_T * ops.fmax(omega, 0) ** 2
+
+
+def multirotor_forces(x, u, p, ops=CASADI_OPS):
+    """Body-axis force X, Z (N) and moment M (N m) of an X-frame quadrotor in the pitch plane:
+    front pair and rear pair of rotors, body drag (linear rotor drag + quadratic parasite)."""
+    P = symbolic_params("multirotor", p)
+    ub, wb, q = x[0], x[1], x[2]
+    collective, pitch_cmd = u[0], u[1]
+    t_front = rotor_thrust(P, collective + P.pitch_mix * pitch_cmd, ops)
+    t_rear = rotor_thrust(P, collective - P.pitch_mix * pitch_cmd, ops)
+    thrust = 2 * (t_front + t_rear)
+    lever = P.arm * ops.sqrt(0.5)
+    X = -P.drag_linear * ub - 0.5 * P.rho * P.CdA_x * ops.fabs(ub) * ub
+    Z = -thrust - 0.5 * P.rho * P.CdA_z * ops.fabs(wb) * wb
+    M = 2 * (t_front - t_rear) * lever - P.pitch_damping * q
+    V = ops.sqrt(ub**2 + wb**2)
+    alpha = ops.atan2(wb, ub)
+    return X, Z, M, alpha, V, thrust
+
+
+FORCE_MODELS = {"fixed_wing": fixed_wing_forces, "multirotor": multirotor_forces}
+
+
+def rigid_body_rates(x, X, Z, M, mass, Jy, g, with_position: bool, ops=CASADI_OPS):
+    """Longitudinal rigid-body kinematics and dynamics given body forces and moment."""
+    ub, wb, q, theta = x[0], x[1], x[2], x[3]
+    rates = [
+        X / mass - g * ops.sin(theta) - q * wb,
+        Z / mass + g * ops.cos(theta) + q * ub,
+        M / Jy,
+        q,
+    ]
+    if with_position:
+        rates += [ub * ops.cos(theta) + wb * ops.sin(theta),
+                  ub * ops.sin(theta) - wb * ops.cos(theta)]
+    return ops.vertcat(*rates)
+
+
+def make_rhs(kind: str, with_position: bool = False, ops=CASADI_OPS):
+    """``rhs(x, u, p) -> x_dot`` of an airframe kind, evaluated with ``ops`` (feature-first)."""
+    names = param_names(kind)  # validates kind
+    forces = FORCE_MODELS[kind]
+    i_mass, i_jy, i_g = (names.index(n) for n in ("mass", "Jy", "gravity"))
+
+    def rhs(x, u, p):
+        X, Z, M = forces(x, u, p, ops)[:3]
+        return rigid_body_rates(x, X, Z, M, p[i_mass], p[i_jy], p[i_g], with_position, ops)
+
+    return rhs

@@ -1,0 +1,17 @@
+"""Tracking MPC with any step Function (physics or hybrid) as its prediction model."""
+
+from uavdyn.mpc.tracking import (
+    RELU_SMOOTHING,
+    SCENARIOS,
+    ClosedLoopResult,
+    MPCConfig,
+    MPCResult,
+    Scenario,
+    TrackingMPC,
+    emulator_plant,
+    fly_closed_loop,
+    run_scenario,
+)
+
+__all__ = ["RELU_SMOOTHING", "SCENARIOS", "ClosedLoopResult", "MPCConfig", "MPCResult",
+           "Scenario", "TrackingMPC", "emulator_plant", "fly_closed_loop", "run_scenario"]
