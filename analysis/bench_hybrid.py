@@ -4,9 +4,10 @@ activation and formulation considered. Prints JSON (and writes it with ``--out``
 
 Accuracy: free-run pitch RMSE (rad) at dt = 0.005 s against calm flight data — the test split of
 ``--dataset`` (calm sorties only) or, without it, perturbed-model stand-in sorties
-(:func:`training.data.synthetic_sorties`, seeds disjoint from training). The default network is
-the shipped weight file; the other variants are trained here (torch) with ``--train-seconds``
-each, on the same data source, and cached in ``--cache`` (``--retrain`` to redo).
+(:func:`uavdyn.learned.data.synthetic_sorties`, seeds disjoint from training). The default
+network is the shipped weight file; the other variants are trained here (torch) with
+``--train-seconds`` each, on the same data source, and cached in ``--cache``
+(``--retrain`` to redo).
 
 Timings are medians of ``--repeats`` runs on a shared 2-core machine: expect up to 60 % noise.
 Usage: ``python analysis/bench_hybrid.py [--airframe aerosonde] [--dataset DIR] [--out F]``.
@@ -24,16 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:  # training/ of the source checkout
-    sys.path.insert(0, str(ROOT))
-
-from uavdyn.airframes import load_airframe  # noqa: E402
-from uavdyn.integrate import compile_function  # noqa: E402
-from uavdyn.learned import load_weights  # noqa: E402
-from uavdyn.learned import hybrid_rollout, hybrid_step, shipped_weights, sortie_free_run  # noqa: E402
-from uavdyn.integrate import rk4_step, rollout  # noqa: E402
-from uavdyn.model import build_model  # noqa: E402
+from uavdyn.airframes import load_airframe
+from uavdyn.evaluation import sortie_free_run
+from uavdyn.integrate import compile_function, rk4_step, rollout
+from uavdyn.learned import hybrid_step, load_weights, shipped_weights
+from uavdyn.model import build_model
 
 DT = 0.005
 N_TIMING = 4000
@@ -80,7 +76,7 @@ def load_sorties(args, airframe):
     train_val = synthetic_sorties(airframe, 20, seed=0, duration=20.0)
     tr, va, _ = split_sorties(train_val, seed=0)
     test = synthetic_sorties(airframe, 8, seed=1000, duration=20.0)
-    return tr, va, test, "perturbed-model stand-in sorties (training.data.synthetic_sorties)"
+    return tr, va, test, "perturbed-model stand-in sorties (uavdyn.learned.data.synthetic_sorties)"
 
 
 def windows(sorties, seconds: float | None):
@@ -105,8 +101,8 @@ def variant_net(args, airframe, formulation, activation, width, tr, va):
     cache = Path(args.cache) / f"{airframe.name}_{formulation}_{activation}{width}.npz"
     if cache.exists() and not args.retrain:
         return load_weights(cache, airframe), "cached"
-    from uavdyn.learned.train import TrainConfig, train
     from uavdyn.learned import save_weights
+    from uavdyn.learned.train import TrainConfig, train
 
     cfg = TrainConfig(formulation=formulation, activation=activation, hidden=width, dt=DT,
                       max_seconds=args.train_seconds, progress=False)
@@ -145,7 +141,7 @@ def main(argv: list[str] | None = None) -> dict:
     rk4_us = median_us_per_step(rk4_sim, [x0, u_timing.T, af.p, DT], args.repeats)
 
     def cost(step, formulation):
-        sim = compile_function(hybrid_rollout(step, N_TIMING))
+        sim = compile_function(rollout(step, N_TIMING))
         extra = [0.0] if formulation == "paper" else []
         return median_us_per_step(sim, [x0, u_timing.T, af.p, DT, *extra], args.repeats)
 

@@ -21,11 +21,17 @@ import numpy as np
 import scipy.integrate
 
 from uavdyn.airframes import load_airframe
-from uavdyn.integrate import compile_function
+from uavdyn.integrate import (
+    compile_function,
+    reference_step,
+    rk4_numpy,
+    rk4_step,
+    rollout,
+    simulate,
+)
 from uavdyn.integrate.inputs import chirp, doublet
-from uavdyn.integrate import reference_step, rk4_numpy, rk4_step, rollout, simulate
-from uavdyn.model import build_model, numpy_rhs
 from uavdyn.linear import trim
+from uavdyn.model import build_model, numpy_rhs
 
 DT = 0.005
 DURATION = 10.0

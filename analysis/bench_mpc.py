@@ -7,16 +7,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from mpc_demo import fly_all, prediction_models, summarise  # noqa: E402
-
-from uavdyn.airframes import load_airframe  # noqa: E402
-from uavdyn.linear import trim  # noqa: E402
+from uavdyn.airframes import load_airframe
+from uavdyn.linear import trim
+from uavdyn.mpc.study import fly_all, prediction_models, summarise
 
 
 def main() -> None:

@@ -18,40 +18,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from uavdyn.airframes import load_airframe  # noqa: E402
-from uavdyn.learned import hybrid_step, shipped_weights  # noqa: E402
-from uavdyn.integrate import rk4_step  # noqa: E402
-from uavdyn.model import build_model  # noqa: E402
-from uavdyn.mpc import RELU_SMOOTHING, SCENARIOS, MPCConfig, run_scenario  # noqa: E402
 from uavdyn.linear import trim  # noqa: E402
-
-
-def prediction_models(airframe, weights: Path | None) -> dict:
-    """The two prediction models compared: the hybrid step and physics-only RK4."""
-    return {"hybrid": hybrid_step(weights or shipped_weights(airframe.name), airframe,
-                                  compile=False, relu_smoothing=RELU_SMOOTHING),
-            "physics": rk4_step(build_model(airframe).f)}
-
-
-def fly_all(airframe, point, models: dict, horizon: int, dt: float) -> dict:
-    """Every scenario with every prediction model: closed-loop results keyed (scenario, model)."""
-    config = MPCConfig(horizon=horizon, dt=dt)
-    return {(sc.name, name): (sc, run_scenario(sc, step, airframe, point, config))
-            for sc in SCENARIOS for name, step in models.items()}
-
-
-def summarise(results: dict) -> dict:
-    out = {}
-    for (scenario_name, model), (sc, res) in results.items():
-        rmse = res.rmse(sc.tracked, t_from=sc.start)
-        out.setdefault(scenario_name, {})[model] = {
-            "tracked": sc.tracked, "tracking_rmse": rmse,
-            "tracking_rmse_unit": "rad" if sc.tracked == "theta" else "m",
-            "solve_ms_median": float(np.median(res.solve_times_s) * 1e3),
-            "solve_ms_max": float(np.max(res.solve_times_s) * 1e3),
-            "all_solves_succeeded": bool(res.success.all()),
-            "solve_success_rate": float(res.success.mean()),
-        }
-    return out
+from uavdyn.mpc import RELU_SMOOTHING, SCENARIOS  # noqa: E402
+from uavdyn.mpc.study import fly_all, prediction_models, summarise  # noqa: E402
 
 
 def plot(results: dict, path: Path) -> None:

@@ -19,11 +19,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from uavdyn.airframes import load_airframe  # noqa: E402
-from uavdyn.learned import hybrid_step, shipped_weights  # noqa: E402
 from uavdyn.integrate import rk4_step  # noqa: E402
+from uavdyn.learned import hybrid_step, shipped_weights  # noqa: E402
+from uavdyn.linear import (  # noqa: E402
+    discrete_map_modes,
+    mode_table,
+    trim,  # noqa: E402
+)
 from uavdyn.model import build_model  # noqa: E402
-from uavdyn.linear import discrete_map_modes, mode_table  # noqa: E402
-from uavdyn.linear import trim  # noqa: E402
 
 
 def analyse(name: str, weights: Path, dt: float) -> dict:

@@ -8,7 +8,12 @@ import subprocess
 import numpy as np
 import pytest
 
-from uavdyn.deploy import BundleSpec, doublet_controls, export_bundle, silence_unused_parameters
+from uavdyn.deploy.bundle import (
+    BundleSpec,
+    doublet_controls,
+    export_bundle,
+    silence_unused_parameters,
+)
 from uavdyn.integrate import rk4_step, simulate
 from uavdyn.model import build_model
 
@@ -63,14 +68,15 @@ def test_bundle_matches_python(tmp_path, request, name, real, rollout_steps, tol
 ])
 def test_hybrid_bundle_matches_python_hybrid_rollout(tmp_path, aerosonde, aerosonde_trim,
                                                      formulation, real, rollout_steps, tol):
-    from uavdyn.learned import WEIGHTS_DIR, free_run, hybrid_step
+    from uavdyn.integrate import free_run, takes_time
+    from uavdyn.learned import hybrid_step, shipped_weights
 
-    step = hybrid_step(WEIGHTS_DIR / f"aerosonde_{formulation}.npz", aerosonde, compile=False)
+    step = hybrid_step(shipped_weights("aerosonde", formulation), aerosonde, compile=False)
     model = build_model(aerosonde)
     spec = BundleSpec("hyb", model.state_names, model.control_names, model.param_names,
                       aerosonde.p, aerosonde_trim.x, aerosonde_trim.u, 0.005, math.radians(2),
                       example_steps=400, real=real, rollout_steps=rollout_steps,
-                      has_time_input=step.n_in() == 5)
+                      has_time_input=takes_time(step))
     folder = export_bundle(step, spec, tmp_path / "bundle")
     _, data = build_and_run(folder, "hyb")
     expected = free_run(step, aerosonde_trim.x, doublet_controls(spec), aerosonde.p, 0.005,

@@ -7,16 +7,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from uavdyn.emulation import (
-    TRUTH_DEFAULTS,
-    Emulator,
-    dryden_gusts,
-    open_loop_references,
-    soft_clip,
-)
-from uavdyn.integrate.inputs import control_sequence, doublet, multistep_3211
+from uavdyn.emulation import Emulator, dryden_gusts, open_loop_references, plan_mission
+from uavdyn.emulation.emulator import TRUTH_DEFAULTS, soft_clip
 from uavdyn.integrate import rk4_step, simulate
-from uavdyn.emulation import plan_mission
+from uavdyn.integrate.inputs import control_sequence, doublet, multistep_3211
 from uavdyn.model import build_model
 
 

@@ -2,29 +2,21 @@
 formulation; its Jacobians equal central finite differences; rollouts match repeated steps;
 the shipped weights load for their airframe and are refused for another."""
 
-import sys
-from pathlib import Path
-
 import casadi as ca
 import numpy as np
 import pytest
 from test_correction import random_net
 
 from uavdyn.airframes import perturb
-from uavdyn.integrate import compile_function, find_compiler
-from uavdyn.learned import WeightFileError, load_weights, mlp_expression
+from uavdyn.integrate import compile_function, find_compiler, rk4_step, rollout
 from uavdyn.learned import (
+    WeightFileError,
     hybrid_jacobian,
-    hybrid_rollout,
     hybrid_step,
+    load_weights,
     shipped_weights,
 )
-from uavdyn.integrate import rk4_step
 from uavdyn.model import build_model
-
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:  # the training/ folder of the source checkout
-    sys.path.insert(0, str(ROOT))
 
 
 def in_range_inputs(point, kind, n, seed=0):
@@ -80,7 +72,7 @@ def test_torch_vm_and_c_agree(airframe_name, formulation, request):
 
     # the correction alone
     sym = ca.SX.sym("inp", net.n_in)
-    corr = ca.Function("corr", [sym], [mlp_expression(net, sym)]).map(1000)
+    corr = ca.Function("corr", [sym], [net.casadi(sym)]).map(1000)
     y_vm = np.array(corr(inp.T)).T
     tol = 1e-10 * max(1.0, np.abs(y_torch).max())
     np.testing.assert_allclose(y_vm, y_torch, rtol=0, atol=tol)
@@ -192,7 +184,7 @@ def test_rollout_equals_repeated_steps_and_jacobian_is_nlp_ready(aerosonde, aero
         U = np.tile(aerosonde_trim.u, (n, 1)).T + 0.02
         args = [aerosonde_trim.x, U, aerosonde.p, 0.01] + ([1.5] if formulation == "paper"
                                                            else [])
-        traj = np.array(compile_function(hybrid_rollout(step, n))(*args))
+        traj = np.array(compile_function(rollout(step, n))(*args))
         x = aerosonde_trim.x.copy()
         for k in range(n):
             extra = [1.5 + 0.01 * k] if formulation == "paper" else []

@@ -9,9 +9,10 @@ import pytest
 import scipy.integrate
 import scipy.linalg
 
-from uavdyn.integrate import compile_function, find_compiler, generate_c
-from uavdyn.integrate.inputs import control_sequence
 from uavdyn.integrate import (
+    compile_function,
+    find_compiler,
+    generate_c,
     reference_step,
     rk4_numpy,
     rk4_step,
@@ -19,8 +20,9 @@ from uavdyn.integrate import (
     simulate,
     substepped,
 )
-from uavdyn.model import build_model, numpy_rhs
+from uavdyn.integrate.inputs import control_sequence
 from uavdyn.linear import linearise
+from uavdyn.model import build_model, numpy_rhs
 
 CASES = {"aerosonde": ("aerosonde_trim", 0, math.radians(2.0)),
          "f450": ("f450_hover", 1, 0.02)}
@@ -117,7 +119,7 @@ def test_substepped_equals_finer_rollout(aerosonde, aerosonde_trim):
     a = simulate(coarse, aerosonde_trim.x, U, aerosonde.p, 0.02)
     b = simulate(step, aerosonde_trim.x, np.repeat(U, 4, axis=0), aerosonde.p, 0.005)[::4]
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-13)
-    with pytest.raises(ValueError, match="n_steps must be >= 1"):
+    with pytest.raises(ValueError, match="n_samples and substeps must be >= 1"):
         rollout(step, 0)
 
 

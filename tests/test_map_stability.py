@@ -4,8 +4,7 @@ whose eigenvalues are the RK4 stability polynomial of A dt and, to RK4 truncatio
 import numpy as np
 import pytest
 
-from uavdyn.learned import CorrectionNet
-from uavdyn.learned import hybrid_step
+from uavdyn.learned import CorrectionNet, hybrid_step
 from uavdyn.linear import discrete_map_modes, linearise
 
 

@@ -6,9 +6,15 @@ import math
 import numpy as np
 import pytest
 
-from uavdyn.emulation import REFERENCE_NAMES, Emulator
+from uavdyn.emulation import (
+    MISSIONS,
+    REFERENCE_NAMES,
+    Emulator,
+    MissionError,
+    missions_for,
+    plan_mission,
+)
 from uavdyn.flightdata import check_values
-from uavdyn.emulation import MISSIONS, MissionError, missions_for, plan_mission
 
 CASES = [(af, m) for af, kind in (("aerosonde", "fixed_wing"), ("f450", "multirotor"))
          for m in missions_for(kind)]

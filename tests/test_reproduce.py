@@ -12,10 +12,10 @@ import pytest
 
 from uavdyn.airframes import load_airframe, perturb
 from uavdyn.cli import main
-from uavdyn.integrate import rk4_step, simulate
-from uavdyn.model import build_model
 from uavdyn.experiments.reproduce import ReproduceConfig, run
+from uavdyn.integrate import rk4_step, simulate
 from uavdyn.linear import trim
+from uavdyn.model import build_model
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

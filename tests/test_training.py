@@ -3,31 +3,25 @@ free-run pitch error below physics-only RK4 at the same step); the CLI writes we
 JSON and PNG; datasets are built by sortie with clear errors."""
 
 import json
-import sys
-from dataclasses import asdict
-from pathlib import Path
+from dataclasses import asdict, replace
 
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:  # the training/ folder of the source checkout
-    sys.path.insert(0, str(ROOT))
 
+from uavdyn.evaluation import pitch_rmse  # noqa: E402
+from uavdyn.integrate import EvalGrid, GridError, rk4_step  # noqa: E402
+from uavdyn.learned import hybrid_step, load_weights, save_weights  # noqa: E402
 from uavdyn.learned.data import (  # noqa: E402
     DatasetError,
-    grid_for,
     one_step_pairs,
     rollout_windows,
     synthetic_sorties,
     target_trajectories,
 )
 from uavdyn.learned.train import TrainConfig, train  # noqa: E402
-from uavdyn.learned import load_weights, save_weights  # noqa: E402
-from uavdyn.learned import hybrid_step, pitch_rmse  # noqa: E402
-from uavdyn.integrate import rk4_step  # noqa: E402
 from uavdyn.model import build_model  # noqa: E402
 
 
@@ -86,9 +80,13 @@ def test_cli_defaults_match_train_config():
 
 def test_dataset_building(small_data, aerosonde, f450):
     train_s = small_data[0]
-    assert grid_for(0.01, 0.005) == (1, 2) and grid_for(0.01, 0.05) == (5, 1)
-    with pytest.raises(DatasetError, match="does not divide"):
-        grid_for(0.01, 0.003)
+    g, coarse = EvalGrid(0.01, 0.005), EvalGrid(0.01, 0.05)
+    assert (g.stride, g.substeps) == (1, 2) and (coarse.stride, coarse.substeps) == (5, 1)
+    with pytest.raises(GridError, match="must divide"):
+        EvalGrid(0.01, 0.003)
+    bad_rate = [replace(train_s[0], time=train_s[0].time * 0.3)]
+    with pytest.raises(DatasetError, match="must divide"):
+        target_trajectories(bad_rate, aerosonde, "data", 0.005)
     trajs = target_trajectories(train_s, aerosonde, "data", 0.005)
     pairs = one_step_pairs(trajs)
     assert len(pairs.t) == sum(len(s.time) - 1 for s in train_s)

@@ -6,9 +6,8 @@ import math
 import numpy as np
 import pytest
 
+from uavdyn.linear import TrimError, linearise, mode_table, modes, stall_speed, trim
 from uavdyn.model import build_model
-from uavdyn.linear import linearise, mode_table, modes
-from uavdyn.linear import TrimError, stall_speed, trim
 
 
 @pytest.mark.parametrize("name, airspeed, gamma", [

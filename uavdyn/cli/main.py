@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from uavdyn import __version__
 from uavdyn.airframes import AirframeError, list_presets, load_airframe
 from uavdyn.deploy import BundleSpec, export_bundle
 from uavdyn.emulation.datagen import Recipe, generate_dataset
@@ -34,7 +35,14 @@ from uavdyn.experiments.reproduce import (
     run,
 )
 from uavdyn.flightdata import Sortie, write_csv
-from uavdyn.integrate import compile_function, rk4_step, rollout
+from uavdyn.integrate import (
+    DivergenceError,
+    check_use,
+    compile_function,
+    rk4_step,
+    rollout,
+    takes_time,
+)
 from uavdyn.integrate.inputs import control_sequence
 from uavdyn.learned import hybrid_step, shipped_weights
 from uavdyn.linear import TrimError, discrete_map_modes, linearise, mode_table, modes, trim
@@ -114,8 +122,13 @@ def _hybrid_modes(args: argparse.Namespace, airframe, point) -> int:
     weights = Path(args.weights) if args.weights else shipped_weights(airframe.name)
     if not weights.exists():
         raise CliError(f"no weight file {weights}; give --weights FILE")
-    comp = discrete_map_modes(hybrid_step(weights, airframe, compile=False), airframe, point,
-                              args.dt)
+    step = hybrid_step(weights, airframe, compile=False)
+    if takes_time(step):
+        raise CliError(f"{weights.name}: this correction takes time t as an input, so its map "
+                       "changes along the flight and has no modes at a trim point; use weights "
+                       "of the 'improved' formulation")
+    check_use(step, args.dt)
+    comp = discrete_map_modes(step, airframe, point, args.dt)
     if args.json:
         print(json.dumps({
             "trim": point.as_dict(), "dt": args.dt, "weights": str(weights),
@@ -189,7 +202,7 @@ def cmd_export_c(args: argparse.Namespace) -> int:
     spec = BundleSpec(args.name, model.state_names, model.control_names, model.param_names,
                       airframe.p, point.x, point.u, args.dt, amplitude, doublet_channel=channel,
                       real=args.real, rollout_steps=args.rollout,
-                      has_time_input=step.n_in() == 5)
+                      has_time_input=takes_time(step))
     out = export_bundle(step, spec, args.out)
     what = f"rollout of {args.rollout} steps" if args.rollout else "one step"
     print(f"wrote {out}/ ({args.name}.h, {args.name}.c, {args.name}_generated.c, main.c, "
@@ -233,8 +246,7 @@ def cmd_generate_data(args: argparse.Namespace) -> int:
 
 
 def _training_module():
-    """Import ``training.train`` (torch needed); in a source checkout the ``training/`` folder
-    beside the package is used even when the package is installed elsewhere on the path."""
+    """Import :mod:`uavdyn.learned.train` (needs torch, the ``[train]`` extra)."""
     try:
         import torch  # noqa: F401
     except ImportError:
@@ -287,6 +299,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="uavdyn", description="Nonlinear longitudinal UAV flight dynamics with a "
         "learned-residual, compiled RK4 integrator.")
+    parser.add_argument("--version", action="version", version=f"uavdyn {__version__}")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the Python traceback of an unexpected error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -446,9 +461,25 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return int(args.func(args) or 0)
-    except (CliError, AirframeError, TrimError, FileNotFoundError, ValueError) as exc:
-        print(f"uavdyn {args.command}: error: {exc}", file=sys.stderr)
+    except (CliError, AirframeError, TrimError, FileNotFoundError, ValueError,
+            DivergenceError) as exc:
+        if args.debug:
+            raise
+        print(f"uavdyn {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"uavdyn {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # an internal error: one line, the traceback on request
+        if args.debug:
+            raise
+        print(f"uavdyn {args.command}: internal error: {type(exc).__name__}: "
+              f"{_one_line(exc)} (run with --debug for the traceback)", file=sys.stderr)
+        return 2
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 if __name__ == "__main__":

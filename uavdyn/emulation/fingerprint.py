@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-SAMPLED_ROWS = 41
+SAMPLED_ROWS = 11
 DEFAULT_TOLERANCE = 1e-9
 RECIPES = "uavdyn.emulation.recipes"
 

@@ -159,13 +159,19 @@ def free_run_runner(step, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
     return run
 
 
+def refusal(step, dt: float, t_end: float = 0.0) -> str | None:
+    """Why ``step`` may not be used at ``dt`` up to ``t_end`` s into a sortie (a correction
+    tied to its trained step size or time range), or None."""
+    try:
+        check_use(step, dt, 0.0, t_end)
+    except StepUseError as exc:
+        return str(exc)
+    return None
+
+
 def usable(step, dt: float) -> bool:
     """Whether ``step`` may be used at ``dt`` (a dt-bound correction only at its own)."""
-    try:
-        check_use(step, dt)
-    except StepUseError:
-        return False
-    return True
+    return refusal(step, dt) is None
 
 
 def build_solvers(airframe: Airframe, nets: dict, dts) -> dict[str, list[Solver]]:
@@ -308,8 +314,13 @@ def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> 
     steps = {"RK4": rk4_step(build_model(airframe).f), **hybrid_steps(airframe, nets)}
     plan = [("RK4", 0.001), ("RK4", 0.0005), ("RK4", 0.005), ("hybrid improved", 0.005),
             ("hybrid paper", 0.005)]
+    missing: list[dict] = []
     for name, dt in plan:
         if name not in steps:
+            continue
+        why = refusal(steps[name], dt, sortie.time[-1] - sortie.time[0])
+        if why:  # reported as missing, never run outside what the step was trained for
+            missing.append({"solver": name, "dt": dt, "missing": why})
             continue
         for compiled in (True, False):
             run = free_run_runner(steps[name], x0, controls, p, sample_dt, dt, compiled)
@@ -347,7 +358,7 @@ def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> 
     base = next((r for r in rows if r["solver"] == "hybrid improved compiled"), None)
     for r in rows:
         r["ratio_to_hybrid_0.005"] = r["wall_ms"] / base["wall_ms"] if base else None
-    return {"sortie": sortie.name, "duration_s": sortie.duration, "rows": rows,
+    return {"sortie": sortie.name, "duration_s": sortie.duration, "rows": rows, "missing": missing,
             "grid": f"logged controls held over each {sample_dt:g} s interval (ZOH)"}
 
 
@@ -358,10 +369,12 @@ def flight_mode(kind: str) -> str:
     return "free_run" if kind == "fixed_wing" else "horizon_1s"
 
 
-def work_precision(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> list[dict]:
+def work_precision(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int,
+                   missing: list | None = None) -> list[dict]:
     """Error against wall time for every solver and step size, on one test sortie: wall time of
     the compiled whole-sortie free run; pitch RMSE against the flight data (see
-    :func:`flight_mode`) and, free run, against the baseline fine-step reference."""
+    :func:`flight_mode`) and, free run, against the baseline fine-step reference. A point the
+    step refuses (outside its trained dt or time range) goes to ``missing`` with the reason."""
     truth = target_states(sortie)
     ref = fine_reference(airframe.kind, sortie.time, truth[0], sortie.controls, airframe.p)
     controls, x0, p, sample_dt = sortie.controls[:-1], truth[0], airframe.p, sortie.dt
@@ -374,6 +387,11 @@ def work_precision(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int)
     points = []
     for family, (step, dts) in families.items():
         for dt in dts:
+            why = refusal(step, dt, sortie.time[-1] - sortie.time[0])
+            if why:
+                if missing is not None:
+                    missing.append({"family": family, "dt": dt, "missing": why})
+                continue
             run = free_run_runner(step, x0, controls, p, sample_dt, dt)
             run()
             wall = _median_time(run, repeats)
@@ -475,7 +493,8 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
     table2 = convergence_table(nets)
     calm = [s for s in test if condition(s) == "calm"] or test
     table3 = cost_table(airframe, calm[0], nets, config.cost_repeats)
-    wp = work_precision(airframe, calm[0], nets, max(1, config.cost_repeats // 2))
+    wp_missing: list[dict] = []
+    wp = work_precision(airframe, calm[0], nets, max(1, config.cost_repeats // 2), wp_missing)
     table4 = robustness_table(airframe, ds, nets, config)
     result = {"airframe": airframe.name, "kind": airframe.kind,
               "dataset": {"path": str(ds.path), "sorties": len(ds.sorties),
@@ -483,7 +502,7 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
                           "sample_rate_hz": ds.sample_rate_hz},
               "weights": {f"{f}/{t}": (str(p) if p else None) for (f, t), p in nets.items()},
               "table1": table1, "table2": table2, "table3": table3,
-              "work_precision": wp, "table4": table4}
+              "work_precision": wp, "work_precision_missing": wp_missing, "table4": table4}
     result["figures"] = figures.make_all(airframe, ds, nets, result, out)
     return result
 

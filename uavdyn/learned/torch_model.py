@@ -76,6 +76,8 @@ class TorchCorrection(nn.Module):
         """Hybrid step on a batch: ``x (B,4)``, ``u (B,2)``, ``t (B,)`` (time since the sortie
         start) for a time-dependent formulation; the formulation's own code."""
         tt = None if t is None else t.reshape(1, -1)
+        if isinstance(dt, torch.Tensor) and dt.dim() == 2:  # a (B, 1) step size per sample
+            dt = dt.T
         return self.form.step(self.rhs, x.T, u.T, p, dt, self._net, torch_ops(), tt).T
 
     def physics_step(self, x, u, p, dt) -> torch.Tensor:

@@ -2,7 +2,7 @@
 plus a multi-step rollout loss through the hybrid step, early stopping on validation sorties,
 loss history as JSON and PNG, export to a plain ``.npz``.
 
-Entry point: ``python -m training.train --airframe aerosonde --out data/weights/x.npz`` or
+Entry point: ``python -m training.train --airframe aerosonde --out results/x.npz`` or
 ``uavdyn train`` (same options).
 
 Losses are normalised per state by the physics-only RK4 error on the training set (one-step
@@ -321,7 +321,7 @@ def load_training_sorties(dataset: str | None, airframe: Airframe, n: int, seed:
 
     sorties = synthetic_sorties(airframe, n, seed=seed, duration=duration)
     a, b, c = split_sorties(sorties, seed=seed)
-    return a, b, c, "perturbed-model stand-in sorties (training.data.synthetic_sorties)"
+    return a, b, c, "perturbed-model stand-in sorties (uavdyn.learned.data.synthetic_sorties)"
 
 
 def run(args: argparse.Namespace) -> dict:

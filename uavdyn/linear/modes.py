@@ -9,7 +9,6 @@ import math
 from dataclasses import dataclass
 
 import casadi as ca
-import control as ct
 import numpy as np
 import scipy.linalg
 
@@ -68,6 +67,8 @@ def modes(A: np.ndarray, kind: str, B: np.ndarray | None = None) -> list[Mode]:
     A = np.asarray(A, dtype=float)
     n = A.shape[0]
     B = np.zeros((n, 1)) if B is None else np.asarray(B, dtype=float)
+    import control as ct  # python-control imports matplotlib: only when modes are asked for
+
     sys = ct.ss(A, B, np.eye(n), np.zeros((n, B.shape[1])))
     with np.errstate(invalid="ignore", divide="ignore"):
         wn, zeta, poles = ct.damp(sys, doprint=False)

@@ -1,0 +1,1 @@
+"""Shipped dataset recipes and their reference value fingerprints (package data)."""

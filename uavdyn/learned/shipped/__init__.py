@@ -1,0 +1,1 @@
+"""Shipped correction weights and their loss histories (package data; see README.md)."""
