@@ -38,15 +38,15 @@ from uavdyn.flightdata import Sortie, write_csv
 from uavdyn.integrate import (
     DivergenceError,
     check_use,
-    compile_function,
+    free_run,
     rk4_step,
-    rollout,
     takes_time,
 )
 from uavdyn.integrate.inputs import control_sequence
 from uavdyn.learned import hybrid_step, shipped_weights
 from uavdyn.linear import TrimError, discrete_map_modes, linearise, mode_table, modes, trim
-from uavdyn.model import build_model
+from uavdyn.model import CONTROL_BOUNDS, build_model
+from uavdyn.outputs import atomic_file, write_text_atomic
 
 
 class CliError(Exception):
@@ -149,6 +149,9 @@ def _hybrid_modes(args: argparse.Namespace, airframe, point) -> int:
     return 0
 
 
+MAX_SIMULATION_ROWS = 2_000_000  # ~100 MB of CSV; beyond that, simulate in pieces
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     """Simulate an input profile from trim with the compiled RK4 and write an interchange CSV."""
 
@@ -159,23 +162,33 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     n = int(round(args.duration / args.dt))
     if n < 1:
         raise CliError("--duration must be at least one step long")
+    if n + 1 > MAX_SIMULATION_ROWS:
+        raise CliError(f"--duration {args.duration:g} s at --dt {args.dt:g} s is {n + 1} rows, "
+                       f"more than the {MAX_SIMULATION_ROWS} this command writes at once")
     airframe, point = _trim(args)
     amplitude = args.amplitude
     if amplitude is None:
         amplitude = math.radians(2.0) if airframe.kind == "fixed_wing" else 0.05
+    if not math.isfinite(amplitude):
+        raise CliError(f"--amplitude must be a finite number, got {amplitude}")
     t = np.arange(n + 1) * args.dt
     controls = control_sequence(args.input, t, point.u, amplitude, channel=args.channel)
-    model = build_model(airframe)
-    sim = compile_function(rollout(rk4_step(model.f), n))
-    traj = np.array(sim(point.x, controls[:-1].T, airframe.p, args.dt)).T
-    states = np.vstack([point.x, traj])
-    if not np.all(np.isfinite(states)):
-        raise CliError("the simulation diverged (non-finite state); reduce --dt or --amplitude")
+    name = build_model(airframe).control_names[args.channel]
+    lo, hi = CONTROL_BOUNDS[airframe.kind][args.channel]
+    used = controls[:, args.channel]
+    if used.min() < lo - 1e-12 or used.max() > hi + 1e-12:
+        unit = " rad (radians, not degrees)" if name == "elevator" else ""
+        raise CliError(f"--amplitude {amplitude:g} takes {name} to {used.min():.4g}..."
+                       f"{used.max():.4g}{unit}, outside its limits [{lo:g}, {hi:g}] "
+                       f"(trim {point.u[args.channel]:.4g})")
+    states = free_run(rk4_step(build_model(airframe).f), point.x, controls[:-1], airframe.p,
+                      args.dt)  # compiled; raises DivergenceError with its time
     sortie = Sortie(name=Path(args.out).stem, kind=airframe.kind, time=t, states=states,
                     controls=controls, mission=args.input)
-    path = write_csv(sortie, args.out)
+    with atomic_file(args.out, create_parents=True) as tmp:
+        write_csv(sortie, tmp)
     theta = states[:, 3]
-    print(f"wrote {path} ({n + 1} rows, dt {args.dt:g} s); pitch range "
+    print(f"wrote {args.out} ({n + 1} rows, dt {args.dt:g} s); pitch range "
           f"{math.degrees(theta.min()):.2f} .. {math.degrees(theta.max()):.2f} deg")
     return 0
 
@@ -203,7 +216,7 @@ def cmd_export_c(args: argparse.Namespace) -> int:
                       airframe.p, point.x, point.u, args.dt, amplitude, doublet_channel=channel,
                       real=args.real, rollout_steps=args.rollout,
                       has_time_input=takes_time(step))
-    out = export_bundle(step, spec, args.out)
+    out = export_bundle(step, spec, args.out, force=args.force)
     what = f"rollout of {args.rollout} steps" if args.rollout else "one step"
     print(f"wrote {out}/ ({args.name}.h, {args.name}.c, {args.name}_generated.c, main.c, "
           f"Makefile; {args.real}, {what})")
@@ -226,7 +239,7 @@ def cmd_generate_data(args: argparse.Namespace) -> int:
     recipe = Recipe(**values)
     if args.workers is not None and args.workers < 1:
         raise CliError(f"--workers must be >= 1, got {args.workers}")
-    manifest = generate_dataset(recipe, args.out, workers=args.workers,
+    manifest = generate_dataset(recipe, args.out, workers=args.workers, force=args.force,
                                 progress=not args.no_progress)
     print(f"wrote {manifest} ({recipe.sorties} sorties x {recipe.duration_s:g} s at "
           f"{recipe.sample_rate_hz:g} Hz, seed {recipe.seed})")
@@ -275,7 +288,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     config = ReproduceConfig(airframes=tuple(args.airframes), out=args.out, quick=args.quick,
                              retrain=args.retrain, cache=args.cache,
                              cost_repeats=args.cost_repeats, sorties=args.sorties,
-                             duration_s=args.duration)
+                             duration_s=args.duration, force=args.force)
     result = run(config)
     print(f"report: {Path(args.out) / 'report.md'} ({result['wall_s']:.0f} s)")
     return 0
@@ -285,14 +298,32 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     """Table 1 and Table 4 for any dataset folder, as JSON and Markdown."""
 
     airframe = load_airframe(args.airframe)
-    result = evaluate_dataset(airframe, args.dataset, args.weights or [])
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2, default=_json) + "\n")
     md = out.with_suffix(".md")
-    md.write_text(evaluation_markdown(result))
+    for path in (out, md):
+        if path.exists() and not args.force and not _own_json(out):
+            raise CliError(f"{path} exists and is not an earlier 'uavdyn evaluate' result; "
+                           "choose another --out or give --force")
+    result = evaluate_dataset(airframe, args.dataset, args.weights or [])
+    result["command"] = "evaluate"
+    write_text_atomic(out, json.dumps(result, indent=2, default=_json) + "\n")
+    write_text_atomic(md, evaluation_markdown(result))
     print(f"wrote {out} and {md}")
     return 0
+
+
+def _add_force(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--force", action="store_true",
+                   help="write into a non-empty output that is not an earlier result of this "
+                        "command (replaces only this command's files)")
+
+
+def _own_json(path: Path) -> bool:
+    """Whether ``path`` is a JSON result of ``uavdyn evaluate`` (safe to replace)."""
+    try:
+        return json.loads(path.read_text()).get("command") == "evaluate"
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -342,6 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("generate-data", help="generate an emulated flight-data set (SPEC 3 "
                        "format: manifest.json + one CSV per sortie)")
+    _add_force(p)
     p.add_argument("--recipe", default=None,
                    help="JSON recipe (e.g. data/datagen_quadrotor.json); options given here "
                         "override it")
@@ -374,6 +406,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_generate_data)
 
     p = sub.add_parser("export-c", help="write a dependency-free C bundle of the step")
+    _add_force(p)
     _add_airframe(p)
     _add_trim_args(p)
     p.add_argument("--model", choices=["hybrid", "rk4"], default="hybrid",
@@ -390,6 +423,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("reproduce", help="run the validation pipeline (Tables 1-4, figures, "
                        "report) on the shipped recipe and weights")
+    _add_force(p)
     p.add_argument("--airframes", nargs="+", default=["quadrotor", "fixed_wing"],
                    choices=["quadrotor", "fixed_wing"], help="which airframes (default both)")
     p.add_argument("--out", default="results", help="output folder (default results/)")
@@ -404,6 +438,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser("evaluate", help="Table 1 and Table 4 metrics on any dataset folder")
+    _add_force(p)
     _add_airframe(p, default=None)
     p.add_argument("--dataset", required=True, help="dataset folder (manifest.json + CSVs)")
     p.add_argument("--weights", nargs="*", default=None, help="weight file(s) of the hybrid")
@@ -412,6 +447,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train the learned correction (torch) and export its "
                        "weights as .npz")
+    _add_force(p)
     _add_airframe(p)
     p.add_argument("--dataset", default=None,
                    help="dataset folder (manifest.json + CSVs, with a train/validation split); "

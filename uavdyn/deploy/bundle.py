@@ -14,6 +14,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.integrate import generate_c, rollout
+from uavdyn.outputs import output_folder
 
 C_FLAGS = "-std=c99 -O2 -Wall -Wextra -Werror"
 _FUNC_DEF = re.compile(
@@ -62,9 +63,13 @@ def _renamed(func: ca.Function, name: str) -> ca.Function:
     return ca.Function(name, args, func.call(args), func.name_in(), func.name_out())
 
 
-def export_bundle(step: ca.Function, spec: BundleSpec, out_dir: str | Path) -> Path:
+def export_bundle(step: ca.Function, spec: BundleSpec, out_dir: str | Path,
+                  force: bool = False) -> Path:
     """Write the bundle for ``step`` (signature ``(x, u, p, dt) -> x_next``, or
-    ``(x, u, p, dt, t)`` for the paper formulation) into ``out_dir``."""
+    ``(x, u, p, dt, t)`` for the paper formulation) into ``out_dir``.
+
+    The bundle is written into a temporary sibling folder and renamed into place when complete;
+    a non-empty ``out_dir`` that is not an earlier bundle is refused unless ``force``."""
     if spec.real not in ("double", "float"):
         raise ValueError(f"real must be 'double' or 'float', got {spec.real!r}")
     if not re.fullmatch(r"[A-Za-z_]\w*", spec.name):
@@ -74,8 +79,12 @@ def export_bundle(step: ca.Function, spec: BundleSpec, out_dir: str | Path) -> P
     if spec.rollout_steps and spec.has_time_input:
         raise ValueError("a rollout bundle needs a time-free step (the 'improved' formulation "
                          "or plain RK4)")
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    with output_folder(out_dir, "export-c", force) as tmp:
+        _write_bundle(step, spec, tmp)
+    return Path(out_dir)
+
+
+def _write_bundle(step: ca.Function, spec: BundleSpec, out: Path) -> Path:
     n, N = spec.name, spec.name.upper()
     if spec.rollout_steps:
 

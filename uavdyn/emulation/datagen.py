@@ -30,6 +30,7 @@ from uavdyn.flightdata import (
     write_csv,
     write_manifest,
 )
+from uavdyn.outputs import output_folder
 
 SPLITS = ("train", "validation", "test")
 
@@ -186,14 +187,28 @@ def _generate_one(args: tuple[dict, dict, str]) -> dict:
 
 
 def generate_dataset(recipe: Recipe, out: str | Path, workers: int | None = None,
-                     progress: bool = True) -> Path:
+                     progress: bool = True, force: bool = False) -> Path:
     """Generate the dataset of ``recipe`` into folder ``out``; returns the manifest path.
-    ``workers`` processes (default: all cores) share the sorties; a tqdm bar shows progress."""
 
+    ``workers`` processes (default: all cores) share the sorties; a tqdm bar shows progress.
+    The dataset is written into a temporary sibling folder and renamed into place when
+    complete (manifest last), so an interrupted run leaves an earlier dataset in ``out``
+    intact; a non-empty ``out`` that is not a previous dataset is refused unless ``force``.
+
+    Raises
+    ------
+    uavdyn.outputs.OutputError
+        If ``out`` may not be written.
+    """
     airframe = load_airframe(recipe.airframe)
     recipe.validate(airframe)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    with output_folder(out, "generate-data", force, last=("manifest.json",)) as tmp:
+        _generate_into(recipe, airframe, tmp, workers, progress)
+    return Path(out) / "manifest.json"
+
+
+def _generate_into(recipe: Recipe, airframe: Airframe, out: Path, workers: int | None,
+                   progress: bool) -> Path:
     items = assign_sorties(recipe, airframe.kind)
     # Compile the rollout once here so the workers only load the cached library.
     emulator = Emulator(airframe, sample_rate_hz=recipe.sample_rate_hz,

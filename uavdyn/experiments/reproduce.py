@@ -11,8 +11,9 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import casadi as ca
@@ -54,6 +55,7 @@ from uavdyn.learned import (
     shipped_weights,
 )
 from uavdyn.model import build_model, numpy_rhs
+from uavdyn.outputs import output_folder
 
 PAPER = {"rmse": 1.82e-3, "mae": 1.47e-3, "max": 2.31e-3, "cost_reduction": 0.38,
          "rk4_0.001_ms": 148.0, "rk4_0.0005_ms": 287.0, "hybrid_0.005_ms": 92.0}
@@ -75,6 +77,7 @@ class ReproduceConfig:
     cache: str | None = None
     cost_repeats: int = 5
     progress: bool = True
+    force: bool = False  # write into a non-empty folder that is not a previous reproduce output
     extra: dict = field(default_factory=dict)
 
 
@@ -128,8 +131,7 @@ def obtain_weights(airframe: Airframe, ds: Dataset, formulation: str, target: st
         if config.quick:
             cfg.epochs, cfg.max_seconds = 8, 40.0
         log(f"training {formulation}/{target} weights for {airframe.name} ...")
-        result = train(ds.train, ds.validation, airframe, cfg,
-                       history_path=out.with_name(out.stem + "_history.json"))
+        result = train(ds.train, ds.validation, airframe, cfg)
         save_weights(result.net, out)
         write_history(result, out.with_name(out.stem + "_history.json"))
         return out
@@ -512,20 +514,36 @@ def run(config: ReproduceConfig) -> dict:
 
     t0 = time.perf_counter()
     out = Path(config.out)
-    out.mkdir(parents=True, exist_ok=True)
 
     def log(msg: str) -> None:
         if config.progress:
             print(f"[{time.perf_counter() - t0:6.1f} s] {msg}", flush=True)
 
-    results = {"config": asdict(config), "paper": PAPER,
-               "airframes": [run_airframe(a, config, log) for a in config.airframes]}
-    results["wall_s"] = time.perf_counter() - t0
-    (out / "metrics.json").write_text(json.dumps(results, indent=2, default=_json) + "\n")
-    write_report(results, out / "report.md")
+    # everything is written into a temporary sibling and renamed into place at the end, so an
+    # interrupted run never leaves a folder that mixes two runs
+    with output_folder(out, "reproduce", config.force) as tmp:
+        work = replace(config, out=str(tmp))
+        results = {"config": asdict(config), "paper": PAPER,
+                   "airframes": [run_airframe(a, work, log) for a in config.airframes]}
+        results["wall_s"] = time.perf_counter() - t0
+        relative = _relocate(results, str(tmp) + os.sep, "")  # metrics.json: relative paths
+        (tmp / "metrics.json").write_text(json.dumps(relative, indent=2, default=_json) + "\n")
+        write_report(results, tmp / "report.md")
+    results = _relocate(results, str(tmp) + os.sep, str(out) + os.sep)
     log(f"wrote {out / 'report.md'} and {out / 'metrics.json'} "
         f"(total {results['wall_s']:.0f} s)")
     return results
+
+
+def _relocate(obj, old: str, new: str):
+    """A copy of ``obj`` with every string starting with ``old`` starting with ``new``."""
+    if isinstance(obj, dict):
+        return {k: _relocate(v, old, new) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_relocate(v, old, new) for v in obj]
+    if isinstance(obj, str) and obj.startswith(old):
+        return new + obj[len(old):]
+    return obj
 
 
 def _json(value):

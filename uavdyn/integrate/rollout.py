@@ -193,7 +193,8 @@ def free_run(step: ca.Function, x0, controls, p, dt: float, substeps: int = 1,
     t0 : float
         Time of ``x0`` since the start of the sortie (for a time-dependent step).
     compile : bool
-        Compile the rollout to C (cached) first.
+        Compile the rollout to C (cached) first; a step that is itself compiled (an
+        ``External``) is looped in the CasADi VM around its compiled code.
     check : bool
         Raise :class:`DivergenceError` on a non-finite or exploding state.
     """
@@ -201,7 +202,7 @@ def free_run(step: ca.Function, x0, controls, p, dt: float, substeps: int = 1,
     x0 = np.asarray(x0, float).ravel()
     check_use(step, dt, t0, t0 + controls.shape[0] * substeps * dt)
     sim = rollout(step, controls.shape[0], substeps)
-    if compile:
+    if compile and not step.is_a("External"):  # an already compiled step is called as it is
         sim = compile_function(sim)
     args = [x0, controls.T, np.asarray(p, float), float(dt)]
     if takes_time(step):

@@ -38,7 +38,8 @@ from uavdyn.learned.data import (
 )
 from uavdyn.learned.formulations import DEFAULT_FORMULATION
 from uavdyn.learned.torch_model import DTYPE, TorchCorrection
-from uavdyn.learned.weights import CorrectionNet, save_weights
+from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights, save_weights
+from uavdyn.outputs import atomic_file, write_text_atomic
 
 
 @dataclass
@@ -264,11 +265,10 @@ def _windows_t(w: Windows) -> dict:
 def write_history(result: TrainResult, path: str | Path) -> tuple[Path, Path | None]:
     """Loss history as JSON (``path``) and a PNG plot beside it (if matplotlib works)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     doc = {"config": asdict(result.config), "best_epoch": result.best_epoch,
            "stopped": result.stopped, "seconds": result.seconds, "scales": result.scales,
            "network": result.net.describe(), "history": result.history}
-    path.write_text(json.dumps(doc, indent=2) + "\n")
+    write_text_atomic(path, json.dumps(doc, indent=2) + "\n")
     png = path.with_suffix(".png")
     try:
         import matplotlib
@@ -292,7 +292,8 @@ def write_history(result: TrainResult, path: str | Path) -> tuple[Path, Path | N
     ax.set_title(result.net.describe(), fontsize=8)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(png, dpi=120)
+    with atomic_file(png) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
     plt.close(fig)
     return path, png
 
@@ -324,6 +325,26 @@ def load_training_sorties(dataset: str | None, airframe: Airframe, n: int, seed:
     return a, b, c, "perturbed-model stand-in sorties (uavdyn.learned.data.synthetic_sorties)"
 
 
+def _check_replaceable(weights: Path, history: Path, force: bool) -> None:
+    """Refuse, before training, to overwrite files that are not earlier training outputs."""
+    if force:
+        return
+    if weights.exists():
+        try:
+            load_weights(weights)
+        except WeightFileError:
+            raise ValueError(f"{weights} exists and is not a uavdyn weight file; choose another "
+                             "--out or give --force") from None
+    if history.exists():
+        try:
+            ok = "history" in json.loads(history.read_text())
+        except (OSError, ValueError, TypeError):
+            ok = False
+        if not ok:
+            raise ValueError(f"{history} exists and is not a uavdyn loss history; choose another "
+                             "--history or give --force")
+
+
 def run(args: argparse.Namespace) -> dict:
     """Train from parsed options; write weights, history JSON and PNG; return a summary."""
     airframe = load_airframe(args.airframe)
@@ -340,10 +361,12 @@ def run(args: argparse.Namespace) -> dict:
                                                args.duration, getattr(args, "lowpass_hz", None))
     out = Path(args.out or f"results/weights/{airframe.name}_{args.formulation}.npz")
     hist = Path(args.history) if args.history else out.with_name(out.stem + "_history.json")
-    result = train(tr, va, airframe, cfg, history_path=hist)
+    _check_replaceable(out, hist, getattr(args, "force", False))
+    result = train(tr, va, airframe, cfg)
     net = CorrectionNet(**{**result.net.__dict__,
                            "info": {**result.net.info, "data_source": source}})
-    save_weights(net, out)
+    save_weights(net, out)  # the weights first (atomic), then their history
+    write_history(result, hist)
     h0, hb = result.history[0], result.history[result.best_epoch]
     return {"weights": str(out), "history": str(hist), "png": str(hist.with_suffix(".png")),
             "network": net.describe(), "data_source": source, "n_train": len(tr),

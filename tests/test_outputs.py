@@ -1,0 +1,166 @@
+"""Nothing half-written, divergence never silent: output folders and files are renamed into
+place only when complete; a foreign folder is refused without --force and keeps its own files
+with it; an interrupted generate-data or train leaves the earlier output intact; simulate checks
+its inputs; the shipped F450 hybrid from hover stays bounded or raises with the time."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_correction import random_net
+
+from uavdyn.cli import main
+from uavdyn.emulation import Recipe, generate_dataset
+from uavdyn.emulation.fingerprint import compare_fingerprints, dataset_fingerprint
+from uavdyn.flightdata import load_dataset
+from uavdyn.integrate import DivergenceError, free_run
+from uavdyn.learned import hybrid_step, save_weights, shipped_weights
+from uavdyn.outputs import MARKER, OutputError, atomic_file, output_folder
+
+
+def test_atomic_file_keeps_the_old_file_until_the_new_one_is_complete(tmp_path):
+    target = tmp_path / "a.txt"
+    target.write_text("old")
+    with pytest.raises(RuntimeError), atomic_file(target) as tmp:
+        tmp.write_text("half")
+        assert target.read_text() == "old"
+        raise RuntimeError("interrupted")
+    assert target.read_text() == "old" and os.listdir(tmp_path) == ["a.txt"]
+    with atomic_file(target) as tmp:
+        tmp.write_text("new")
+    assert target.read_text() == "new" and os.listdir(tmp_path) == ["a.txt"]
+
+
+def test_output_folder_refuses_foreign_replaces_own_and_force_keeps_user_files(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "mine.txt").write_text("user data")
+    with pytest.raises(OutputError, match="not a uavdyn output.*--force"):
+        with output_folder(out, "export-c"):
+            pass
+    with output_folder(out, "export-c", force=True) as tmp:
+        (tmp / "a.c").write_text("1")
+        (tmp / "b.c").write_text("1")
+    assert (out / "mine.txt").read_text() == "user data" and (out / "a.c").exists()
+    # a second forced run of the same command removes its stale file b.c, never mine.txt
+    with output_folder(out, "export-c", force=True) as tmp:
+        (tmp / "a.c").write_text("2")
+    assert sorted(os.listdir(out)) == [MARKER, "a.c", "mine.txt"]
+    # a folder holding only an earlier output of the same command is replaced whole
+    own = tmp_path / "own"
+    with output_folder(own, "reproduce") as tmp:
+        (tmp / "x.json").write_text("1")
+    with output_folder(own, "reproduce") as tmp:
+        (tmp / "y.json").write_text("2")
+    assert sorted(os.listdir(own)) == [MARKER, "y.json"]
+    with pytest.raises(OutputError, match="output of 'uavdyn reproduce'"):
+        with output_folder(own, "generate-data"):
+            pass
+    assert not [p for p in os.listdir(tmp_path) if p.startswith(".")]  # no temp left over
+
+
+def _cli(args: list[str]) -> subprocess.Popen:
+    code = f"from uavdyn.cli import main; raise SystemExit(main({args!r}))"
+    return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def _interrupt_when(proc: subprocess.Popen, ready, timeout: float = 120.0) -> None:
+    t0 = time.monotonic()
+    while not ready():
+        if proc.poll() is not None:
+            raise AssertionError(f"finished before it could be interrupted: {proc.stderr.read()}")
+        if time.monotonic() - t0 > timeout:
+            proc.kill()
+            raise AssertionError("never reached the point of interruption")
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=60)
+
+
+def test_interrupted_generate_data_leaves_the_old_dataset_unchanged(tmp_path):
+    out = tmp_path / "data"
+    generate_dataset(Recipe(airframe="quadrotor", sorties=6, duration_s=4.0, seed=0), out,
+                     workers=1, progress=False)
+    before = dataset_fingerprint(out)
+    proc = _cli(["generate-data", "--airframe", "quadrotor", "--sorties", "60", "--duration",
+                 "20", "--seed", "1", "--workers", "1", "--no-progress", "--out", str(out)])
+
+    def some_sorties_written() -> bool:
+        partial = [p for p in tmp_path.iterdir() if p.name.startswith(".data.partial")]
+        return bool(partial) and len(list(partial[0].glob("*.csv"))) >= 4
+
+    _interrupt_when(proc, some_sorties_written)
+    assert proc.returncode != 0
+    after = compare_fingerprints(dataset_fingerprint(out), before)
+    assert after.matches(0.0), after.describe()
+    assert len(load_dataset(out).sorties) == 6
+    assert [p.name for p in tmp_path.iterdir()] == ["data"]  # the partial folder is gone
+
+
+def test_interrupted_train_keeps_the_old_weights_and_history(tmp_path, aerosonde):
+    pytest.importorskip("torch")
+    weights = save_weights(random_net(aerosonde), tmp_path / "w.npz")
+    history = tmp_path / "w_history.json"
+    history.write_text(json.dumps({"history": [{"epoch": 0}]}))
+    old_w, old_h = weights.read_bytes(), history.read_text()
+    proc = _cli(["train", "--airframe", "aerosonde", "--sorties", "12", "--duration", "10",
+                 "--epochs", "500", "--max-seconds", "120", "--out", str(weights)])
+    started = time.monotonic()
+    _interrupt_when(proc, lambda: time.monotonic() - started > 12.0)
+    assert proc.returncode != 0
+    assert weights.read_bytes() == old_w and history.read_text() == old_h
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["w.npz", "w_history.json"]
+
+
+def test_train_refuses_to_overwrite_a_file_that_is_not_its_output(tmp_path, capsys):
+    pytest.importorskip("torch")
+    victim = tmp_path / "notes.npz"
+    victim.write_text("my notes")
+    assert main(["train", "--airframe", "aerosonde", "--epochs", "1", "--out",
+                 str(victim)]) == 2
+    assert "is not a uavdyn weight file" in capsys.readouterr().err
+    assert victim.read_text() == "my notes"
+
+
+def test_simulate_checks_amplitude_duration_and_folders(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    for argv, message in (
+            (["--amplitude", "2"], "outside its limits"),
+            (["--duration", "1e7"], "rows, more than"),
+            (["--out", "/nonexistent_uavdyn_dir/x.csv"], "will not create folder"),
+            (["--dt", "nan"], "--dt must be a positive")):
+        assert main(["simulate", "--airframe", "aerosonde", *argv]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
+    assert not Path("/nonexistent_uavdyn_dir").exists()
+    assert main(["simulate", "--airframe", "aerosonde", "--out", "sub/x.csv"]) == 0
+    assert (tmp_path / "sub" / "x.csv").exists()
+
+
+def test_shipped_f450_hybrid_from_hover_is_bounded_or_raises(f450, f450_hover):
+    """The shipped F450 correction destabilises hover (see modes --hybrid): a free run must
+    then raise DivergenceError with the time, never return NaN silently."""
+    step = hybrid_step(shipped_weights("f450"), f450)
+    controls = np.tile(f450_hover.u, (2000, 1))  # 20 s at 0.01 s
+    rng = np.random.default_rng(0)
+    outcomes = []
+    for k in range(20):
+        x0 = f450_hover.x + rng.normal(size=4) * [0.5, 0.5, 0.1, 0.05] * (k > 0)
+        try:
+            traj = free_run(step, x0, controls, f450.p, 0.005, 2)
+        except DivergenceError as exc:
+            assert 0.0 < exc.time <= 20.0 and "diverged at t =" in str(exc)
+            outcomes.append("raised")
+            continue
+        assert np.all(np.isfinite(traj)) and np.abs(traj).max() < 1e6
+        outcomes.append("bounded")
+    assert len(outcomes) == 20
+    print(f"F450 shipped hybrid from 20 hover starts: {outcomes.count('raised')} raised "
+          f"DivergenceError, {outcomes.count('bounded')} stayed bounded")

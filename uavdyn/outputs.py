@@ -1,0 +1,165 @@
+"""Nothing half-written: files and folders that commands produce are built under a temporary
+sibling name and renamed into place only when complete, and a folder that is not a previous
+output of the same command is never overwritten without ``force``.
+
+An output folder carries a small marker (``.uavdyn-output.json``: command, files) so a later run
+of the same command may replace it, and ``force`` into a foreign folder removes only the stale
+files of that command, never the user's own.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import threading
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+MARKER = ".uavdyn-output.json"
+
+
+class OutputError(ValueError):
+    """An output path cannot be written safely; the message names it and says why."""
+
+
+def _temp_sibling(path: Path, kind: str) -> Path:
+    return path.with_name(f".{path.name}.{kind}-{os.getpid()}-{threading.get_ident()}-"
+                          f"{uuid.uuid4().hex[:8]}")
+
+
+def _check_parent(path: Path, create_parents: bool) -> None:
+    parent = path.parent
+    if parent.exists():
+        if not parent.is_dir():
+            raise OutputError(f"{path}: its parent {parent} is not a folder")
+        return
+    if not create_parents:
+        raise OutputError(f"{path}: folder {parent} does not exist (create it first)")
+    cwd = Path.cwd().resolve()
+    resolved = parent.resolve()
+    if resolved != cwd and cwd not in resolved.parents:
+        raise OutputError(f"{path}: will not create folder {parent} outside the current folder "
+                          "(create it first)")
+    parent.mkdir(parents=True, exist_ok=True)
+
+
+@contextmanager
+def atomic_file(path: str | Path, create_parents: bool = True) -> Iterator[Path]:
+    """Yield a temporary sibling of ``path`` to write; rename it to ``path`` when the block
+    ends without error, delete it otherwise. The old ``path`` stays intact until then.
+
+    Raises
+    ------
+    OutputError
+        If the parent folder is missing and may not be created (outside the current folder).
+    """
+    path = Path(path)
+    _check_parent(path, create_parents)
+    tmp = _temp_sibling(path, "tmp")
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise OutputError(f"{path}: nothing was written")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_text_atomic(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through a temporary sibling."""
+    with atomic_file(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)
+
+
+def _marker(folder: Path) -> dict | None:
+    try:
+        doc = json.loads((folder / MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def check_output_folder(path: str | Path, command: str, force: bool = False) -> None:
+    """Refuse, before any work is done, a non-empty ``path`` that is not a previous output of
+    ``command`` (unless ``force``), or a path that is a file.
+
+    Raises
+    ------
+    OutputError
+        Naming the folder and the way out (``--force`` or another folder).
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"{path}: exists and is not a folder")
+    if not path.exists() or not any(path.iterdir()) or force:
+        return
+    marker = _marker(path)
+    if marker is None or marker.get("command") != command:
+        what = f"output of 'uavdyn {marker['command']}'" if marker else "not a uavdyn output"
+        raise OutputError(f"{path}: folder is not empty and is {what}; choose an empty or new "
+                          f"folder, or give --force to replace this command's files in it")
+
+
+@contextmanager
+def output_folder(path: str | Path, command: str, force: bool = False,
+                  last: tuple[str, ...] = (), create_parents: bool = True) -> Iterator[Path]:
+    """Yield a temporary sibling folder to fill; when the block ends without error it becomes
+    ``path`` (see the module docstring for what happens to an existing ``path``). Files named
+    in ``last`` (e.g. a manifest) are moved in after all others.
+
+    Raises
+    ------
+    OutputError
+        As :func:`check_output_folder`, or if the parent cannot be created.
+    """
+    path = Path(path)
+    check_output_folder(path, command, force)
+    _check_parent(path, create_parents)
+    tmp = _temp_sibling(path, "partial")
+    tmp.mkdir()
+    try:
+        yield tmp
+        files = sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file())
+        (tmp / MARKER).write_text(json.dumps({"command": command, "files": files}, indent=1))
+        _commit(tmp, path, command, files, last)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _commit(tmp: Path, path: Path, command: str, files: list[str], last: tuple[str, ...]
+            ) -> None:
+    marker = _marker(path) if path.exists() else None
+    own = marker is not None and marker.get("command") == command
+    if own:  # only a folder holding nothing but that output may be swapped whole
+        present = {str(p.relative_to(path)) for p in path.rglob("*") if p.is_file()}
+        own = present <= set(marker.get("files", [])) | {MARKER}
+    if not path.exists() or not any(path.iterdir()):
+        if path.exists():
+            path.rmdir()
+        os.replace(tmp, path)
+        return
+    if own:  # our previous output: swap whole folders (each rename is atomic)
+        old = _temp_sibling(path, "old")
+        os.replace(path, old)
+        os.replace(tmp, path)
+        shutil.rmtree(old, ignore_errors=True)
+        return
+    # --force into a foreign folder: move our files in, the manifest-like ones and the marker
+    # last; remove stale files of an earlier run of this command only
+    same = marker is not None and marker.get("command") == command
+    stale = set(marker.get("files", [])) - set(files) if same else set()
+    order = [f for f in files if f not in last] + [f for f in files if f in last] + [MARKER]
+    for rel in order:
+        dst = path / rel
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(tmp / rel, dst)
+    for rel in stale:
+        target = (path / rel)
+        if target.is_file() and path.resolve() in target.resolve().parents:
+            target.unlink()
