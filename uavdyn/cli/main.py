@@ -34,7 +34,8 @@ from uavdyn.experiments.reproduce import (
     evaluation_markdown,
     run,
 )
-from uavdyn.flightdata import Sortie, write_csv
+from uavdyn.flightdata import Sortie, load_dataset, write_csv
+from uavdyn.identify import identify, write_outputs
 from uavdyn.integrate import (
     DivergenceError,
     check_use,
@@ -280,6 +281,49 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_identify(args: argparse.Namespace) -> int:
+    """Fit named physical parameters to a dataset; write the fitted airframe and a report."""
+    nominal = load_airframe(args.airframe)
+    names = [n.strip() for n in args.params.split(",") if n.strip()]
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        try:
+            load_airframe(out)
+        except AirframeError:
+            raise CliError(f"{out} exists and is not an airframe file; choose another --out or "
+                           "give --force") from None
+    if not (args.window > 0 and math.isfinite(args.window)):
+        raise CliError(f"--window must be a positive number of seconds, got {args.window}")
+    ds = load_dataset(args.dataset, lowpass_hz=args.lowpass_hz)
+    if not ds.train:
+        raise CliError(f"{args.dataset}: the dataset has no train split to fit on")
+    if not ds.validation:
+        print("warning: no validation split; the fit is scored on the training sorties only",
+              file=sys.stderr)
+    result = identify(nominal, ds.train, ds.validation, names, window_s=args.window,
+                      dt=args.dt, progress=not args.quiet)
+    report = Path(args.report) if args.report else out.with_name(out.stem + "_report")
+    command = "uavdyn " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["identify"] else \
+        f"uavdyn identify --airframe {args.airframe} --dataset {args.dataset} --params " \
+        f"{args.params} --out {args.out}"
+    paths = write_outputs(result, nominal, str(args.dataset), command, out, report)
+    print(f"identified {len(names)} parameter(s) of '{nominal.name}' on {len(ds.train)} train "
+          f"sorties in {result.seconds:.1f} s ({result.iterations} iterations)")
+    for e in result.estimates:
+        print(f"  {e.name:>14} = {e.value:12.6g} +- {e.std_error:.2g}  (nominal {e.nominal:.6g},"
+              f" {100 * e.relative_change:+.2f} %)")
+    for a, b, c in result.flagged_pairs:
+        print(f"  highly correlated: {a} and {b} (r = {c:+.3f})")
+    for split in ("train", "validation"):
+        fit = result.fit.get(split)
+        if fit:
+            print(f"  {split} pitch RMSE over {result.window_s:g} s windows: nominal "
+                  f"{fit['theta_rmse']['nominal']:.3g} rad -> identified "
+                  f"{fit['theta_rmse']['identified']:.3g} rad")
+    print(f"wrote {paths['airframe']}, {paths['json']} and {paths['png']}")
+    return 0
+
+
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """The validation pipeline: dataset, weights, Tables 1-4, figures, report."""
 
@@ -420,6 +464,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", default="uav_step", help="C name of the exported function")
     p.add_argument("--out", default="results/c_bundle", help="output folder")
     p.set_defaults(func=cmd_export_c)
+
+    p = sub.add_parser("identify", help="fit named physical parameters to flight data "
+                       "(output error); write the fitted airframe file and a report")
+    _add_force(p)
+    _add_airframe(p)
+    p.add_argument("--dataset", required=True, help="dataset folder (manifest.json + CSVs)")
+    p.add_argument("--params", required=True,
+                   help="comma-separated parameter names, e.g. C_m_alpha,C_m_q,rho")
+    p.add_argument("--out", required=True, help="fitted airframe file (.toml)")
+    p.add_argument("--report", default=None,
+                   help="report folder (JSON + PNG; default <out>_report beside --out)")
+    p.add_argument("--window", type=float, default=1.0,
+                   help="prediction window in s, restarted from recorded states (default 1)")
+    p.add_argument("--dt", type=float, default=None,
+                   help="RK4 step in s (default half the log interval)")
+    p.add_argument("--lowpass-hz", type=float, default=None,
+                   help="zero-phase low-pass filter of the data before fitting")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("reproduce", help="run the validation pipeline (Tables 1-4, figures, "
                        "report) on the shipped recipe and weights")

@@ -1,0 +1,121 @@
+"""What ``uavdyn identify`` writes: the fitted airframe as a complete TOML file with a provenance
+comment, and a report (JSON + PNG) of the estimates, their correlations and the fit per sortie."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+from dataclasses import replace
+from pathlib import Path
+
+from uavdyn.airframes import Airframe
+from uavdyn.identify.output_error import IdentificationResult
+from uavdyn.outputs import atomic_file, write_text_atomic
+
+
+def _toml_string(text: str) -> str:
+    return json.dumps(str(text), ensure_ascii=False)  # a JSON string is a TOML basic string
+
+
+def airframe_toml(airframe: Airframe, header: list[str]) -> str:
+    """A complete airframe file (the loader's schema) with ``header`` as comment lines."""
+    lines = [f"# {h}" for h in header] + [
+        "", f"name = {_toml_string(airframe.name)}", f"kind = {_toml_string(airframe.kind)}",
+        f"description = {_toml_string(airframe.description)}",
+        f"nominal_airspeed = {float(airframe.nominal_airspeed)!r}", ""]
+    for name in airframe.param_names:
+        lines += [f"[params.{name}]", f"value = {float(getattr(airframe.params, name))!r}",
+                  f"source = {_toml_string(airframe.sources.get(name, ''))}"]
+    return "\n".join(lines) + "\n"
+
+
+def provenance(result: IdentificationResult, nominal: Airframe, dataset: str, command: str
+               ) -> list[str]:
+    """Header lines saying where the identified numbers come from."""
+    date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    lines = [f"Identified by uavdyn from '{nominal.name}' on {date}",
+             f"dataset: {dataset}", f"command: {command}",
+             f"output-error fit over {result.fit['windows']} windows of {result.window_s:g} s "
+             f"restarted from recorded states, RK4 dt {result.dt:g} s, "
+             f"{result.iterations} IPOPT iterations ({result.fit['solver_status']})"]
+    for e in result.estimates:
+        lines.append(f"  {e.name} = {e.value:.6g} +- {e.std_error:.2g} (1 s.e., Cramer-Rao; "
+                     f"nominal {e.nominal:.6g}, {100 * e.relative_change:+.2f} %)")
+    for a, b, c in result.flagged_pairs:
+        lines.append(f"  highly correlated: {a} and {b} (r = {c:+.3f})")
+    return lines
+
+
+def identified_airframe(result: IdentificationResult, nominal: Airframe, dataset: str,
+                        command: str) -> Airframe:
+    """The fitted airframe with each estimated parameter's source saying so."""
+    sources = dict(result.airframe.sources)
+    for e in result.estimates:
+        sources[e.name] = (f"identified from {dataset}: {e.value:.6g} +- {e.std_error:.2g} "
+                           f"(nominal {e.nominal:.6g}; was: {nominal.sources.get(e.name, '')})")
+    return replace(result.airframe, name=f"{nominal.name}_identified", sources=sources,
+                   description=f"{nominal.description} (parameters identified from flight "
+                               f"data)".strip())
+
+
+def write_outputs(result: IdentificationResult, nominal: Airframe, dataset: str, command: str,
+                  out: Path, report_dir: Path) -> dict[str, Path]:
+    """Write the airframe file and the report (JSON, PNG) atomically; return their paths."""
+    fitted = identified_airframe(result, nominal, dataset, command)
+    write_text_atomic(out, airframe_toml(fitted, provenance(result, nominal, dataset,
+                                                             command)))
+    report_dir.mkdir(parents=True, exist_ok=True)
+    doc = {"command": "identify", "dataset": dataset, "invocation": command,
+           "airframe_file": str(out), **result.to_dict()}
+    json_path = write_text_atomic(report_dir / "identify.json", json.dumps(doc, indent=2) + "\n")
+    png = _plot(result, report_dir / "identify.png")
+    return {"airframe": out, "json": json_path, "png": png}
+
+
+def _plot(result: IdentificationResult, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+    est = result.estimates
+    ax = axes[0]
+    rel = [100 * e.relative_change for e in est]
+    err = [100 * e.std_error / abs(e.nominal) if e.nominal else 0.0 for e in est]
+    ax.barh([e.name for e in est], rel, xerr=[2 * v for v in err], color="C0", capsize=4)
+    ax.axvline(0, color="k", lw=0.8)
+    ax.set_xlabel("change from nominal (%), bars: +-2 standard errors")
+    ax.set_title("estimates")
+    ax = axes[1]
+    im = ax.imshow(result.correlation, vmin=-1, vmax=1, cmap="coolwarm")
+    ax.set_xticks(range(len(est)), [e.name for e in est], rotation=45, ha="right", fontsize=8)
+    ax.set_yticks(range(len(est)), [e.name for e in est], fontsize=8)
+    for i in range(len(est)):
+        for j in range(len(est)):
+            ax.text(j, i, f"{result.correlation[i, j]:.2f}", ha="center", va="center",
+                    fontsize=7)
+    fig.colorbar(im, ax=ax, fraction=0.046)
+    ax.set_title("correlation of the estimates")
+    ax = axes[2]
+    for split, marker in (("train", "o"), ("validation", "s")):
+        part = result.fit.get(split)
+        if not part:
+            continue
+        rows = part["per_sortie"]
+        nominal = [r["theta_rmse_nominal"] for r in rows]
+        fitted = [r["theta_rmse_identified"] for r in rows]
+        ax.loglog(nominal, fitted, marker, label=f"{split} sorties", alpha=0.8)
+    lim = ax.get_xlim()
+    ax.plot(lim, lim, "k:", lw=0.8, label="no change")
+    ax.set_xlabel(f"pitch RMSE, nominal ({result.window_s:g} s windows, rad)")
+    ax.set_ylabel("pitch RMSE, identified (rad)")
+    ax.set_title("fit per sortie (below the line: better)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_file(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+    return path
+
+
