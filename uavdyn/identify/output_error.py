@@ -130,46 +130,53 @@ def _check_request(airframe: Airframe, names: list[str], sorties: list[Sortie]) 
 
 
 class _Problem:
-    """The residual ``r(theta; data)`` of one window set as compiled CasADi Functions, with
-    ``p = p0 + scale * theta`` for the chosen parameters."""
+    """The weighted residual of one window set as CasADi Functions of the decision vector
+    ``z = [theta; dx]``: ``p = p0 + scale * theta`` for the chosen parameters, and each window
+    starts from ``x0_recorded + dx / weights`` (its initial state is estimated too, with the
+    recorded one as a measurement: noisy start states would otherwise bias the estimates)."""
 
     def __init__(self, airframe: Airframe, names: list[str], grid: EvalGrid, n_samples: int,
-                 n_windows: int, weights: np.ndarray):
+                 n_windows: int, weights: np.ndarray, estimate_x0: bool):
         model = build_model(airframe)
         step = rk4_step(model.f)
         index = [airframe.param_names.index(n) for n in names]
         p0 = airframe.p
         scale = np.where(np.abs(p0[index]) > 0, np.abs(p0[index]), 1.0)
         self.index, self.p0, self.scale = index, p0, scale
+        self.n_theta = len(names)
+        self.n_dx = model.nx * n_windows if estimate_x0 else 0
         sim = rollout(step, n_samples, grid.substeps).map(n_windows, "thread", 2)
-        theta = ca.MX.sym("theta", len(names))
+        z = ca.MX.sym("z", self.n_theta + self.n_dx)
+        theta, dx = z[:self.n_theta], z[self.n_theta:]
         X0 = ca.MX.sym("X0", model.nx, n_windows)
         U = ca.MX.sym("U", model.nu, n_samples * n_windows)
         Y = ca.MX.sym("Y", model.nx, n_samples * n_windows)
         p = ca.MX(ca.DM(p0))
         for j, i in enumerate(index):
             p[i] = p0[i] + scale[j] * theta[j]
-        pred = sim(X0, U, ca.repmat(p, 1, n_windows), grid.dt)
-        r = ca.vec((pred - Y) * ca.DM(weights))
-        self.residual = compile_function(ca.Function("oe_residual", [theta, X0, U, Y], [r]),
-                                         warn=False)
-        J = ca.jacobian(r, theta)
-        self.jacobian = compile_function(ca.Function("oe_jacobian", [theta, X0, U, Y], [r, J]),
+        w = ca.DM(weights)
+        start = X0 + ca.reshape(dx, model.nx, n_windows) / w if estimate_x0 else X0
+        pred = sim(start, U, ca.repmat(p, 1, n_windows), grid.dt)
+        r = ca.vertcat(ca.vec((pred - Y) * w), dx)
+        J = ca.jacobian(r, z)
+        self.jacobian = compile_function(ca.Function("oe_jacobian", [z, X0, U, Y], [r, J]),
                                          warn=False)
         # NLP: f = 0.5 |r|^2 with the Gauss-Newton Hessian as the Lagrangian Hessian
         data = ca.vertcat(ca.vec(X0), ca.vec(U), ca.vec(Y))
-        f = 0.5 * ca.sumsqr(r)
         sigma = ca.MX.sym("sigma")
         lam_g = ca.MX.sym("lam_g", 0)
-        hess = ca.Function("hess_gn", [theta, data, sigma, lam_g],
-                           [ca.triu(sigma * ca.mtimes(J.T, J))])
-        self.shapes = (X0.shape, U.shape, Y.shape)
-        nlp = {"x": theta, "p": data, "f": f}
-        self.nlp, self.hess = nlp, hess
+        self.hess = ca.Function("hess_gn", [z, data, sigma, lam_g],
+                                [ca.triu(sigma * ca.mtimes(J.T, J))])
+        self.nlp = {"x": z, "p": data, "f": 0.5 * ca.sumsqr(r)}
 
     def pack(self, w: Windows) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         W, L, _ = w.u.shape
         return (w.x0.T, w.u.reshape(W * L, -1).T, w.y.reshape(W * L, -1).T)
+
+    def evaluate(self, z: np.ndarray, w: Windows):
+        """Residual (dense) and Jacobian (scipy sparse) at ``z``."""
+        r, J = self.jacobian(z, *self.pack(w))
+        return np.asarray(r).ravel(), J.sparse()
 
     def params(self, theta: np.ndarray) -> np.ndarray:
         p = self.p0.copy()
@@ -179,8 +186,8 @@ class _Problem:
 
 def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
              names: list[str], window_s: float = 1.0, dt: float | None = None,
-             relative_bound: float = 0.9, max_iterations: int = 60, progress: bool = True
-             ) -> IdentificationResult:
+             relative_bound: float = 0.9, max_iterations: int = 60,
+             estimate_x0: bool = True, progress: bool = True) -> IdentificationResult:
     """Fit the parameters ``names`` of ``airframe`` to ``train`` sorties by output error.
 
     Parameters
@@ -199,6 +206,9 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         Each parameter stays within ``(1 +- relative_bound) x`` its nominal value (sign kept).
     max_iterations : int
         IPOPT iteration limit.
+    estimate_x0 : bool
+        Estimate each window's initial state too (recorded state as its measurement); without
+        it, sensor noise in the start states biases the estimates.
     progress : bool
         Show a progress bar over the solver iterations.
 
@@ -225,45 +235,52 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
                           np.tile(airframe.p[:, None], (1, w_train.count)), grid.dt))
     resid0 = pred0 - w_train.y.reshape(-1, w_train.y.shape[-1]).T
     weights = 1.0 / np.maximum(np.sqrt(np.mean(resid0**2, axis=1)), STATE_WEIGHT_FLOOR)
-    problem = _Problem(airframe, names, grid, L, w_train.count, weights[:, None])
+    problem = _Problem(airframe, names, grid, L, w_train.count, weights[:, None], estimate_x0)
+    n_z = problem.n_theta + problem.n_dx
     data = np.concatenate([a.ravel(order="F") for a in problem.pack(w_train)])
-    r0, J0 = (np.asarray(a) for a in problem.jacobian(np.zeros(len(names)),
-                                                      *problem.pack(w_train)))
-    r0 = r0.ravel()
-    col = np.linalg.norm(J0, axis=0)
-    dead = [n for n, c in zip(names, col) if c <= 1e-9 * max(col.max(), 1e-300)]
-    if dead or not np.all(np.isfinite(J0)):
-        raise IdentifyError(f"the training data do not excite parameter(s) {dead or names}: "
-                            "their effect on the predicted states is zero")
-    bound = np.full(len(names), relative_bound)
+    r0, J0 = problem.evaluate(np.zeros(n_z), w_train)
+    col = np.sqrt(np.asarray(J0[:, :problem.n_theta].multiply(J0[:, :problem.n_theta])
+                             .sum(axis=0))).ravel()
+    # a 100 % change moving the weighted residuals by < 1e-6 (RMS, in units of the nominal
+    # model's error) is no excitation at all
+    dead = [n for n, c in zip(names, col) if not c / math.sqrt(J0.shape[0]) > 1e-6]
+    if dead:
+        raise IdentifyError(f"the training data do not excite parameter(s) {dead}: their "
+                            "effect on the predicted states is zero")
+    lower = np.concatenate([np.full(problem.n_theta, -relative_bound),
+                            np.full(problem.n_dx, -np.inf)])
     options = {"hess_lag": problem.hess, "ipopt.print_level": 0, "print_time": False,
                "ipopt.max_iter": max_iterations, "ipopt.tol": 1e-10, "ipopt.sb": "yes"}
     if find_compiler() is not None:  # the NLP's functions as C (seconds to build, 10x faster)
         options.update({"jit": True, "compiler": "shell",
                         "jit_options": {"flags": ["-O1"], "verbose": False}})
-    bar = _IterationBar(len(names), len(data), max_iterations) if progress else None
+    bar = _IterationBar(n_z, len(data), max_iterations) if progress else None
     if bar is not None:  # kept alive by this frame for as long as the solver runs
         options["iteration_callback"] = bar
     solver = ca.nlpsol("oe", "ipopt", problem.nlp, options)
-    sol = solver(x0=np.zeros(len(names)), p=data, lbx=-bound, ubx=bound)
+    sol = solver(x0=np.zeros(n_z), p=data, lbx=lower, ubx=-lower)
     if bar is not None:
         bar.close()
     stats = solver.stats()
-    theta = np.array(sol["x"]).ravel()
-    r, J = (np.asarray(a) for a in problem.jacobian(theta, *problem.pack(w_train)))
-    r = r.ravel()
-    # residual variance per state after the fit -> Cramer-Rao covariance
-    n_res = r.size
-    per_state = r.reshape(-1, len(weights))
-    sigma_w = np.sqrt(np.sum(per_state**2, axis=0) / max(1, n_res / len(weights)
-                                                          - len(names) / len(weights)))
-    Jw = (J.reshape(-1, len(weights), len(names)) / sigma_w[None, :, None]).reshape(n_res, -1)
-    H = Jw.T @ Jw
+    z = np.array(sol["x"]).ravel()
+    theta = z[:problem.n_theta]
+    r, J = problem.evaluate(z, w_train)
+    # residual variance per state after the fit -> Cramer-Rao covariance of all of z
+    n_state = len(weights)
+    n_out = r.size - problem.n_dx
+    per_state = r[:n_out].reshape(-1, n_state)
+    dof = max(1.0, per_state.shape[0] - n_z / n_state)
+    sigma_w = np.sqrt(np.sum(per_state**2, axis=0) / dof)
+    row_scale = np.concatenate([np.tile(1.0 / sigma_w, per_state.shape[0]),
+                                np.tile(1.0 / sigma_w, problem.n_dx // n_state)])
+    Jw = J.multiply(row_scale[:, None]).tocsc()
+    H = (Jw.T @ Jw).toarray()
     try:
-        cov_theta = np.linalg.inv(H)
+        cov = np.linalg.inv(H)
     except np.linalg.LinAlgError:
         raise IdentifyError(f"the data cannot tell parameters {names} apart (singular "
                             "Gauss-Newton Hessian): fit fewer of them") from None
+    cov_theta = cov[:problem.n_theta, :problem.n_theta]
     std = np.sqrt(np.maximum(np.diag(cov_theta), 0.0)) * problem.scale
     d = np.sqrt(np.maximum(np.diag(cov_theta), 1e-300))
     corr = cov_theta / np.outer(d, d)
