@@ -80,8 +80,7 @@ def test_refuses_unknown_and_unexcited_parameters(aerosonde):
 
 
 def test_cli_writes_a_loadable_airframe_with_provenance(tmp_path, aerosonde, truth, capsys):
-    from uavdyn.flightdata import write_manifest
-    from uavdyn.flightdata import write_csv
+    from uavdyn.flightdata import write_csv, write_manifest
 
     data = tmp_path / "data"
     data.mkdir()

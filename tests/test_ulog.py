@@ -1,8 +1,9 @@
 """Import of the real logs in shared/data/flightlogs (PX4 ULog and the ALFA fixed-wing CSVs):
 each imports onto a uniform grid, pitch from the quaternion agrees with independent pitch
 sources, the integrated pitch rate follows pitch (RMS printed), and a summary table is shown.
-They are collected only where ``../shared`` exists (see conftest.py); the importers' tests on synthetic logs with known
-content, which need nothing outside the repository, are in ``tests/test_ulog_synthetic.py``."""
+They are collected only where ``../shared`` exists (see conftest.py); the importers' tests on
+synthetic logs with known content, which need nothing outside the repository, are in
+``tests/test_ulog_synthetic.py``."""
 
 from pathlib import Path
 

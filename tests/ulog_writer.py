@@ -112,7 +112,17 @@ def write_ulog(path: str | Path, topics: Mapping[TopicKey, Mapping[str, np.ndarr
                params: Mapping[str, float | int] | None = None,
                info: Mapping[str, str] | None = None, start_us: int = 0,
                flag_bits: bool = True) -> Path:
-    """Write a ULog file and return its path.
+    """Write a ULog file (the bytes of :func:`ulog_bytes`) and return its path."""
+    path = Path(path)
+    path.write_bytes(ulog_bytes(topics, params, info, start_us, flag_bits))
+    return path
+
+
+def ulog_bytes(topics: Mapping[TopicKey, Mapping[str, np.ndarray]],
+               params: Mapping[str, float | int] | None = None,
+               info: Mapping[str, str] | None = None, start_us: int = 0,
+               flag_bits: bool = True) -> bytes:
+    """The bytes of a ULog file, built in memory (the fuzz cases mutate them).
 
     ``topics`` maps a topic name (or ``(name, multi_id)``) to its fields: ``timestamp``
     (integer microseconds) and named 1-D or ``N x k`` arrays whose dtype gives the ULog type
@@ -154,6 +164,4 @@ def write_ulog(path: str | Path, topics: Mapping[TopicKey, Mapping[str, np.ndarr
         record = subscriptions[msg_id][2][row[k]].tobytes()
         out.append(_message(b"D", struct.pack("<H", msg_id) + record))
 
-    path = Path(path)
-    path.write_bytes(b"".join(out))
-    return path
+    return b"".join(out)

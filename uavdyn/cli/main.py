@@ -37,6 +37,7 @@ from uavdyn.experiments.reproduce import (
 from uavdyn.flightdata import Sortie, load_dataset, write_csv
 from uavdyn.identify import identify, write_outputs
 from uavdyn.integrate import (
+    CompileError,
     DivergenceError,
     check_use,
     free_run,
@@ -561,7 +562,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (CliError, AirframeError, TrimError, FileNotFoundError, ValueError,
-            DivergenceError) as exc:
+            DivergenceError, CompileError) as exc:
         if args.debug:
             raise
         print(f"uavdyn {args.command}: error: {_one_line(exc)}", file=sys.stderr)

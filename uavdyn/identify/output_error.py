@@ -12,6 +12,8 @@ in time, so these standard errors are optimistic; the report says so.
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 import time
 from dataclasses import dataclass, field
 from itertools import combinations
@@ -251,17 +253,26 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
                             np.full(problem.n_dx, -np.inf)])
     options = {"hess_lag": problem.hess, "ipopt.print_level": 0, "print_time": False,
                "ipopt.max_iter": max_iterations, "ipopt.tol": 1e-10, "ipopt.sb": "yes"}
+    jit_dir = tempfile.TemporaryDirectory(prefix="uavdyn-identify-")
     if find_compiler() is not None:  # the NLP's functions as C (seconds to build, 10x faster)
         options.update({"jit": True, "compiler": "shell",
-                        "jit_options": {"flags": ["-O1"], "verbose": False}})
+                        "jit_options": {"flags": ["-O1"], "verbose": False,
+                                        "directory": jit_dir.name + os.sep}})
     bar = _IterationBar(n_z, len(data), max_iterations) if progress else None
     if bar is not None:  # kept alive by this frame for as long as the solver runs
         options["iteration_callback"] = bar
-    solver = ca.nlpsol("oe", "ipopt", problem.nlp, options)
+    cwd = os.getcwd()
+    os.chdir(jit_dir.name)  # CasADi writes its JIT source into the working folder
+    try:
+        solver = ca.nlpsol("oe", "ipopt", problem.nlp, options)
+    finally:
+        os.chdir(cwd)
     sol = solver(x0=np.zeros(n_z), p=data, lbx=lower, ubx=-lower)
     if bar is not None:
         bar.close()
     stats = solver.stats()
+    del solver
+    jit_dir.cleanup()
     z = np.array(sol["x"]).ravel()
     theta = z[:problem.n_theta]
     r, J = problem.evaluate(z, w_train)

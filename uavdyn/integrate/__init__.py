@@ -2,6 +2,7 @@
 with ``mapaccum``, the evaluation grid, input profiles and the compile-to-C cache."""
 
 from uavdyn.integrate.codegen import (
+    CacheError,
     CodegenWarning,
     CompileError,
     cache_dir,
@@ -32,8 +33,8 @@ from uavdyn.integrate.steps import (
 )
 from uavdyn.integrate.tableau import EULER, HEUN, RK4, ButcherTableau, explicit_rk_step
 
-__all__ = ["CodegenWarning", "CompileError", "cache_dir", "compile_function", "find_compiler",
-           "generate_c", "DivergenceError", "EvalGrid", "GridError", "StepUseError",
-           "StepUseWarning", "check_finite", "check_use", "free_run", "rollout", "simulate",
-           "takes_time", "STEP_INPUTS", "reference_step", "rk4_numpy", "rk4_step", "rk_step",
-           "substepped", "EULER", "HEUN", "RK4", "ButcherTableau", "explicit_rk_step"]
+__all__ = ["CacheError", "CodegenWarning", "CompileError", "cache_dir", "compile_function",
+           "find_compiler", "generate_c", "DivergenceError", "EvalGrid", "GridError",
+           "StepUseError", "StepUseWarning", "check_finite", "check_use", "free_run", "rollout",
+           "simulate", "takes_time", "STEP_INPUTS", "reference_step", "rk4_numpy", "rk4_step",
+           "rk_step", "substepped", "EULER", "HEUN", "RK4", "ButcherTableau", "explicit_rk_step"]

@@ -16,7 +16,13 @@ range (``t_range``), and the hybrid step refuses to be built for another ``dt``.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import os
+import stat
+import tempfile
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,12 +35,18 @@ from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS
 FORMAT_VERSION = 2
 READABLE_VERSIONS = (1, 2)
 N_HIDDEN_LAYERS = 3
+MAX_FILE_BYTES = 64 * 2**20          # a weight file is a few kB; refuse before reading more
+MAX_UNCOMPRESSED_BYTES = 256 * 2**20  # zip bombs: bound on the members' declared sizes
+MAX_MEMBERS = 64
+MAX_NAME_CHARS = 256
 
 REQUIRED_KEYS = (
     "format_version", "formulation", "activation", "kind", "airframe_hash", "dt",
     "in_mean", "in_scale", "out_mean", "out_scale",
     *(f"W{i}" for i in range(N_HIDDEN_LAYERS + 1)), *(f"b{i}" for i in range(N_HIDDEN_LAYERS + 1)),
 )
+OPTIONAL_KEYS = ("info", "t_range")
+NAME_KEYS = ("formulation", "activation", "kind", "airframe_hash")
 
 
 class WeightFileError(ValueError):
@@ -100,17 +112,37 @@ class CorrectionNet:
                 f"{self.n_out} ({self.activation}), kind {self.kind}, trained at dt {self.dt:g} s")
 
 
+def _show(value: object, limit: int = 60) -> str:
+    """``repr`` of a value from a file, cut to one short line (it may hold anything)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 def check_consistent(net: CorrectionNet, origin: str) -> None:
-    """Validate names and every array shape; raise :class:`WeightFileError` naming the key."""
+    """Validate names and every array shape, so a network is checked once, wherever it comes
+    from (file or memory).
+
+    Parameters
+    ----------
+    net : CorrectionNet
+        The network.
+    origin : str
+        Where it came from (a file name), for the message.
+
+    Raises
+    ------
+    WeightFileError
+        One line naming ``origin`` and the offending key.
+    """
     if net.formulation not in FORMULATIONS:
-        raise WeightFileError(f"{origin}: key 'formulation' is '{net.formulation}'; expected one "
-                              f"of {tuple(FORMULATIONS)}")
+        raise WeightFileError(f"{origin}: key 'formulation' is {_show(net.formulation)}; expected "
+                              f"one of {tuple(FORMULATIONS)}")
     if net.activation not in ACTIVATIONS:
-        raise WeightFileError(f"{origin}: key 'activation' is '{net.activation}'; expected one "
-                              f"of {ACTIVATIONS}")
+        raise WeightFileError(f"{origin}: key 'activation' is {_show(net.activation)}; expected "
+                              f"one of {ACTIVATIONS}")
     if net.kind not in ("fixed_wing", "multirotor"):
-        raise WeightFileError(f"{origin}: key 'kind' is '{net.kind}'; expected 'fixed_wing' or "
-                              "'multirotor'")
+        raise WeightFileError(f"{origin}: key 'kind' is {_show(net.kind)}; expected 'fixed_wing' "
+                              "or 'multirotor'")
     if not (np.isfinite(net.dt) and net.dt > 0):
         raise WeightFileError(f"{origin}: key 'dt' must be a positive step size, got {net.dt}")
     n_layers = N_HIDDEN_LAYERS + 1
@@ -126,6 +158,9 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
         if i == n_layers - 1 and w.shape[0] != n_out:
             raise WeightFileError(f"{origin}: key 'W{i}' has shape {w.shape}; the "
                                   f"'{net.formulation}' formulation needs ({n_out}, {expect_in})")
+        if w.shape[0] < 1:
+            raise WeightFileError(f"{origin}: key 'W{i}' has shape {w.shape}; a layer needs at "
+                                  "least one neuron")
         if b.shape != (w.shape[0],):
             raise WeightFileError(f"{origin}: key 'b{i}' has shape {b.shape}; expected "
                                   f"({w.shape[0]},) to match 'W{i}'")
@@ -145,19 +180,40 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
             raise WeightFileError(f"{origin}: key '{key}' contains non-finite values")
     if np.any(net.in_scale <= 0):
         raise WeightFileError(f"{origin}: key 'in_scale' must be > 0")
-    if net.form.takes_time:
+    if net.t_range is not None or net.form.takes_time:
         t_range = net.t_range
         if (t_range is None or len(t_range) != 2 or not all(map(np.isfinite, t_range))
                 or not t_range[0] < t_range[1]):
-            raise WeightFileError(f"{origin}: key 't_range' must be [t_min, t_max] (s since the "
-                                  f"sortie start) for the '{net.formulation}' formulation, got "
-                                  f"{t_range}")
+            raise WeightFileError(f"{origin}: key 't_range' must be [t_min, t_max] with t_min < "
+                                  f"t_max (s since the sortie start) for the '{net.formulation}' "
+                                  f"formulation, got {_show(t_range)}")
 
 
 def save_weights(net: CorrectionNet, path: str | Path) -> Path:
-    """Write ``net`` as a plain ``.npz`` (numbers and strings only; loads without pickle)."""
+    """Write ``net`` as a plain ``.npz`` (numbers and strings only; loads without pickle).
+
+    The file is written to a temporary sibling, synced and renamed over ``path``, so an
+    interrupt never leaves a truncated weight file and an old file stays intact until the new
+    one is complete.
+
+    Parameters
+    ----------
+    net : CorrectionNet
+        The network to store.
+    path : path
+        Destination (any suffix; parent folders are created).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    WeightFileError
+        If the file cannot be written (the message names it).
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {
         "format_version": np.array(FORMAT_VERSION), "formulation": np.array(net.formulation),
         "activation": np.array(net.activation), "kind": np.array(net.kind),
@@ -169,50 +225,90 @@ def save_weights(net: CorrectionNet, path: str | Path) -> Path:
         arrays["t_range"] = np.asarray(net.t_range, float)
     for i, (w, b) in enumerate(zip(net.weights, net.biases)):
         arrays[f"W{i}"], arrays[f"b{i}"] = np.asarray(w, float), np.asarray(b, float)
-    with open(path, "wb") as fh:  # np.savez would append .npz to other suffixes
-        np.savez(fh, **arrays)
+    tmp: str | None = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            mode = stat.S_IMODE(os.stat(path).st_mode)
+        except OSError:
+            mode = 0o644
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        with os.fdopen(fd, "wb") as fh:  # np.savez would append .npz to other suffixes
+            np.savez(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+        tmp = None
+    except OSError as exc:
+        raise WeightFileError(f"{path}: cannot write weight file ({exc.strerror or exc})") \
+            from None
+    finally:
+        if tmp is not None:  # failed or interrupted (KeyboardInterrupt too): drop the partial
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
     return path
 
 
 def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
     """Read a weight file; with ``airframe`` given, refuse weights trained for another one.
 
-    Raises :class:`WeightFileError` naming the file and the key for a missing key, a wrong
-    shape, an unknown formulation/activation, or an airframe-hash mismatch.
+    Only a regular file of at most 64 MB is opened (FIFOs, devices and folders are refused
+    without blocking); the zip directory's declared sizes are checked before anything is
+    extracted, every member must be a plain ``.npy`` array (no pickles), and every key is
+    checked for dtype, shape and finiteness.
+
+    Parameters
+    ----------
+    path : path
+        The ``.npz`` weight file.
+    airframe : Airframe, optional
+        If given, the file's ``kind`` and ``airframe_hash`` must match it.
+
+    Returns
+    -------
+    CorrectionNet
+        The validated network.
+
+    Raises
+    ------
+    WeightFileError
+        One line naming the file and the key, for any unreadable, malformed or mismatched file.
     """
     path = Path(path)
-    if not path.exists():
-        raise WeightFileError(f"{path}: weight file not found")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            content = {k: data[k] for k in data.files}
-    except (ValueError, OSError) as exc:
-        raise WeightFileError(f"{path}: not a readable .npz weight file ({exc})") from exc
+    content = _read_npz(path)
     missing = [k for k in REQUIRED_KEYS if k not in content]
     if missing:
         raise WeightFileError(f"{path}: missing key(s) {missing}")
-    version = int(content["format_version"])
+    unknown = sorted(set(content) - set(REQUIRED_KEYS) - set(OPTIONAL_KEYS))
+    if unknown:
+        raise WeightFileError(f"{path}: key {_show(unknown[0])} is not part of the weight-file "
+                              f"format (version {FORMAT_VERSION})")
+    version = _integer(path, content, "format_version")
     if version not in READABLE_VERSIONS:
         raise WeightFileError(f"{path}: key 'format_version' is {version}; this uavdyn reads "
                               f"versions {READABLE_VERSIONS}")
-    try:
-        info = json.loads(str(content["info"])) if "info" in content else {}
-    except json.JSONDecodeError as exc:
-        raise WeightFileError(f"{path}: key 'info' is not valid JSON ({exc.msg})") from None
+    names = {key: _text(path, content, key) for key in NAME_KEYS}
+    for key, value in names.items():
+        if len(value) > MAX_NAME_CHARS or not value.isprintable():
+            raise WeightFileError(f"{path}: key '{key}' must be a short printable name, got "
+                                  f"{_show(value)}")
+    info = _info(path, content)
+    n_layers = N_HIDDEN_LAYERS + 1
+    t_range = None
+    if "t_range" in content:
+        t_range = tuple(float(v) for v in _real(path, content, "t_range", 1))
     try:
         net = CorrectionNet(
-            formulation=str(content["formulation"]), activation=str(content["activation"]),
-            kind=str(content["kind"]), airframe_hash=str(content["airframe_hash"]),
-            dt=float(content["dt"]),
-            weights=tuple(np.asarray(content[f"W{i}"], float)
-                          for i in range(N_HIDDEN_LAYERS + 1)),
-            biases=tuple(np.asarray(content[f"b{i}"], float) for i in range(N_HIDDEN_LAYERS + 1)),
-            in_mean=np.asarray(content["in_mean"], float),
-            in_scale=np.asarray(content["in_scale"], float),
-            out_mean=np.asarray(content["out_mean"], float),
-            out_scale=np.asarray(content["out_scale"], float), info=info,
-            t_range=(tuple(float(v) for v in np.asarray(content["t_range"], float).ravel())
-                     if "t_range" in content else None))
+            formulation=names["formulation"], activation=names["activation"],
+            kind=names["kind"], airframe_hash=names["airframe_hash"],
+            dt=float(_real(path, content, "dt", 0)),
+            weights=tuple(_real(path, content, f"W{i}", 2) for i in range(n_layers)),
+            biases=tuple(_real(path, content, f"b{i}", 1) for i in range(n_layers)),
+            in_mean=_real(path, content, "in_mean", 1),
+            in_scale=_real(path, content, "in_scale", 1),
+            out_mean=_real(path, content, "out_mean", 1),
+            out_scale=_real(path, content, "out_scale", 1), info=info, t_range=t_range)
     except WeightFileError as exc:
         raise WeightFileError(str(exc).replace("<in memory>", str(path))) from None
     if airframe is not None:
@@ -221,7 +317,202 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
                                   f"'{airframe.name}' is '{airframe.kind}'")
         if airframe.param_hash() != net.airframe_hash:
             raise WeightFileError(
-                f"{path}: key 'airframe_hash' is {net.airframe_hash} but airframe "
+                f"{path}: key 'airframe_hash' is {_show(net.airframe_hash)} but airframe "
                 f"'{airframe.name}' has parameter hash {airframe.param_hash()}: these weights "
                 "were trained for another airframe (retrain with `uavdyn train`)")
     return net
+
+
+# -- reading the container ---------------------------------------------------------------------
+
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
+    """All arrays of the archive, after the file and zip-directory checks (bounded memory)."""
+    raw = _read_regular_file(path)
+    if raw[:6] == b"\x93NUMPY":
+        raise WeightFileError(f"{path}: is a single .npy array, not a .npz archive of named "
+                              "arrays")
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(raw))
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, OSError, EOFError) as exc:
+        raise WeightFileError(f"{path}: not a .npz (zip) weight file ({_reason(exc)})") from None
+    content: dict[str, np.ndarray] = {}
+    with archive:
+        infos = archive.infolist()
+        if len(infos) > MAX_MEMBERS:
+            raise WeightFileError(f"{path}: {len(infos)} archive members; a weight file has at "
+                                  f"most {MAX_MEMBERS}")
+        total, seen = 0, set()
+        for info in infos:
+            key = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+            if not info.filename.endswith(".npy") or info.is_dir():
+                raise WeightFileError(f"{path}: member {_show(info.filename)} is not a .npy "
+                                      "array")
+            if key in seen or key == "":
+                raise WeightFileError(f"{path}: key {_show(key)} appears twice or is empty")
+            total += info.file_size
+            if total > MAX_UNCOMPRESSED_BYTES:
+                what = (f"declares {info.file_size}" if info.file_size > MAX_UNCOMPRESSED_BYTES
+                        else f"brings the archive's declared total to {total}")
+                raise WeightFileError(f"{path}: key {_show(key)} {what} bytes uncompressed; a "
+                                      f"weight file unpacks to at most "
+                                      f"{MAX_UNCOMPRESSED_BYTES // 2**20} MB (a zip bomb?)")
+            if info.flag_bits & 0x1:
+                raise WeightFileError(f"{path}: key {_show(key)} is encrypted")
+            seen.add(key)
+        for info in infos:
+            key = info.filename[:-4]
+            try:
+                with archive.open(info) as member:
+                    content[key] = _read_member(path, key, member, info.file_size)
+            except WeightFileError:
+                raise
+            except Exception as exc:  # zlib, CRC, header parsing...: all one line
+                raise WeightFileError(f"{path}: key {_show(key)} is not a readable .npy array "
+                                      f"({_reason(exc)})") from None
+    return content
+
+
+def _read_regular_file(path: Path) -> bytes:
+    """The bytes of ``path`` if it is a regular file within the size bound (stat first, then
+    open non-blocking and check the opened file again, so a FIFO swapped in cannot hang us)."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise WeightFileError(f"{path}: weight file not found") from None
+    except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
+        reason = getattr(exc, "strerror", None) or exc
+        raise WeightFileError(f"{str(path)!r}: cannot read weight file ({reason})") from None
+    _check_stat(path, st)
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        raise WeightFileError(f"{path}: cannot read weight file ({exc.strerror or exc})") \
+            from None
+    try:
+        _check_stat(path, os.fstat(fd))
+        with os.fdopen(fd, "rb") as fh:
+            fd = -1
+            raw = fh.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise WeightFileError(f"{path}: cannot read weight file ({exc.strerror or exc})") \
+            from None
+    finally:
+        if fd >= 0:
+            os.close(fd)
+    if len(raw) > MAX_FILE_BYTES:
+        raise WeightFileError(f"{path}: weight file grew past {MAX_FILE_BYTES // 2**20} MB "
+                              "while being read")
+    if not raw:
+        raise WeightFileError(f"{path}: weight file is empty")
+    return raw
+
+
+def _check_stat(path: Path, st: os.stat_result) -> None:
+    mode = st.st_mode
+    if stat.S_ISDIR(mode):
+        raise WeightFileError(f"{path}: is a folder, not a weight file")
+    if not stat.S_ISREG(mode):
+        kind = ("a FIFO" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode)
+                else "a block device" if stat.S_ISBLK(mode) else "a socket"
+                if stat.S_ISSOCK(mode) else "not a regular file")
+        raise WeightFileError(f"{path}: is {kind}; a weight file must be a regular .npz file")
+    if st.st_size == 0:
+        raise WeightFileError(f"{path}: weight file is empty")
+    if st.st_size > MAX_FILE_BYTES:
+        raise WeightFileError(f"{path}: is {st.st_size} bytes; weight files are limited to "
+                              f"{MAX_FILE_BYTES // 2**20} MB")
+
+
+def _read_member(path: Path, key: str, member, declared: int) -> np.ndarray:
+    """One ``.npy`` member, its header checked before any allocation: no object dtypes, and the
+    data it declares must fit in the member's declared size."""
+    version = np.lib.format.read_magic(member)
+    if version == (1, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_1_0(member)
+    elif version == (2, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_2_0(member)
+    else:
+        raise WeightFileError(f"{path}: key {_show(key)} uses .npy format version {version}; "
+                              "expected 1.0 or 2.0")
+    if dtype.hasobject:
+        raise WeightFileError(f"{path}: key {_show(key)} holds Python objects (pickled data); a "
+                              "weight file holds only numbers and strings")
+    count = 1
+    for n in shape:
+        count *= int(n)
+    nbytes = count * dtype.itemsize
+    if nbytes > declared:
+        raise WeightFileError(f"{path}: key {_show(key)} declares shape {shape} ({nbytes} bytes) "
+                              f"but its member holds at most {declared}")
+    data = member.read(nbytes)
+    if len(data) != nbytes:
+        raise WeightFileError(f"{path}: key {_show(key)} is truncated ({len(data)} of {nbytes} "
+                              "bytes)")
+    if member.read(1):  # also reaches the end, where zipfile checks the CRC
+        raise WeightFileError(f"{path}: key {_show(key)} has data past its declared shape")
+    if dtype.itemsize == 0:
+        return np.zeros(shape, dtype)
+    array = np.frombuffer(data, dtype=dtype, count=count)
+    return array.reshape(shape, order="F" if fortran else "C").copy()
+
+
+def _reason(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    text = text if len(text) <= 120 else text[:117] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+# -- reading the keys --------------------------------------------------------------------------
+
+def _describe(value: np.ndarray) -> str:
+    return f"dtype {value.dtype.str} and shape {value.shape}"
+
+
+def _integer(path: Path, content: dict, key: str) -> int:
+    value = content[key]
+    if value.dtype.kind not in "iu" or value.ndim != 0:
+        raise WeightFileError(f"{path}: key '{key}' must be an integer scalar, got "
+                              f"{_describe(value)}")
+    return int(value)
+
+
+def _text(path: Path, content: dict, key: str) -> str:
+    value = content[key]
+    if value.dtype.kind != "U" or value.ndim != 0:
+        raise WeightFileError(f"{path}: key '{key}' must be a text string, got "
+                              f"{_describe(value)}")
+    return str(value[()])
+
+
+def _real(path: Path, content: dict, key: str, ndim: int) -> np.ndarray:
+    """A real float64 array of ``ndim`` dimensions, finite: ints widen, while bool, complex,
+    strings, records and dates are refused rather than coerced."""
+    value = content[key]
+    if value.dtype.kind not in "fiu" or value.dtype.fields is not None:
+        raise WeightFileError(f"{path}: key '{key}' must hold real numbers, got "
+                              f"{_describe(value)}")
+    if value.ndim != ndim:
+        what = {0: "a scalar", 1: "a vector", 2: "a matrix"}[ndim]
+        raise WeightFileError(f"{path}: key '{key}' must be {what} ({ndim}-D), got shape "
+                              f"{value.shape}")
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = value.astype(np.float64)
+    if not np.all(np.isfinite(out)):
+        raise WeightFileError(f"{path}: key '{key}' contains non-finite values")
+    return out
+
+
+def _info(path: Path, content: dict) -> dict:
+    if "info" not in content:
+        return {}
+    text = _text(path, content, "info")
+    try:
+        info = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        detail = exc.msg if isinstance(exc, json.JSONDecodeError) else type(exc).__name__
+        raise WeightFileError(f"{path}: key 'info' is not valid JSON ({detail})") from None
+    if not isinstance(info, dict):
+        raise WeightFileError(f"{path}: key 'info' must be a JSON object, got "
+                              f"{type(info).__name__}")
+    return info
