@@ -36,6 +36,16 @@ FIRST_US = 1_000_000
 # ----------------------------------------------------------------------------- valid ULog
 
 
+def _ulog_cli(path: Path, out: Path) -> list[str]:
+    """The CLI route: ``uavdyn import-log`` of the file as a ULog."""
+    return ["import-log", str(path), "--format", "ulog", "--out", str(out)]
+
+
+def _alfa_cli(path: Path, out: Path) -> list[str]:
+    """The CLI route: ``uavdyn import-log`` of the folder as an ALFA sequence."""
+    return ["import-log", str(path), "--format", "alfa", "--out", str(out)]
+
+
 def _state_stamps() -> np.ndarray:
     n = int(SECONDS * STATE_HZ) + 1
     return (FIRST_US + np.arange(n) * (1_000_000 // STATE_HZ)).astype(np.uint64)
@@ -124,6 +134,7 @@ def _bytes_case(name: str, make: Callable[[], bytes], *tags: str) -> Case:
         path.write_bytes(make())
         return path
     return Case(name=f"ulog_{name}", build=build, load=import_ulog, error=FlightDataError,
+                cli=_ulog_cli,
                 tags=("ulog", *tags))
 
 
@@ -131,6 +142,7 @@ def _topics_case(name: str, edit: Callable[[dict], dict], mav_type: int = 2) -> 
     def build(folder: Path) -> Path:
         return write_log(folder / ULOG_NAME, edit(ulog_topics()), mav_type)
     return Case(name=f"ulog_{name}", build=build, load=import_ulog, error=FlightDataError,
+                cli=_ulog_cli,
                 tags=("ulog", "content"))
 
 
@@ -396,6 +408,7 @@ def _file_type_cases() -> list[Case]:
         return path
 
     return [Case(name=f"ulog_{f.__name__}", build=f, load=import_ulog, error=FlightDataError,
+                cli=_ulog_cli,
                  tags=("ulog", "file_type"))
             for f in (fifo, directory, dev_zero, dangling, missing, oversize)]
 
@@ -484,6 +497,7 @@ def _alfa_case(name: str, edit: Callable[[dict], dict] | None, names: str | None
             after(seq)
         return seq
     return Case(name=f"alfa_{name}", build=build, load=import_alfa, error=FlightDataError,
+                cli=_alfa_cli,
                 names=names, tags=("alfa",))
 
 
@@ -597,12 +611,13 @@ def _alfa_cases() -> list[Case]:
         path.write_text("%time\n1\n")
         return path
 
-    cases += [Case(name="alfa_not_utf8", build=binary, load=import_alfa,
+    cases += [Case(name="alfa_not_utf8", build=binary, load=import_alfa, cli=_alfa_cli,
                    error=FlightDataError, names=f(raw), tags=("alfa",)),
               Case(name="alfa_folder_is_a_file", build=not_a_folder, load=import_alfa,
+                   cli=_alfa_cli,
                    error=FlightDataError, tags=("alfa",)),
               Case(name="alfa_folder_missing", build=lambda folder: folder / "absent",
-                   load=import_alfa, error=FlightDataError, tags=("alfa",))]
+                   load=import_alfa, error=FlightDataError, cli=_alfa_cli, tags=("alfa",))]
     return cases
 
 

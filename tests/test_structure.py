@@ -257,3 +257,13 @@ def test_paper_step_sees_time_since_sortie_start(aerosonde, aerosonde_trim):
     x10 = free_run(step, states[0], controls[:100], aerosonde.p, 0.005, 2, t0=10.0)
     x0 = free_run(step, states[0], controls[:100], aerosonde.p, 0.005, 2, t0=0.0)
     assert np.abs(x10 - x0).max() > 1e-6
+
+
+def test_modes_hybrid_refuses_a_time_dependent_map_in_one_line(capsys):
+    from uavdyn.cli import main
+
+    code = main(["modes", "--airframe", "aerosonde", "--hybrid", "--weights",
+                 str(shipped_weights("aerosonde", "paper"))])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "takes time t as an input" in err[0], err
+    assert main(["modes", "--airframe", "aerosonde", "--hybrid", "--dt", "0.01"]) == 0

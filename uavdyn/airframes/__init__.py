@@ -3,6 +3,24 @@
 Parameters enter the CasADi model as a symbolic vector ``p`` whose order is the field order of
 the dataclass of the airframe's kind, so Jacobians with respect to parameters come for free and a
 perturbed airframe is just another ``p``.
+
+File schema (TOML or JSON; unknown keys are errors, so a typo never passes silently)::
+
+    name = "my_plane"          # identifier [A-Za-z0-9_-], at most 64 characters: it is used
+                               # in file names (weights, results), so it may not be a path
+    kind = "fixed_wing"        # or "multirotor"
+    description = "..."        # optional string
+    nominal_airspeed = 25.0    # optional, m/s, in [0, NOMINAL_AIRSPEED_MAX]
+    [params.mass]              # every parameter of the kind, each either a bare number or
+    value = 11.0               # a table with 'value' and an optional 'source' string
+    source = "where the number comes from"
+
+Every value is typed (a boolean or a string is not a number) and range-checked against
+:data:`BOUNDS`, a table of honest physical limits per parameter (generous enough for any real
+airframe from a micro quadrotor to a 100 t aircraft, tight enough that unit slips such as grams
+for kilograms or degrees for radians, and absurd values such as 1e308, are caught at load time
+with the parameter named, not later inside a solver). Files are ``stat``-ed before they are
+opened: only regular files of at most :data:`AIRFRAME_MAX_BYTES` are read.
 """
 
 from __future__ import annotations
@@ -11,6 +29,9 @@ import dataclasses
 import hashlib
 import json
 import math
+import os
+import re
+import stat
 import sys
 from collections.abc import Iterable
 from dataclasses import dataclass, fields
@@ -26,10 +47,34 @@ else:  # pragma: no cover - exercised on Python 3.10 only
     import tomli as tomllib
 
 KINDS = ("fixed_wing", "multirotor")
+AIRFRAME_MAX_BYTES = 2**20          # a parameter file with sources is a few kB
+NOMINAL_AIRSPEED_MAX = 150.0        # m/s; the flight-data speed limit is 100 m/s
+NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
+TOP_LEVEL_KEYS = ("name", "kind", "params", "description", "nominal_airspeed")
+PARAM_ENTRY_KEYS = ("value", "source")
+
+
+_FILE_TYPES = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+               (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
 
 
 class AirframeError(ValueError):
-    """A parameter file is malformed; the message names the file and the key."""
+    """A parameter file is malformed; the one-line message names the file and the key."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(" ".join(message.split()))
+
+
+def _display(path: str | Path) -> str:
+    """A path as it can appear on one line of a message (non-printable characters escaped)."""
+    text = str(path)
+    return text if text.isprintable() else repr(text)[1:-1]
+
+
+def _short(value: object, limit: int = 40) -> str:
+    """A short printable repr of a value for a message (never a whole file's content)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 @dataclass(frozen=True)
@@ -93,18 +138,98 @@ class MultirotorParams:
 ParamsType = Union[FixedWingParams, MultirotorParams]  # noqa: UP007 (runtime alias, py3.10)
 PARAM_CLASSES: dict[str, type] = {"fixed_wing": FixedWingParams, "multirotor": MultirotorParams}
 
-# Keys that must be strictly positive (a zero or negative value makes the model meaningless).
+
+@dataclass(frozen=True)
+class Bound:
+    """Allowed range of one parameter: ``low < x`` (or ``<=`` if not ``low_open``) and
+    ``x <= high`` (or ``<`` if ``high_open``), in ``unit``; ``why`` says where it comes from."""
+
+    low: float
+    high: float
+    unit: str = ""
+    why: str = ""
+    low_open: bool = True
+    high_open: bool = False
+
+    def describe(self) -> str:
+        """The interval in mathematical notation, e.g. ``(0, 100000] kg``."""
+        text = (f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}"
+                f"{')' if self.high_open else ']'}")
+        return f"{text} {self.unit}".strip()
+
+    def violation(self, value: float) -> str | None:
+        """What is wrong with ``value`` (None if it is within the bound)."""
+        if value < self.low or (self.low_open and value == self.low):
+            return f"must be {'>' if self.low_open else '>='} {self.low:g}"
+        if value > self.high or (self.high_open and value == self.high):
+            return f"must be {'<' if self.high_open else '<='} {self.high:g}"
+        return None
+
+
+def _b(low: float, high: float, unit: str = "", why: str = "", low_open: bool = True,
+       high_open: bool = False) -> Bound:
+    return Bound(low, high, unit, why, low_open, high_open)
+
+
+_COEFF = _b(-1e3, 1e3, "", "aerodynamic/propeller coefficient: finite, |x| < 1e3",
+            low_open=True, high_open=True)
+_MASS = _b(0, 1e5, "kg", "a 100 t aircraft is far beyond any UAV")
+_JY = _b(0, 1e6, "kg m^2", "pitch inertia of a 100 t aircraft is ~1e6 kg m^2")
+_RHO = _b(0, 2.0, "kg/m^3", "sea-level ISA is 1.225; 2 is beyond any atmosphere flown in")
+_G = _b(9.0, 10.5, "m/s^2", "Earth's surface gravity is 9.78-9.83 m/s^2", low_open=False)
+_LENGTH = _b(0, 100, "m", "lengths are positive and shorter than 100 m", high_open=True)
+
+# The schema's physical bounds, per kind and parameter (every parameter has one).
+BOUNDS: dict[str, dict[str, Bound]] = {
+    "fixed_wing": {
+        "mass": _MASS, "Jy": _JY,
+        "S_wing": _b(0, 1e3, "m^2", "wing area; a 747 has 511 m^2"),
+        "b": _LENGTH, "c": _LENGTH, "rho": _RHO,
+        "e": _b(0, 1.5, "", "Oswald efficiency: 1 for an elliptic wing, up to ~1.2 with "
+                            "winglets"),
+        "gravity": _G,
+        "C_L_0": _COEFF, "C_L_alpha": _COEFF, "C_L_alpha2": _COEFF, "C_L_q": _COEFF,
+        "C_L_delta_e": _COEFF,
+        "C_D_0": _b(0, 10, "", "zero-lift drag coefficient: >= 0, a flat plate is ~2",
+                    low_open=False),
+        "C_D_q": _COEFF, "C_D_delta_e": _COEFF, "C_m_0": _COEFF, "C_m_alpha": _COEFF,
+        "C_m_q": _COEFF, "C_m_delta_e": _COEFF,
+        "M_blend": _b(0, 100, "1/rad", "stall-blend sharpness (50 in [BM]); up to 100 keeps "
+                                       "exp(M (|alpha| + alpha0)) finite for |alpha| <= pi"),
+        "alpha0": _b(0, math.pi / 2, "rad", "stall-blend angle, within +-90 deg"),
+        "D_prop": _LENGTH,
+        "KV_rpm_per_volt": _b(0, 1e5, "rpm/V", "motor velocity constant; small motors are "
+                                                "~1e4"),
+        "R_motor": _b(0, 1e3, "ohm", "motor winding resistance"),
+        "i0": _b(0, 1e3, "A", "no-load current, >= 0", low_open=False),
+        "V_max": _b(0, 1e4, "V", "battery voltage"),
+        "C_Q2": _COEFF, "C_Q1": _COEFF, "C_Q0": _COEFF,
+        "C_T2": _COEFF, "C_T1": _COEFF, "C_T0": _COEFF,
+    },
+    "multirotor": {
+        "mass": _MASS, "Jy": _JY, "arm": _LENGTH,
+        "c_T": _b(0, 1e3, "N/(rad/s)^2", "rotor thrust coefficient (1e-5 for an F450)",
+                  high_open=True),
+        "C_R": _b(0, 1e5, "rad/s", "throttle-to-rotor-speed slope (1148 for an F450)"),
+        "omega_b": _b(-1e5, 1e5, "rad/s", "throttle-to-rotor-speed offset", high_open=True),
+        "rho": _RHO, "gravity": _G,
+        "CdA_x": _b(0, 1e3, "m^2", "drag area, >= 0", low_open=False),
+        "CdA_z": _b(0, 1e3, "m^2", "drag area, >= 0", low_open=False),
+        "drag_linear": _b(0, 1e6, "N s/m", "linear (rotor) drag, >= 0", low_open=False),
+        "pitch_damping": _b(0, 1e6, "N m s/rad", "pitch damping, >= 0", low_open=False),
+        "pitch_mix": _b(0, 1, "", "mixer share of pitch_cmd in a rotor's throttle (0..1)",
+                        low_open=False),
+    },
+}
+
+# Keys that must be strictly positive / non-negative (derived from BOUNDS; kept for callers).
 POSITIVE_KEYS: dict[str, tuple[str, ...]] = {
-    "fixed_wing": (
-        "mass", "Jy", "S_wing", "b", "c", "rho", "e", "gravity", "M_blend", "alpha0",
-        "D_prop", "KV_rpm_per_volt", "R_motor", "V_max",
-    ),
-    "multirotor": ("mass", "Jy", "arm", "c_T", "C_R", "rho", "gravity"),
-}
+    kind: tuple(n for n, b in table.items() if b.low == 0 and b.low_open)
+    for kind, table in BOUNDS.items()}
 NONNEGATIVE_KEYS: dict[str, tuple[str, ...]] = {
-    "fixed_wing": ("C_D_0", "i0"),
-    "multirotor": ("CdA_x", "CdA_z", "drag_linear", "pitch_damping", "pitch_mix"),
-}
+    kind: tuple(n for n, b in table.items() if b.low == 0 and not b.low_open)
+    for kind, table in BOUNDS.items()}
+
 
 # What the +15 % robustness scenario perturbs: stability derivatives and mass terms.
 PERTURBATION_KEYS: dict[str, tuple[str, ...]] = {
@@ -146,20 +271,21 @@ class Airframe:
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def replace(self, **changes: float) -> Airframe:
-        """A copy with some parameter values changed (validated)."""
+        """A copy with some parameter values changed (typed and range-checked like a file)."""
+        origin = self.origin or self.name
         unknown = set(changes) - set(self.param_names)
         if unknown:
             raise AirframeError(f"unknown parameter(s) {sorted(unknown)} for kind '{self.kind}'")
         values = dataclasses.asdict(self.params)
-        values.update({k: float(v) for k, v in changes.items()})
-        _check_values(values, self.kind, self.origin or self.name)
+        values.update({k: _as_number(v, k, origin) for k, v in changes.items()})
+        _check_values(values, self.kind, origin)
         return dataclasses.replace(self, params=PARAM_CLASSES[self.kind](**values))
 
 
 def param_names(kind: str) -> tuple[str, ...]:
     """Names of the parameter vector ``p`` for an airframe kind, in order."""
-    if kind not in PARAM_CLASSES:
-        raise AirframeError(f"unknown airframe kind '{kind}'; expected one of {KINDS}")
+    if not isinstance(kind, str) or kind not in PARAM_CLASSES:
+        raise AirframeError(f"unknown airframe kind {_short(kind)}; expected one of {KINDS}")
     return tuple(f.name for f in fields(PARAM_CLASSES[kind]))
 
 
@@ -168,83 +294,256 @@ def list_presets() -> list[str]:
     return sorted(PRESETS)
 
 
-def load_airframe(name_or_path: str | Path) -> Airframe:
-    """Load a preset by name (``aerosonde``, ``f450``, or ``quadrotor``/``fixed_wing``) or a
-    user's own TOML/JSON parameter file of the same schema."""
-    key = str(name_or_path)
-    key = ALIASES.get(key, key)
-    if key in PRESETS:
-        text = resources.files(__package__).joinpath(PRESETS[key]).read_text()
-        return _parse(tomllib.loads(text), origin=f"preset '{key}'")
-    path = Path(name_or_path)
-    if not path.exists():
-        raise AirframeError(
-            f"airframe '{name_or_path}' is neither a preset ({', '.join(list_presets())}) "
-            "nor an existing parameter file"
-        )
+class _DuplicateKey(Exception):
+    """A JSON object names one key twice (``json`` would keep the last one silently)."""
+
+
+def _no_duplicates(pairs: list[tuple[str, object]]) -> dict:
+    out: dict = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateKey(key)
+        out[key] = value
+    return out
+
+
+def _read_file(path: Path, origin: str) -> str:
+    """The text of a user's parameter file: a regular file (``stat``-ed before it is opened,
+    so a FIFO or device is never opened) of at most :data:`AIRFRAME_MAX_BYTES`, UTF-8."""
     try:
-        if path.suffix.lower() == ".json":
-            data = json.loads(path.read_text())
-        else:
-            data = tomllib.loads(path.read_text())
-    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise AirframeError(f"{path}: cannot parse parameter file: {exc}") from exc
-    return _parse(data, origin=str(path))
+        st = os.stat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        presets = ", ".join(list_presets() + sorted(ALIASES))
+        raise AirframeError(f"airframe '{origin}' is neither a preset ({presets}) nor an "
+                            "existing parameter file") from None
+    except OSError as exc:
+        raise AirframeError(f"{origin}: cannot read it ({exc.strerror or type(exc).__name__})"
+                            ) from None
+    if stat.S_ISDIR(st.st_mode):
+        raise AirframeError(f"{origin}: is a folder, expected a TOML or JSON parameter file")
+    if not stat.S_ISREG(st.st_mode):
+        what = next((name for test, name in _FILE_TYPES if test(st.st_mode)), "a special file")
+        raise AirframeError(f"{origin}: is {what}, not a regular file: refused without "
+                            "opening it")
+    if st.st_size > AIRFRAME_MAX_BYTES:
+        raise AirframeError(f"{origin}: file is {st.st_size} bytes, more than the "
+                            f"{AIRFRAME_MAX_BYTES}-byte limit for a parameter file: refused "
+                            "without reading it")
+    flags = (os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+             | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0))
+    try:
+        fd = os.open(path, flags)
+        try:
+            now = os.fstat(fd)
+            if not stat.S_ISREG(now.st_mode) or (now.st_dev, now.st_ino) != (st.st_dev,
+                                                                              st.st_ino):
+                raise AirframeError(f"{origin}: the file changed while it was being opened; "
+                                    "refused")
+            chunks, size = [], 0
+            while size <= AIRFRAME_MAX_BYTES:
+                chunk = os.read(fd, AIRFRAME_MAX_BYTES + 1 - size)
+                if not chunk:
+                    break
+                chunks.append(chunk)
+                size += len(chunk)
+            raw = b"".join(chunks)
+        finally:
+            os.close(fd)
+    except OSError as exc:
+        raise AirframeError(f"{origin}: cannot read it ({exc.strerror or type(exc).__name__})"
+                            ) from None
+    if len(raw) > AIRFRAME_MAX_BYTES:
+        raise AirframeError(f"{origin}: file grew beyond the {AIRFRAME_MAX_BYTES}-byte limit "
+                            "while it was read")
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+    nul = raw.find(b"\x00")
+    if nul >= 0:
+        raise AirframeError(f"{origin}: not a text file (NUL byte at offset {nul}); expected a "
+                            "TOML or JSON parameter file")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise AirframeError(f"{origin}: not a UTF-8 text file (byte 0x{raw[exc.start]:02x} at "
+                            f"offset {exc.start}); expected a TOML or JSON parameter file"
+                            ) from None
+    if not text.strip():
+        raise AirframeError(f"{origin}: empty file; expected a TOML or JSON parameter file")
+    return text
+
+
+_TOML_WHERE = re.compile(r"\s*\(at (line \d+, column \d+|end of document)\)\s*$")
+
+
+def _decode(text: str, is_json: bool, origin: str) -> object:
+    """Parse TOML or JSON; a parse error names the file and the line."""
+    fmt = "JSON" if is_json else "TOML"
+    try:
+        if is_json:
+            return json.loads(text, object_pairs_hook=_no_duplicates)
+        return tomllib.loads(text)
+    except json.JSONDecodeError as exc:
+        where, msg = f"line {exc.lineno}, column {exc.colno}", exc.msg
+    except tomllib.TOMLDecodeError as exc:
+        msg = str(exc)
+        found = _TOML_WHERE.search(msg)
+        where = found.group(1) if found else "unknown line"
+        msg = msg[:found.start()] if found else msg
+    except _DuplicateKey as exc:
+        where, msg = "", f"key {_short(str(exc.args[0]))} appears twice in one object"
+    except RecursionError:
+        where, msg = "", "nested too deeply"
+    except ValueError as exc:  # e.g. an integer with more digits than Python converts
+        where = ""
+        msg = "a number has too many digits" if "digits" in str(exc) else type(exc).__name__
+    where = f"{where}: " if where else ""
+    raise AirframeError(f"{origin}: cannot parse parameter file as {fmt}: {where}{msg}")
+
+
+def load_airframe(name_or_path: str | Path) -> Airframe:
+    """Load a preset by name or a user's own TOML/JSON parameter file of the same schema.
+
+    Parameters
+    ----------
+    name_or_path : str or Path
+        A preset (``aerosonde``, ``f450``, or the aliases ``quadrotor``/``fixed_wing``) or the
+        path of a parameter file (``.json`` is read as JSON, anything else as TOML).
+
+    Returns
+    -------
+    Airframe
+
+    Raises
+    ------
+    AirframeError
+        On one line naming the file and the key: unreadable, oversized or special files,
+        parse errors (with the line), unknown or missing keys, wrong types, values outside
+        :data:`BOUNDS`, a ``name`` that is not an identifier.
+    """
+    if isinstance(name_or_path, str):
+        key = ALIASES.get(name_or_path, name_or_path)
+        if key in PRESETS:
+            text = resources.files(__package__).joinpath(PRESETS[key]).read_text()
+            return _parse(tomllib.loads(text), origin=f"preset '{key}'")
+    elif not isinstance(name_or_path, os.PathLike):
+        raise AirframeError(f"airframe must be a preset name or a file path, got "
+                            f"{type(name_or_path).__name__}")
+    path = Path(name_or_path)
+    origin = _display(path)
+    if "\x00" in str(path):
+        raise AirframeError(f"{origin}: invalid path (NUL byte)")
+    text = _read_file(path, origin)
+    return _parse(_decode(text, path.suffix.lower() == ".json", origin), origin=origin)
+
+
+def _kind_of(value: object) -> str:
+    """The file-format name of a parsed value's type, as a file's author would say it."""
+    if isinstance(value, bool):
+        return "a boolean"
+    if value is None:
+        return "null"
+    return {list: "an array", str: "a string", int: "a number", float: "a number"}.get(
+        type(value), type(value).__name__)
+
+
+def _key_list(keys: Iterable[object], limit: int = 5) -> str:
+    """``['a', 'b']`` with each key shortened (a key may be anything a file holds)."""
+    keys = sorted(str(k) for k in keys)
+    shown = [_short(k, 30) for k in keys[:limit]]
+    return "[" + ", ".join(shown + (["..."] if len(keys) > limit else [])) + "]"
+
+
+def _as_number(value: object, name: str, origin: str) -> float:
+    """A parameter value as float: a bool or a string is not a number; an integer too large
+    for a float is not finite."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise AirframeError(f"{origin}: parameter '{name}' must be a number, got "
+                            f"{_short(value)}")
+    try:
+        return float(value)
+    except OverflowError:
+        raise AirframeError(f"{origin}: parameter '{name}' is not finite (an integer of "
+                            f"{value.bit_length()} bits)") from None
 
 
 def _parse(data: dict, origin: str) -> Airframe:
+    """Build an :class:`Airframe` from parsed TOML/JSON, checking keys, types and bounds."""
+    if not isinstance(data, dict):
+        raise AirframeError(f"{origin}: the top level must be a table (JSON object), not "
+                            f"{_kind_of(data)}")
     for key in ("name", "kind", "params"):
         if key not in data:
             raise AirframeError(f"{origin}: missing top-level key '{key}'")
     kind = data["kind"]
+    if not isinstance(kind, str):
+        raise AirframeError(f"{origin}: key 'kind' must be a string, got {_short(kind)}")
     if kind not in PARAM_CLASSES:
-        raise AirframeError(f"{origin}: key 'kind' is '{kind}'; expected one of {KINDS}")
-    allowed_top = {"name", "kind", "params", "description", "nominal_airspeed"}
-    extra_top = set(data) - allowed_top
+        raise AirframeError(f"{origin}: key 'kind' is {_short(kind)}; expected one of {KINDS}")
+    extra_top = set(data) - set(TOP_LEVEL_KEYS)
     if extra_top:
-        raise AirframeError(f"{origin}: unknown top-level key(s) {sorted(extra_top)}")
+        raise AirframeError(f"{origin}: unknown top-level key(s) {_key_list(extra_top)}")
+    name = data["name"]
+    if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
+        raise AirframeError(f"{origin}: key 'name' is {_short(name)}; it must be an identifier "
+                            "of letters, digits, '_' and '-' (at most 64 characters), because "
+                            "it is used in file names")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise AirframeError(f"{origin}: key 'description' must be a string, got "
+                            f"{_short(description)}")
     raw = data["params"]
+    if not isinstance(raw, dict):
+        raise AirframeError(f"{origin}: key 'params' must be a table of parameters, got "
+                            f"{_short(raw)}")
     names = param_names(kind)
-    unknown = sorted(set(raw) - set(names))
+    unknown = set(raw) - set(names)
     if unknown:
-        raise AirframeError(f"{origin}: unknown parameter key(s) {unknown} for kind '{kind}'")
+        raise AirframeError(f"{origin}: unknown parameter key(s) {_key_list(unknown)} for kind "
+                            f"'{kind}'")
     missing = [n for n in names if n not in raw]
     if missing:
         raise AirframeError(f"{origin}: missing parameter key(s) {missing}")
     values: dict[str, float] = {}
     sources: dict[str, str] = {}
-    for name in names:
-        entry = raw[name]
+    for name_ in names:
+        entry = raw[name_]
         if isinstance(entry, dict):
             if "value" not in entry:
-                raise AirframeError(f"{origin}: parameter '{name}' has no 'value'")
-            value, sources[name] = entry["value"], str(entry.get("source", ""))
+                raise AirframeError(f"{origin}: parameter '{name_}' has no 'value'")
+            extra = set(entry) - set(PARAM_ENTRY_KEYS)
+            if extra:
+                raise AirframeError(f"{origin}: parameter '{name_}': unknown key(s) "
+                                    f"{_key_list(extra)}; expected {list(PARAM_ENTRY_KEYS)}")
+            source = entry.get("source", "")
+            if not isinstance(source, str):
+                raise AirframeError(f"{origin}: parameter '{name_}': 'source' must be a "
+                                    f"string, got {_short(source)}")
+            value, sources[name_] = entry["value"], source
         else:
-            value, sources[name] = entry, ""
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise AirframeError(f"{origin}: parameter '{name}' must be a number, got {value!r}")
-        values[name] = float(value)
+            value, sources[name_] = entry, ""
+        values[name_] = _as_number(value, name_, origin)
     _check_values(values, kind, origin)
     nominal = data.get("nominal_airspeed", 0.0)
-    if not isinstance(nominal, (int, float)) or not math.isfinite(nominal) or nominal < 0:
-        raise AirframeError(f"{origin}: 'nominal_airspeed' must be a finite number >= 0")
+    if (isinstance(nominal, bool) or not isinstance(nominal, (int, float))
+            or not 0 <= nominal <= NOMINAL_AIRSPEED_MAX):  # NaN fails the comparison too
+        raise AirframeError(f"{origin}: key 'nominal_airspeed' must be a number of m/s in "
+                            f"[0, {NOMINAL_AIRSPEED_MAX:g}], got {_short(nominal)}")
     return Airframe(
-        name=str(data["name"]), kind=kind, params=PARAM_CLASSES[kind](**values), sources=sources,
-        description=str(data.get("description", "")), nominal_airspeed=float(nominal),
-        origin=origin,
+        name=name, kind=kind, params=PARAM_CLASSES[kind](**values), sources=sources,
+        description=description, nominal_airspeed=float(nominal), origin=origin,
     )
 
 
 def _check_values(values: dict[str, float], kind: str, origin: str) -> None:
+    """Every value finite and within its :data:`BOUNDS` entry (the message names the key)."""
     for name, value in values.items():
         if not math.isfinite(value):
             raise AirframeError(f"{origin}: parameter '{name}' is not finite ({value})")
-    for name in POSITIVE_KEYS[kind]:
-        if values[name] <= 0:
-            raise AirframeError(f"{origin}: parameter '{name}' must be > 0, got {values[name]}")
-    for name in NONNEGATIVE_KEYS[kind]:
-        if values[name] < 0:
-            raise AirframeError(f"{origin}: parameter '{name}' must be >= 0, got {values[name]}")
+    for name, bound in BOUNDS[kind].items():
+        problem = bound.violation(values[name])
+        if problem:
+            raise AirframeError(f"{origin}: parameter '{name}' {problem}, got {values[name]!r} "
+                                f"(allowed {bound.describe()}: {bound.why})")
 
 
 def perturb(airframe: Airframe, scale: float = 1.15,

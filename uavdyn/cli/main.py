@@ -34,7 +34,14 @@ from uavdyn.experiments.reproduce import (
     evaluation_markdown,
     run,
 )
-from uavdyn.flightdata import Sortie, load_dataset, write_csv
+from uavdyn.flightdata import (
+    Sortie,
+    import_alfa,
+    import_ulog,
+    load_dataset,
+    write_csv,
+    write_manifest,
+)
 from uavdyn.identify import identify, write_outputs
 from uavdyn.integrate import (
     CompileError,
@@ -48,7 +55,7 @@ from uavdyn.integrate.inputs import control_sequence
 from uavdyn.learned import hybrid_step, shipped_weights
 from uavdyn.linear import TrimError, discrete_map_modes, linearise, mode_table, modes, trim
 from uavdyn.model import CONTROL_BOUNDS, build_model
-from uavdyn.outputs import atomic_file, write_text_atomic
+from uavdyn.outputs import atomic_file, check_output_folder, output_folder, write_text_atomic
 
 
 class CliError(Exception):
@@ -325,6 +332,30 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_import_log(args: argparse.Namespace) -> int:
+    """Import a PX4 ULog file or an ALFA folder into a one-sortie interchange dataset."""
+    source = Path(args.log)
+    fmt = args.format
+    if fmt == "auto":
+        fmt = "alfa" if source.is_dir() else "ulog"
+    check_output_folder(args.out, "import-log", args.force)
+    if fmt == "ulog":
+        sortie = import_ulog(source, **({"rate_hz": args.rate} if args.rate else {}))
+    else:
+        sortie = import_alfa(source, **({"rate_hz": args.rate} if args.rate else {}))
+    name = "".join(c if c.isalnum() or c in "_-" else "_" for c in sortie.name)[:64] or "log"
+    with output_folder(args.out, "import-log", args.force, last=("manifest.json",)) as tmp:
+        write_csv(sortie, tmp / f"{name}.csv")
+        write_manifest(tmp, airframe="", kind=sortie.kind,
+                       sample_rate_hz=round(1.0 / float(np.median(np.diff(sortie.time))), 9),
+                       source=f"uavdyn import-log ({fmt}) of {source.name}",
+                       sorties=[{"file": f"{name}.csv", "mission": sortie.mission,
+                                 "duration_s": sortie.duration}])
+    print(f"wrote {args.out}/ ({sortie.kind}, {len(sortie.time)} rows, "
+          f"{sortie.duration:.1f} s from {source.name})")
+    return 0
+
+
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """The validation pipeline: dataset, weights, Tables 1-4, figures, report."""
 
@@ -465,6 +496,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--name", default="uav_step", help="C name of the exported function")
     p.add_argument("--out", default="results/c_bundle", help="output folder")
     p.set_defaults(func=cmd_export_c)
+
+    p = sub.add_parser("import-log", help="import a PX4 ULog file or an ALFA folder as a "
+                       "one-sortie interchange dataset")
+    _add_force(p)
+    p.add_argument("log", help="the .ulg file or ALFA sequence folder")
+    p.add_argument("--format", choices=["auto", "ulog", "alfa"], default="auto",
+                   help="auto: a folder is ALFA, a file is ULog")
+    p.add_argument("--rate", type=float, default=None, help="grid rate in Hz (default: the "
+                   "attitude topic's rate for ULog, 10 Hz for ALFA)")
+    p.add_argument("--out", required=True, help="output dataset folder")
+    p.set_defaults(func=cmd_import_log)
 
     p = sub.add_parser("identify", help="fit named physical parameters to flight data "
                        "(output error); write the fitted airframe file and a report")

@@ -9,8 +9,9 @@ from uavdyn.identify.output_error import (
     Windows,
     identify,
     make_windows,
+    measurement_noise,
 )
 from uavdyn.identify.report import airframe_toml, write_outputs
 
 __all__ = ["Estimate", "IdentificationResult", "IdentifyError", "Windows", "identify",
-           "make_windows", "airframe_toml", "write_outputs"]
+           "make_windows", "measurement_noise", "airframe_toml", "write_outputs"]

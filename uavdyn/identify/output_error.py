@@ -114,6 +114,16 @@ def make_windows(sorties: list[Sortie], window_samples: int, stride: int = 1) ->
     return Windows(np.array(x0), np.array(u), np.array(y), names)
 
 
+def measurement_noise(sorties: list[Sortie]) -> np.ndarray:
+    """Per-state standard deviation of white measurement noise, from the second differences
+    of the logged states (``var(d2 y) = 6 sigma^2`` for white noise; a smooth flight signal adds
+    little at logging rates), floored so noise-free data pin the start states."""
+    d2 = np.concatenate([np.diff(s.states, 2, axis=0) for s in sorties])
+    sigma = np.sqrt(np.mean(d2**2, axis=0) / 6.0)
+    return np.maximum(sigma, 1e-9 * (1.0 + np.abs(np.concatenate([s.states for s in sorties]))
+                                     .max(axis=0)))
+
+
 def _check_request(airframe: Airframe, names: list[str], sorties: list[Sortie]) -> None:
     if not names:
         raise IdentifyError("no parameter named: give at least one with --params")
@@ -134,11 +144,12 @@ def _check_request(airframe: Airframe, names: list[str], sorties: list[Sortie]) 
 class _Problem:
     """The weighted residual of one window set as CasADi Functions of the decision vector
     ``z = [theta; dx]``: ``p = p0 + scale * theta`` for the chosen parameters, and each window
-    starts from ``x0_recorded + dx / weights`` (its initial state is estimated too, with the
-    recorded one as a measurement: noisy start states would otherwise bias the estimates)."""
+    starts from ``x0_recorded + noise * dx`` (its initial state is estimated too, with the
+    recorded one as a measurement of standard deviation ``noise``: noisy start states would
+    otherwise bias the estimates)."""
 
     def __init__(self, airframe: Airframe, names: list[str], grid: EvalGrid, n_samples: int,
-                 n_windows: int, weights: np.ndarray, estimate_x0: bool):
+                 n_windows: int, weights: np.ndarray, noise: np.ndarray, estimate_x0: bool):
         model = build_model(airframe)
         step = rk4_step(model.f)
         index = [airframe.param_names.index(n) for n in names]
@@ -157,7 +168,7 @@ class _Problem:
         for j, i in enumerate(index):
             p[i] = p0[i] + scale[j] * theta[j]
         w = ca.DM(weights)
-        start = X0 + ca.reshape(dx, model.nx, n_windows) / w if estimate_x0 else X0
+        start = X0 + ca.reshape(dx, model.nx, n_windows) * ca.DM(noise) if estimate_x0 else X0
         pred = sim(start, U, ca.repmat(p, 1, n_windows), grid.dt)
         r = ca.vertcat(ca.vec((pred - Y) * w), dx)
         J = ca.jacobian(r, z)
@@ -189,7 +200,8 @@ class _Problem:
 def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
              names: list[str], window_s: float = 1.0, dt: float | None = None,
              relative_bound: float = 0.9, max_iterations: int = 60,
-             estimate_x0: bool = True, progress: bool = True) -> IdentificationResult:
+             estimate_x0: bool = True, max_windows: int | None = 120,
+             progress: bool = True) -> IdentificationResult:
     """Fit the parameters ``names`` of ``airframe`` to ``train`` sorties by output error.
 
     Parameters
@@ -211,6 +223,9 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     estimate_x0 : bool
         Estimate each window's initial state too (recorded state as its measurement); without
         it, sensor noise in the start states biases the estimates.
+    max_windows : int, optional
+        Use at most this many windows, evenly spread over the training data (the cost of a
+        Gauss-Newton iteration grows with them; None: all).
     progress : bool
         Show a progress bar over the solver iterations.
 
@@ -230,6 +245,10 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     grid = EvalGrid(sample_dt, dt if dt is not None else sample_dt / 2)
     L = max(1, int(round(window_s / grid.interval)))
     w_train = make_windows(train, L, grid.stride)
+    if max_windows is not None and w_train.count > max_windows:
+        keep = np.unique(np.linspace(0, w_train.count - 1, max_windows).round().astype(int))
+        w_train = Windows(w_train.x0[keep], w_train.u[keep], w_train.y[keep],
+                          [w_train.sortie[k] for k in keep])
     nominal = rk4_step(build_model(airframe).f)
     # weights: the nominal model's residual RMS per state (puts every state on one scale)
     sim0 = rollout(nominal, L, grid.substeps).map(w_train.count, "thread", 2)
@@ -237,7 +256,9 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
                           np.tile(airframe.p[:, None], (1, w_train.count)), grid.dt))
     resid0 = pred0 - w_train.y.reshape(-1, w_train.y.shape[-1]).T
     weights = 1.0 / np.maximum(np.sqrt(np.mean(resid0**2, axis=1)), STATE_WEIGHT_FLOOR)
-    problem = _Problem(airframe, names, grid, L, w_train.count, weights[:, None], estimate_x0)
+    noise = measurement_noise(train)
+    problem = _Problem(airframe, names, grid, L, w_train.count, weights[:, None],
+                       noise[:, None], estimate_x0)
     n_z = problem.n_theta + problem.n_dx
     data = np.concatenate([a.ravel(order="F") for a in problem.pack(w_train)])
     r0, J0 = problem.evaluate(np.zeros(n_z), w_train)
@@ -283,7 +304,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     dof = max(1.0, per_state.shape[0] - n_z / n_state)
     sigma_w = np.sqrt(np.sum(per_state**2, axis=0) / dof)
     row_scale = np.concatenate([np.tile(1.0 / sigma_w, per_state.shape[0]),
-                                np.tile(1.0 / sigma_w, problem.n_dx // n_state)])
+                                np.ones(problem.n_dx)])
     Jw = J.multiply(row_scale[:, None]).tocsc()
     H = (Jw.T @ Jw).toarray()
     try:
