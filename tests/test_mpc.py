@@ -80,3 +80,28 @@ def test_hybrid_prediction_model_solves(aerosonde, aerosonde_trim):
                              lambda t: np.full_like(t, 100.0), 25.0, weights=(100.0, 0.0, 1.0))
     assert result.success.all()
     assert abs(result.states[-1, 3] - result.theta_ref[-1]) < math.radians(0.3)
+
+
+def test_a_diverged_prediction_is_a_failed_solve_and_never_applied(aerosonde, aerosonde_trim):
+    """A prediction model that returns NaN makes every solve fail; the closed loop then holds
+    the last applied control instead of applying the solver's output."""
+    import casadi as ca
+
+    x, u, p, dt = (ca.SX.sym("x", 4), ca.SX.sym("u", 2), ca.SX.sym("p", len(aerosonde.p)),
+                   ca.SX.sym("dt"))
+    broken = ca.Function("broken", [x, u, p, dt], [x + np.nan * (u[0] + 1.0)],
+                         ["x", "u", "p", "dt"], ["x_next"])
+    mpc = TrackingMPC(broken, aerosonde.kind, aerosonde.p, aerosonde_trim.u,
+                      MPCConfig(horizon=5, dt=0.05, max_iter=3))
+    x0 = np.append(aerosonde_trim.x, 100.0)
+    res = mpc.solve(x0, aerosonde_trim.u, aerosonde_trim.x[3], 100.0, 25.0)
+    assert not res.success
+
+    def plant(xp, uu):
+        return x0, x0  # a plant that stays at trim
+
+    u0 = aerosonde_trim.u + [0.01, 0.0]
+    result = fly_closed_loop(mpc, plant, x0, u0, 4, lambda t: 0 * t + aerosonde_trim.x[3],
+                             lambda t: 0 * t + 100.0, 25.0)
+    assert not result.success.any()
+    np.testing.assert_array_equal(result.controls, np.tile(u0, (4, 1)))

@@ -162,11 +162,17 @@ class TrackingMPC:
         w = np.array(sol["x"]).ravel()
         X = w[: self.nx * (N + 1)].reshape((self.nx, N + 1), order="F")
         U = w[self.nx * (N + 1):].reshape((self.nu, N), order="F")
-        self._warm = (X, U)
-        return MPCResult(u=U[:, 0].copy(), success=bool(stats.get("success", False)),
-                         solve_time_s=elapsed, iterations=int(stats.get("iter_count", -1)),
-                         status=str(stats.get("return_status", "")), predicted_states=X,
-                         predicted_controls=U)
+        success = bool(stats.get("success", False))
+        status = str(stats.get("return_status", ""))
+        finite = bool(np.all(np.isfinite(X)) and np.all(np.isfinite(U)))
+        if not finite:  # a diverged prediction is a failed solve, never a warm start
+            success, status = False, f"non-finite prediction ({status})"
+            self._warm = None
+        else:
+            self._warm = (X, U)
+        return MPCResult(u=U[:, 0].copy(), success=success, solve_time_s=elapsed,
+                         iterations=int(stats.get("iter_count", -1)), status=status,
+                         predicted_states=X, predicted_controls=U)
 
     def reset(self) -> None:
         """Forget the warm start (e.g. before a new scenario)."""
@@ -197,7 +203,8 @@ def fly_closed_loop(mpc: TrackingMPC, plant_step, x0: np.ndarray, u0: np.ndarray
                     weights: tuple[float, float, float] | None = None) -> ClosedLoopResult:
     """Fly ``n_steps`` MPC intervals. ``plant_step(x_plant, u) -> (x_plant_next, y)`` advances
     the plant (e.g. the emulator) by one MPC interval and returns its ``[u, w, q, theta, h]``;
-    ``theta_ref(t)``, ``h_ref(t)`` give the references at time t (callables)."""
+    ``theta_ref(t)``, ``h_ref(t)`` give the references at time t (callables). The output of a
+    failed (or non-finite) solve is never applied: the previous control is held."""
     dt, N = mpc.config.dt, mpc.config.horizon
     mpc.reset()
     xp, y = plant_step(x0, None)
@@ -206,7 +213,8 @@ def fly_closed_loop(mpc: TrackingMPC, plant_step, x0: np.ndarray, u0: np.ndarray
     for k in range(n_steps):
         t_pred = (k + 1 + np.arange(N)) * dt
         res = mpc.solve(y, u, theta_ref(t_pred), h_ref(t_pred), speed_ref, weights)
-        u = res.u
+        if res.success:  # a failed solve is never applied: the last control is held instead
+            u = res.u
         times.append(res.solve_time_s)
         ok.append(res.success)
         xp, y = plant_step(xp, u)
