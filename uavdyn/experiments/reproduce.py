@@ -101,7 +101,8 @@ def dataset_for(airframe_name: str, config: ReproduceConfig) -> Dataset:
     key = hashlib.sha256(json.dumps(asdict(recipe), sort_keys=True).encode()).hexdigest()[:12]
     folder = Path(config.cache or cache_dir() / "datasets") / f"{airframe_name}_{key}"
     if not (folder / "manifest.json").exists():
-        generate_dataset(recipe, folder, progress=config.progress)
+        folder.parent.mkdir(parents=True, exist_ok=True)  # the cache is ours to create
+        generate_dataset(recipe, folder, progress=config.progress, force=True)
     return load_dataset(folder)
 
 
