@@ -33,6 +33,14 @@ import numpy as np
 from scipy.signal import butter, filtfilt
 
 from uavdyn.model import CONTROL_BOUNDS, CONTROL_NAMES, STATE_NAMES
+from uavdyn.safefiles import (
+    DuplicateKey,
+    UnreadableFile,
+    describe_mode,
+    no_duplicate_keys,
+    os_reason,
+    read_regular,
+)
 
 SPLIT_NAMES = ("train", "validation", "test")
 # Physical plausibility limits (units slip-ups such as degrees or km/h land outside them).
@@ -61,9 +69,6 @@ _NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]
                      r"|nan|inf|infinity)", re.IGNORECASE)
 _NUMERIC_BYTES = b"0123456789+-.eE, \t\r\n"  # a body of only these takes numpy's fast path
 _BOM = b"\xef\xbb\xbf"
-_FILE_TYPES = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
-               (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
-
 
 def _display(path: str | Path) -> str:
     """A path as it can appear on one line of a message (non-printable characters escaped)."""
@@ -106,76 +111,17 @@ class FlightDataError(ValueError):
 # ----------------------------------------------------------------------------- safe reading
 
 
-def _file_type(mode: int) -> str:
-    for test, name in _FILE_TYPES:
-        if test(mode):
-            return name
-    return "not a regular file"
-
-
-def _os_reason(exc: OSError) -> str:
-    if isinstance(exc, FileNotFoundError):
-        return "file not found"
-    if isinstance(exc, NotADirectoryError):
-        return "file not found (a parent in the path is not a folder)"
-    if isinstance(exc, PermissionError):
-        return "permission denied"
-    return f"cannot read it ({exc.strerror or type(exc).__name__})"
-
-
 def _read_regular(shown: Path, real: str | Path, limit: int, what: str, folder_hint: str,
                   resolved: bool) -> bytes:
-    """The bytes of the regular file ``real`` (``shown`` in messages), at most ``limit``.
-
-    ``os.stat`` comes first so that a FIFO (which would block), a device such as /dev/zero
-    (which never ends) or a folder is refused without being opened, and an oversized file
-    without being read; the opened descriptor is checked again (same inode, still regular) so
-    a file swapped in between is refused too. A ``resolved`` path (symbolic links already
+    """The bytes of the regular file ``real`` (``shown`` in messages), at most ``limit``
+    (:func:`uavdyn.safefiles.read_regular`). A ``resolved`` path (symbolic links already
     resolved and checked to stay inside the dataset folder) is not followed again if a link
     appears there meanwhile."""
     try:
-        st = os.lstat(real) if resolved else os.stat(real)
-    except OSError as exc:
-        raise FlightDataError(_os_reason(exc), shown) from None
-    except ValueError:  # embedded NUL byte
-        raise FlightDataError("invalid path (NUL byte)", shown) from None
-    if stat.S_ISDIR(st.st_mode):
-        raise FlightDataError(f"is a folder, expected {what}{folder_hint}", shown)
-    if stat.S_ISLNK(st.st_mode):
-        raise FlightDataError("is a symbolic link that cannot be resolved (a loop?) or that "
-                              "changed while it was checked: refused", shown)
-    if not stat.S_ISREG(st.st_mode):
-        raise FlightDataError(f"is {_file_type(st.st_mode)}, not a regular file: refused "
-                              "without opening it", shown)
-    if st.st_size > limit:
-        raise FlightDataError(f"file is {st.st_size} bytes, more than the {limit}-byte limit "
-                              f"for {what}: refused without reading it", shown)
-    flags = (os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
-             | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
-             | (getattr(os, "O_NOFOLLOW", 0) if resolved else 0))
-    try:
-        fd = os.open(real, flags)
-    except OSError as exc:
-        raise FlightDataError(_os_reason(exc), shown) from None
-    try:
-        now = os.fstat(fd)
-        if not stat.S_ISREG(now.st_mode) or (now.st_dev, now.st_ino) != (st.st_dev, st.st_ino):
-            raise FlightDataError("the file changed while it was being opened; refused", shown)
-        chunks, size = [], 0
-        while size <= limit:
-            chunk = os.read(fd, min(1 << 20, limit + 1 - size))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            size += len(chunk)
-    except OSError as exc:
-        raise FlightDataError(_os_reason(exc), shown) from None
-    finally:
-        os.close(fd)
-    if size > limit:
-        raise FlightDataError(f"file grew beyond the {limit}-byte limit for {what} while it "
-                              "was read", shown)
-    return b"".join(chunks)
+        return read_regular(real, limit, what, follow_symlinks=not resolved)
+    except UnreadableFile as exc:
+        reason = exc.reason + (folder_hint if exc.reason.startswith("is a folder") else "")
+        raise FlightDataError(reason, shown) from None
 
 
 def _inside(folder_real: str, name: object, key: str, manifest: Path, folder: Path
@@ -738,19 +684,6 @@ class Dataset:
 # ----------------------------------------------------------------------------- manifest
 
 
-class _DuplicateKey(Exception):
-    """A JSON object names one key twice (``json`` would keep the last one silently)."""
-
-
-def _no_duplicates(pairs: list[tuple[str, object]]) -> dict:
-    out: dict = {}
-    for key, value in pairs:
-        if key in out:
-            raise _DuplicateKey(key)
-        out[key] = value
-    return out
-
-
 def _json_type(value: object) -> str:
     """The JSON name of a parsed value's type (what a manifest author recognises)."""
     if isinstance(value, bool):
@@ -800,11 +733,11 @@ def _parse_json(shown: Path, real: str | Path) -> object:
     if not text.strip():
         raise FlightDataError("empty file: expected a JSON object (the dataset manifest)", shown)
     try:
-        return json.loads(text, object_pairs_hook=_no_duplicates)
+        return json.loads(text, object_pairs_hook=no_duplicate_keys)
     except json.JSONDecodeError as exc:
         raise FlightDataError(f"line {exc.lineno}, column {exc.colno}: invalid JSON: "
                               f"{exc.msg}", shown) from None
-    except _DuplicateKey as exc:
+    except DuplicateKey as exc:
         raise FlightDataError(f"key {_short(str(exc.args[0]))} appears twice in one JSON "
                               "object (which one is meant is ambiguous)", shown) from None
     except RecursionError:
@@ -972,7 +905,7 @@ def _stat_given(path: Path) -> os.stat_result:
     except FileNotFoundError:
         raise FlightDataError("no such file or folder", path) from None
     except OSError as exc:
-        raise FlightDataError(_os_reason(exc), path) from None
+        raise FlightDataError(os_reason(exc), path) from None
     except ValueError:
         raise FlightDataError("invalid path (NUL byte)", path) from None
 
@@ -1020,7 +953,7 @@ def load_dataset(path: str | Path, check: bool = True, lowpass_hz: float | None 
         ds = Dataset(path, manifest, [s])
         return ds.lowpass(lowpass_hz) if lowpass_hz else ds
     if not (stat.S_ISDIR(st.st_mode) or stat.S_ISREG(st.st_mode)):
-        raise FlightDataError(f"is {_file_type(st.st_mode)}, not a dataset folder or a CSV "
+        raise FlightDataError(f"is {describe_mode(st.st_mode)}, not a dataset folder or a CSV "
                               "file: refused without opening it", path)
     folder = path if stat.S_ISDIR(st.st_mode) else path.parent
     manifest, entries = _manifest_in(folder / "manifest.json")

@@ -43,6 +43,7 @@ import numpy as np
 
 from uavdyn.flightdata.dataset import FlightDataError, Sortie, check_values
 from uavdyn.model import CONTROL_BOUNDS
+from uavdyn.safefiles import UnreadableFile, read_regular, stat_regular
 
 try:  # optional dependency; imported here so that no module is loaded during an import
     import pyulog as _pyulog
@@ -185,63 +186,20 @@ def _as_path(path: object, option: str) -> Path:
 
 
 def _stat_regular(path: Path, limit: int) -> os.stat_result:
-    """``stat`` (following symlinks) without opening: refuse a missing path, a folder, a FIFO,
-    a device or socket (opening a FIFO blocks, a device can be endless) and oversize files."""
+    """``stat`` without opening (:func:`uavdyn.safefiles.stat_regular`), as a FlightDataError."""
     try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        raise FlightDataError("file not found", path) from None
-    except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
-        raise FlightDataError(f"cannot access the file ({getattr(exc, 'strerror', None) or exc})",
-                              path) from None
-    if stat.S_ISDIR(st.st_mode):
-        raise FlightDataError("is a folder, expected a regular file", path)
-    if not stat.S_ISREG(st.st_mode):
-        what = ("a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode) else
-                "a character device" if stat.S_ISCHR(st.st_mode) else
-                "a block device" if stat.S_ISBLK(st.st_mode) else
-                "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
-        raise FlightDataError(f"is {what}, not a regular file: refused without opening it", path)
-    if st.st_size > limit:
-        raise FlightDataError(f"is {st.st_size} bytes, above the limit of {limit} bytes", path)
-    return st
+        return stat_regular(path, limit, "a regular file")
+    except UnreadableFile as exc:
+        raise FlightDataError(exc.reason, path) from None
 
 
 def _read_regular(path: Path, limit: int) -> bytes:
-    """All bytes of a regular file of at most ``limit`` bytes (checked before and after
-    opening, so that a file swapped for a FIFO in between is still never read)."""
-    before = _stat_regular(path, limit)
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+    """All bytes of a regular file of at most ``limit`` bytes
+    (:func:`uavdyn.safefiles.read_regular`), as a FlightDataError."""
     try:
-        fd = os.open(path, flags)
-    except OSError as exc:
-        raise FlightDataError(f"cannot open the file ({exc.strerror or exc})", path) from None
-    try:
-        st = os.fstat(fd)
-        if (not stat.S_ISREG(st.st_mode) or (st.st_dev, st.st_ino)
-                != (before.st_dev, before.st_ino)):
-            raise FlightDataError("the file changed while it was being opened", path)
-        if st.st_size > limit:
-            raise FlightDataError(f"is {st.st_size} bytes, above the limit of {limit} bytes",
-                                  path)
-        chunks, total = [], 0
-        while True:
-            chunk = os.read(fd, min(1 << 24, limit + 1 - total))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            total += len(chunk)
-            if total > limit:
-                raise FlightDataError(f"grew above the limit of {limit} bytes while being read",
-                                      path)
-    except OSError as exc:
-        raise FlightDataError(f"cannot read the file ({exc.strerror or exc})", path) from None
-    finally:
-        os.close(fd)
-    return b"".join(chunks)
-
-
-# ----------------------------------------------------------------------------- options
+        return read_regular(path, limit, "a regular file")
+    except UnreadableFile as exc:
+        raise FlightDataError(exc.reason, path) from None
 
 
 def _check_rate(rate_hz: object, path: Path, allow_none: bool) -> None:

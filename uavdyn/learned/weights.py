@@ -31,6 +31,7 @@ import numpy as np
 from uavdyn.learned.formulations import FORMULATIONS, Formulation
 from uavdyn.learned.mlp import ACTIVATIONS, mlp_forward
 from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS
+from uavdyn.safefiles import UnreadableFile, read_regular
 
 FORMAT_VERSION = 2
 READABLE_VERSIONS = (1, 2)
@@ -373,55 +374,16 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
 
 
 def _read_regular_file(path: Path) -> bytes:
-    """The bytes of ``path`` if it is a regular file within the size bound (stat first, then
-    open non-blocking and check the opened file again, so a FIFO swapped in cannot hang us)."""
+    """The bytes of ``path`` if it is a non-empty regular file within the size bound
+    (:func:`uavdyn.safefiles.read_regular`: a FIFO or device is never opened)."""
     try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        raise WeightFileError(f"{path}: weight file not found") from None
-    except (OSError, ValueError) as exc:  # ValueError: a NUL byte in the path
-        reason = getattr(exc, "strerror", None) or exc
-        raise WeightFileError(f"{str(path)!r}: cannot read weight file ({reason})") from None
-    _check_stat(path, st)
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
-    try:
-        fd = os.open(path, flags)
-    except OSError as exc:
-        raise WeightFileError(f"{path}: cannot read weight file ({exc.strerror or exc})") \
-            from None
-    try:
-        _check_stat(path, os.fstat(fd))
-        with os.fdopen(fd, "rb") as fh:
-            fd = -1
-            raw = fh.read(MAX_FILE_BYTES + 1)
-    except OSError as exc:
-        raise WeightFileError(f"{path}: cannot read weight file ({exc.strerror or exc})") \
-            from None
-    finally:
-        if fd >= 0:
-            os.close(fd)
-    if len(raw) > MAX_FILE_BYTES:
-        raise WeightFileError(f"{path}: weight file grew past {MAX_FILE_BYTES // 2**20} MB "
-                              "while being read")
+        raw = read_regular(path, MAX_FILE_BYTES, "a weight file")
+    except UnreadableFile as exc:
+        reason = "weight file not found" if exc.missing else exc.reason
+        raise WeightFileError(f"{path}: {reason}") from None
     if not raw:
         raise WeightFileError(f"{path}: weight file is empty")
     return raw
-
-
-def _check_stat(path: Path, st: os.stat_result) -> None:
-    mode = st.st_mode
-    if stat.S_ISDIR(mode):
-        raise WeightFileError(f"{path}: is a folder, not a weight file")
-    if not stat.S_ISREG(mode):
-        kind = ("a FIFO" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode)
-                else "a block device" if stat.S_ISBLK(mode) else "a socket"
-                if stat.S_ISSOCK(mode) else "not a regular file")
-        raise WeightFileError(f"{path}: is {kind}; a weight file must be a regular .npz file")
-    if st.st_size == 0:
-        raise WeightFileError(f"{path}: weight file is empty")
-    if st.st_size > MAX_FILE_BYTES:
-        raise WeightFileError(f"{path}: is {st.st_size} bytes; weight files are limited to "
-                              f"{MAX_FILE_BYTES // 2**20} MB")
 
 
 def _read_member(path: Path, key: str, member, declared: int) -> np.ndarray:
