@@ -15,6 +15,11 @@ File schema (TOML or JSON; unknown keys are errors, so a typo never passes silen
     value = 11.0               # a table with 'value' and an optional 'source' string
     source = "where the number comes from"
 
+Optional parameters (:data:`OPTIONAL_PARAMS`) may be left out; absent, they take their documented
+default, which changes nothing (the model, ``param_hash`` and every result are those of a file
+without the key). Fixed wing: ``C_L_alpha_dot`` and ``C_m_alpha_dot`` (per rad, multiplied by
+``alpha_dot c / (2 V)`` like the q-derivatives; default 0.0), solved exactly in the model.
+
 Every value is typed (a boolean or a string is not a number) and range-checked against
 :data:`BOUNDS`, a table of honest physical limits per parameter (generous enough for any real
 airframe from a micro quadrotor to a 100 t aircraft, tight enough that unit slips such as grams
@@ -31,7 +36,6 @@ import json
 import math
 import os
 import re
-import stat
 import sys
 from collections.abc import Iterable
 from dataclasses import dataclass, fields
@@ -40,6 +44,8 @@ from pathlib import Path
 from typing import Union
 
 import numpy as np
+
+from uavdyn.safefiles import DuplicateKey, UnreadableFile, no_duplicate_keys, read_regular
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -53,9 +59,6 @@ NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
 TOP_LEVEL_KEYS = ("name", "kind", "params", "description", "nominal_airspeed")
 PARAM_ENTRY_KEYS = ("value", "source")
 
-
-_FILE_TYPES = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
-               (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
 
 
 class AirframeError(ValueError):
@@ -114,6 +117,9 @@ class FixedWingParams:
     C_T2: float
     C_T1: float
     C_T0: float
+    # Optional (default = absent = no effect); see OPTIONAL_PARAMS.
+    C_L_alpha_dot: float = 0.0
+    C_m_alpha_dot: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -137,6 +143,12 @@ class MultirotorParams:
 
 ParamsType = Union[FixedWingParams, MultirotorParams]  # noqa: UP007 (runtime alias, py3.10)
 PARAM_CLASSES: dict[str, type] = {"fixed_wing": FixedWingParams, "multirotor": MultirotorParams}
+
+# Optional parameters per kind and their defaults: the dataclass fields that have a default. A
+# file may leave them out; at their default they change nothing (see Airframe.param_hash).
+OPTIONAL_PARAMS: dict[str, dict[str, float]] = {
+    kind: {f.name: f.default for f in fields(cls) if f.default is not dataclasses.MISSING}
+    for kind, cls in PARAM_CLASSES.items()}
 
 
 @dataclass(frozen=True)
@@ -178,6 +190,12 @@ _JY = _b(0, 1e6, "kg m^2", "pitch inertia of a 100 t aircraft is ~1e6 kg m^2")
 _RHO = _b(0, 2.0, "kg/m^3", "sea-level ISA is 1.225; 2 is beyond any atmosphere flown in")
 _G = _b(9.0, 10.5, "m/s^2", "Earth's surface gravity is 9.78-9.83 m/s^2", low_open=False)
 _LENGTH = _b(0, 100, "m", "lengths are positive and shorter than 100 m", high_open=True)
+_ALPHA_DOT = _b(-100, 100, "1/rad", "alpha-dot derivative (times alpha_dot c/2V): conventional "
+                                    "aircraft have |x| < ~20 (e.g. C_m_alpha_dot -5 to -15)",
+                low_open=False)
+# The closed-form alpha-dot divides by 1 + rho S c C_L_alpha_dot / (4 m) (the alpha-dot lift
+# acts like an added mass); below this the "added mass" would more than double alpha_dot.
+ALPHA_DOT_DENOMINATOR_MIN = 0.5
 
 # The schema's physical bounds, per kind and parameter (every parameter has one).
 BOUNDS: dict[str, dict[str, Bound]] = {
@@ -205,6 +223,7 @@ BOUNDS: dict[str, dict[str, Bound]] = {
         "V_max": _b(0, 1e4, "V", "battery voltage"),
         "C_Q2": _COEFF, "C_Q1": _COEFF, "C_Q0": _COEFF,
         "C_T2": _COEFF, "C_T1": _COEFF, "C_T0": _COEFF,
+        "C_L_alpha_dot": _ALPHA_DOT, "C_m_alpha_dot": _ALPHA_DOT,
     },
     "multirotor": {
         "mass": _MASS, "Jy": _JY, "arm": _LENGTH,
@@ -235,6 +254,7 @@ NONNEGATIVE_KEYS: dict[str, tuple[str, ...]] = {
 PERTURBATION_KEYS: dict[str, tuple[str, ...]] = {
     "fixed_wing": (
         "mass", "Jy", "C_L_alpha", "C_L_q", "C_L_delta_e", "C_m_alpha", "C_m_q", "C_m_delta_e",
+        "C_L_alpha_dot", "C_m_alpha_dot",  # 0 in the presets, so 0 after scaling
     ),
     "multirotor": ("mass", "Jy", "drag_linear", "pitch_damping", "c_T"),
 }
@@ -266,9 +286,20 @@ class Airframe:
         return np.array([getattr(self.params, n) for n in self.param_names], dtype=float)
 
     def param_hash(self) -> str:
-        """Short hash of kind + parameter values, used to tie trained weights to an airframe."""
-        text = json.dumps({"kind": self.kind, "p": [repr(float(v)) for v in self.p]})
-        return hashlib.sha256(text.encode()).hexdigest()[:16]
+        """Short hash of kind + parameter values, used to tie trained weights to an airframe.
+
+        Hashed: every core parameter, and an optional parameter only where it differs from its
+        default, so adding an optional key to the schema leaves existing hashes (and the weight
+        files tied to them) valid while any value that changes the model changes the hash."""
+        optional = OPTIONAL_PARAMS[self.kind]
+        core = [repr(float(getattr(self.params, n))) for n in self.param_names
+                if n not in optional]
+        doc: dict = {"kind": self.kind, "p": core}
+        changed = {n: repr(float(getattr(self.params, n))) for n, default in optional.items()
+                   if getattr(self.params, n) != default}
+        if changed:
+            doc["optional"] = changed
+        return hashlib.sha256(json.dumps(doc).encode()).hexdigest()[:16]
 
     def replace(self, **changes: float) -> Airframe:
         """A copy with some parameter values changed (typed and range-checked like a file)."""
@@ -294,67 +325,18 @@ def list_presets() -> list[str]:
     return sorted(PRESETS)
 
 
-class _DuplicateKey(Exception):
-    """A JSON object names one key twice (``json`` would keep the last one silently)."""
-
-
-def _no_duplicates(pairs: list[tuple[str, object]]) -> dict:
-    out: dict = {}
-    for key, value in pairs:
-        if key in out:
-            raise _DuplicateKey(key)
-        out[key] = value
-    return out
-
-
 def _read_file(path: Path, origin: str) -> str:
-    """The text of a user's parameter file: a regular file (``stat``-ed before it is opened,
-    so a FIFO or device is never opened) of at most :data:`AIRFRAME_MAX_BYTES`, UTF-8."""
+    """The text of a parameter file: a regular file (checked before opening it, so a FIFO or
+    device is never opened; :func:`uavdyn.safefiles.read_regular`) of at most
+    :data:`AIRFRAME_MAX_BYTES`, UTF-8."""
     try:
-        st = os.stat(path)
-    except (FileNotFoundError, NotADirectoryError):
-        presets = ", ".join(list_presets() + sorted(ALIASES))
-        raise AirframeError(f"airframe '{origin}' is neither a preset ({presets}) nor an "
-                            "existing parameter file") from None
-    except OSError as exc:
-        raise AirframeError(f"{origin}: cannot read it ({exc.strerror or type(exc).__name__})"
-                            ) from None
-    if stat.S_ISDIR(st.st_mode):
-        raise AirframeError(f"{origin}: is a folder, expected a TOML or JSON parameter file")
-    if not stat.S_ISREG(st.st_mode):
-        what = next((name for test, name in _FILE_TYPES if test(st.st_mode)), "a special file")
-        raise AirframeError(f"{origin}: is {what}, not a regular file: refused without "
-                            "opening it")
-    if st.st_size > AIRFRAME_MAX_BYTES:
-        raise AirframeError(f"{origin}: file is {st.st_size} bytes, more than the "
-                            f"{AIRFRAME_MAX_BYTES}-byte limit for a parameter file: refused "
-                            "without reading it")
-    flags = (os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
-             | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0))
-    try:
-        fd = os.open(path, flags)
-        try:
-            now = os.fstat(fd)
-            if not stat.S_ISREG(now.st_mode) or (now.st_dev, now.st_ino) != (st.st_dev,
-                                                                              st.st_ino):
-                raise AirframeError(f"{origin}: the file changed while it was being opened; "
-                                    "refused")
-            chunks, size = [], 0
-            while size <= AIRFRAME_MAX_BYTES:
-                chunk = os.read(fd, AIRFRAME_MAX_BYTES + 1 - size)
-                if not chunk:
-                    break
-                chunks.append(chunk)
-                size += len(chunk)
-            raw = b"".join(chunks)
-        finally:
-            os.close(fd)
-    except OSError as exc:
-        raise AirframeError(f"{origin}: cannot read it ({exc.strerror or type(exc).__name__})"
-                            ) from None
-    if len(raw) > AIRFRAME_MAX_BYTES:
-        raise AirframeError(f"{origin}: file grew beyond the {AIRFRAME_MAX_BYTES}-byte limit "
-                            "while it was read")
+        raw = read_regular(path, AIRFRAME_MAX_BYTES, "a TOML or JSON parameter file")
+    except UnreadableFile as exc:
+        if exc.missing:
+            presets = ", ".join(list_presets() + sorted(ALIASES))
+            raise AirframeError(f"airframe '{origin}' is neither a preset ({presets}) nor an "
+                                "existing parameter file") from None
+        raise AirframeError(f"{origin}: {exc.reason}") from None
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
     nul = raw.find(b"\x00")
@@ -380,7 +362,7 @@ def _decode(text: str, is_json: bool, origin: str) -> object:
     fmt = "JSON" if is_json else "TOML"
     try:
         if is_json:
-            return json.loads(text, object_pairs_hook=_no_duplicates)
+            return json.loads(text, object_pairs_hook=no_duplicate_keys)
         return tomllib.loads(text)
     except json.JSONDecodeError as exc:
         where, msg = f"line {exc.lineno}, column {exc.colno}", exc.msg
@@ -389,7 +371,7 @@ def _decode(text: str, is_json: bool, origin: str) -> object:
         found = _TOML_WHERE.search(msg)
         where = found.group(1) if found else "unknown line"
         msg = msg[:found.start()] if found else msg
-    except _DuplicateKey as exc:
+    except DuplicateKey as exc:
         where, msg = "", f"key {_short(str(exc.args[0]))} appears twice in one object"
     except RecursionError:
         where, msg = "", "nested too deeply"
@@ -500,12 +482,17 @@ def _parse(data: dict, origin: str) -> Airframe:
     if unknown:
         raise AirframeError(f"{origin}: unknown parameter key(s) {_key_list(unknown)} for kind "
                             f"'{kind}'")
-    missing = [n for n in names if n not in raw]
+    optional = OPTIONAL_PARAMS[kind]
+    missing = [n for n in names if n not in raw and n not in optional]
     if missing:
         raise AirframeError(f"{origin}: missing parameter key(s) {missing}")
     values: dict[str, float] = {}
     sources: dict[str, str] = {}
     for name_ in names:
+        if name_ not in raw:
+            values[name_] = float(optional[name_])
+            sources[name_] = f"optional key not set: default {optional[name_]!r} (no effect)"
+            continue
         entry = raw[name_]
         if isinstance(entry, dict):
             if "value" not in entry:
@@ -544,6 +531,22 @@ def _check_values(values: dict[str, float], kind: str, origin: str) -> None:
         if problem:
             raise AirframeError(f"{origin}: parameter '{name}' {problem}, got {values[name]!r} "
                                 f"(allowed {bound.describe()}: {bound.why})")
+    if kind == "fixed_wing":
+        denominator = alpha_dot_denominator(values)
+        if not denominator >= ALPHA_DOT_DENOMINATOR_MIN:
+            raise AirframeError(
+                f"{origin}: parameter 'C_L_alpha_dot' = {values['C_L_alpha_dot']!r} makes the "
+                f"alpha-dot factor 1 + rho S c C_L_alpha_dot / (4 mass) = {denominator:.3g}, "
+                f"below {ALPHA_DOT_DENOMINATOR_MIN:g}: a negative alpha-dot lift that large "
+                "is not a physical airframe (the closed form would amplify alpha_dot "
+                f"{1 / max(denominator, 1e-300):.3g}-fold)")
+
+
+def alpha_dot_denominator(values: dict[str, float]) -> float:
+    """``1 + rho S c C_L_alpha_dot / (4 m)``: the alpha-dot lift moves w_dot, hence alpha_dot,
+    so the exact alpha_dot is the one computed without it divided by this factor."""
+    return 1.0 + (values["rho"] * values["S_wing"] * values["c"] * values["C_L_alpha_dot"]
+                  / (4.0 * values["mass"]))
 
 
 def perturb(airframe: Airframe, scale: float = 1.15,

@@ -21,7 +21,10 @@ Fixed wing (extra states: elevator, throttle, alpha filter, separation)
     * Elevator servo lag 0.04 s, rate limit 3 rad/s; throttle (engine/propeller spool) lag
       0.25 s, rate limit 2 /s.
     * Unsteady aerodynamics: ``C_L_alphadot`` and ``C_m_alphadot`` terms, with alpha-dot taken
-      from a first-order filtered derivative of the air-relative alpha (filter state).
+      from a first-order filtered derivative of the air-relative alpha (filter state). They add
+      to the airframe's own optional ``C_L_alpha_dot``/``C_m_alpha_dot`` (0 in the presets),
+      which the emulator applies with the same filtered air-relative alpha-dot (gusts included)
+      instead of the baseline's gust-blind closed form.
     * Dynamic stall: the baseline's static stall blend ``sigma(alpha)`` becomes a lagged flow-
       separation state (Goman-Khrabrov form) ``tau1 sigma_dot = sigma_static(alpha - tau2
       alpha_dot) - sigma`` (stall hysteresis), and a nose-down pitch break ``C_m_stall sigma``.
@@ -158,16 +161,21 @@ def _fixed_wing_rates(x, cmd, gust, p, e):
     # Attached-flow-only and flat-plate-only forces from the baseline model: the baseline force
     # is linear in its static blend sigma(alpha), so any blend is (1-s) F_att + s F_plate.
     # alpha0 = +-3 rad puts the baseline's own sigmoid at 0 or 1 for every |alpha| < 1.6 rad.
-    Xa, Za, Ma, alpha, V, _ = fixed_wing_forces(x_air, act, _with_param(p, "fixed_wing",
-                                                                       alpha0=3.0))
-    Xp, Zp, _, _, _, _ = fixed_wing_forces(x_air, act, _with_param(p, "fixed_wing", alpha0=-3.0))
+    # The baseline's own alpha-dot terms are switched off here and applied below with the
+    # filtered air-relative alpha-dot (summed with the truth extras), so they count once.
+    no_ad = {"C_L_alpha_dot": 0.0, "C_m_alpha_dot": 0.0}
+    Xa, Za, Ma, alpha, V, _ = fixed_wing_forces(
+        x_air, act, _with_param(p, "fixed_wing", alpha0=3.0, **no_ad), alpha_dot=False)
+    Xp, Zp, _, _, _, _ = fixed_wing_forces(
+        x_air, act, _with_param(p, "fixed_wing", alpha0=-3.0, **no_ad), alpha_dot=False)
     alpha_dot = (alpha - alpha_f) / e["tau_alpha"]
     qbar_S = 0.5 * P.rho * V**2 * P.S_wing
     c_2V = P.c / (2 * V)
-    d_lift = qbar_S * e["C_L_alphadot"] * c_2V * alpha_dot
+    d_lift = qbar_S * (P.C_L_alpha_dot + e["C_L_alphadot"]) * c_2V * alpha_dot
     X = (1 - sigma) * Xa + sigma * Xp + d_lift * ca.sin(alpha)
     Z = (1 - sigma) * Za + sigma * Zp - d_lift * ca.cos(alpha)
-    M = Ma + qbar_S * P.c * (e["C_m_alphadot"] * c_2V * alpha_dot + e["C_m_stall"] * sigma)
+    M = Ma + qbar_S * P.c * ((P.C_m_alpha_dot + e["C_m_alphadot"]) * c_2V * alpha_dot
+                             + e["C_m_stall"] * sigma)
     sigma_target = stall_blend(alpha - e["tau_hyst"] * alpha_dot, P.M_blend, P.alpha0)
     (e_lo, e_hi), (t_lo, t_hi) = CONTROL_BOUNDS["fixed_wing"]
     rates = rigid_body_rates(body, X, Z, M, P.mass, P.Jy, P.gravity, with_position=True)

@@ -132,6 +132,9 @@ def _table1(af: dict) -> list[str]:
                 f"{_e(r.get('horizon_1s', {}).get('theta_rmse'))} | {_e(fr.get('theta_rmse'))} | "
                 f"{_e(fr.get('theta_mae'))} | {_e(fr.get('theta_max'))} | "
                 f"{_e(fr.get('q_rmse'))} | {_e(fr.get('u_rmse'))} |")
+        for r in table["rows"]:
+            for mode, why in r.get("missing", {}).items():
+                lines.append(f"- {r['solver']}, {mode.replace('_', ' ')}: missing ({why})")
         lines.append("")
     lines += ["Paper (Table 1, its proposed framework vs its RK4 reference): RMSE 1.82e-3, "
               "MAE 1.47e-3, max 2.31e-3 rad.", ""]
@@ -176,6 +179,10 @@ def _table4(af: dict) -> list[str]:
     for r in af["table4"]:
         if not r.get("sorties"):
             lines.append(f"| {r['scenario']} | {r['solver']} | 0 | | | | |")
+            continue
+        if "missing" in r:
+            lines.append(f"| {r['scenario']} | {r['solver']} | {r['sorties']} | missing: "
+                         f"{r['missing']} | | | |")
             continue
         lines.append(f"| {r['scenario']} | {r['solver']} | {r['sorties']} | "
                      f"{_e(r['slope_rad_per_s'])} | {_e(r['max_error_rad'])} | "

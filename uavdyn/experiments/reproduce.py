@@ -222,8 +222,8 @@ def accuracy_tables(airframe: Airframe, sorties: list[Sortie], solvers: dict,
             for m in MODES:
                 if pairs[m]:
                     row[m] = pooled_stats(pairs[m])
-                elif refusals[m]:
-                    row[m] = {"missing": refusals[m][0]}
+                elif refusals[m]:  # reported as missing, with the reason
+                    row.setdefault("missing", {})[m] = refusals[m][0]
             rows.append(row)
             if traj_dir is not None:
                 _save_trajectories(traj_dir, airframe.name, label, solver.name, saved)
@@ -434,12 +434,19 @@ def robustness_table(airframe: Airframe, ds: Dataset, nets: dict, config: Reprod
             if not sorties:
                 rows.append({"scenario": scenario, "solver": solver.name, "sorties": 0})
                 continue
-            growth = []
+            growth, refused = [], None
             for s in sorties:
                 res = evaluate_trajectory(solver, s.time, target_states(s), s.controls,
                                           airframe.p)
+                if "free_run" not in res:  # outside what the step was trained for
+                    refused = res.get("refused", {}).get("free_run", "not evaluated")
+                    break
                 pred, targ = res["free_run"]
                 growth.append(error_growth(res["free_run_time"], pred, targ))
+            if refused:
+                rows.append({"scenario": scenario, "solver": f"{solver.name} @ {dt:g} s",
+                             "sorties": len(sorties), "missing": refused})
+                continue
             rows.append({
                 "scenario": scenario, "solver": f"{solver.name} @ {dt:g} s",
                 "sorties": len(sorties),
@@ -589,9 +596,15 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
         for solver in solvers:
             if solver.dt != 0.005:
                 continue
-            growth = [error_growth(r["free_run_time"], *r["free_run"]) for r in (
-                evaluate_trajectory(solver, s.time, target_states(s), s.controls, airframe.p)
-                for s in members)]
+            runs = [evaluate_trajectory(solver, s.time, target_states(s), s.controls,
+                                        airframe.p) for s in members]
+            refused = next((r["refused"]["free_run"] for r in runs
+                            if "free_run" not in r and "refused" in r), None)
+            if refused:
+                table4.append({"scenario": scenario, "solver": solver.name,
+                               "sorties": len(members), "missing": refused})
+                continue
+            growth = [error_growth(r["free_run_time"], *r["free_run"]) for r in runs]
             table4.append({
                 "scenario": scenario, "solver": solver.name, "sorties": len(members),
                 "slope_rad_per_s": float(np.mean([g["slope_rad_per_s"] for g in growth]))

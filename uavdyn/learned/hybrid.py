@@ -18,7 +18,7 @@ import casadi as ca
 from uavdyn.airframes import Airframe, param_names
 from uavdyn.integrate import STEP_INPUTS, compile_function
 from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights
-from uavdyn.model import CASADI_OPS, make_rhs
+from uavdyn.model import CASADI_OPS, make_rhs, uses_alpha_dot
 
 SHIPPED = "uavdyn.learned.shipped"
 
@@ -63,10 +63,11 @@ def _resolve(net: CorrectionNet | str | Path, airframe: Airframe | None) -> Corr
 
 
 def hybrid_expression(net: CorrectionNet, relu_smoothing: float | None = None,
-                      name: str = "hybrid_step") -> ca.Function:
-    """The uncompiled SX Function of the hybrid step of ``net``."""
+                      name: str = "hybrid_step", alpha_dot: bool = True) -> ca.Function:
+    """The uncompiled SX Function of the hybrid step of ``net`` (``alpha_dot=False``: without
+    the fixed-wing alpha-dot terms, for an airframe that does not set them)."""
     form = net.form
-    f = make_rhs(net.kind)
+    f = make_rhs(net.kind, alpha_dot=alpha_dot)
     x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 2)
     p, dt, t = ca.SX.sym("p", len(param_names(net.kind))), ca.SX.sym("dt"), ca.SX.sym("t")
     x_next = form.step(f, x, u, p, dt, lambda inp: net.casadi(inp, relu_smoothing), CASADI_OPS,
@@ -101,7 +102,8 @@ def hybrid_step(net: CorrectionNet | str | Path, airframe: Airframe | None = Non
         One Function ``(x, u, p, dt[, t]) -> x_next``.
     """
     net = _resolve(net, airframe)
-    step = hybrid_expression(net, relu_smoothing, name)
+    step = hybrid_expression(net, relu_smoothing, name,
+                             uses_alpha_dot(airframe) if airframe is not None else True)
     if compile:
         step = compile_function(step)
     return HybridStep(step, net.dt if net.form.dt_bound else None,
@@ -112,7 +114,8 @@ def hybrid_jacobian(net: CorrectionNet | str | Path, airframe: Airframe | None =
                     compile: bool = True, name: str = "hybrid_jacobian") -> ca.Function:
     """``(x, u, p, dt[, t]) -> (x_next, A = dx_next/dx, B = dx_next/du)`` by exact algorithmic
     differentiation of the hybrid step, compiled to C like the step itself."""
-    step = hybrid_expression(_resolve(net, airframe))
+    step = hybrid_expression(_resolve(net, airframe), alpha_dot=uses_alpha_dot(airframe)
+                             if airframe is not None else True)
     args = [ca.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
     x_next = step(*args)
     jac = ca.Function(name, args, [x_next, ca.jacobian(x_next, args[0]),

@@ -1,7 +1,7 @@
 """The longitudinal model: ``ops`` namespaces, forces per airframe kind, rigid-body equations,
 and :func:`build_model` turning them into CasADi Functions of ``(x, u, p)``."""
 
-from uavdyn.model.build import LongitudinalModel, build_model, numpy_rhs
+from uavdyn.model.build import LongitudinalModel, build_model, numpy_rhs, uses_alpha_dot
 from uavdyn.model.equations import (
     CONTROL_BOUNDS,
     CONTROL_NAMES,
@@ -9,6 +9,7 @@ from uavdyn.model.equations import (
     FORCE_NAMES,
     POSITION_STATE_NAMES,
     STATE_NAMES,
+    fixed_wing_alpha_dot,
     fixed_wing_forces,
     make_rhs,
     multirotor_forces,
@@ -17,11 +18,13 @@ from uavdyn.model.equations import (
     rotor_thrust,
     stall_blend,
     symbolic_params,
+    translational_accelerations,
 )
 from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS, torch_ops
 
-__all__ = ["LongitudinalModel", "build_model", "numpy_rhs", "CONTROL_BOUNDS", "CONTROL_NAMES",
-           "FORCE_MODELS", "FORCE_NAMES", "fixed_wing_forces", "multirotor_forces",
-           "propeller_thrust", "rotor_thrust", "POSITION_STATE_NAMES", "STATE_NAMES", "make_rhs",
-           "rigid_body_rates", "stall_blend", "symbolic_params", "CASADI_OPS", "NUMPY_OPS",
-           "torch_ops"]
+__all__ = ["LongitudinalModel", "build_model", "numpy_rhs", "uses_alpha_dot", "CONTROL_BOUNDS",
+           "CONTROL_NAMES",
+           "FORCE_MODELS", "FORCE_NAMES", "fixed_wing_alpha_dot", "fixed_wing_forces",
+           "multirotor_forces", "propeller_thrust", "rotor_thrust", "POSITION_STATE_NAMES",
+           "STATE_NAMES", "make_rhs", "rigid_body_rates", "stall_blend", "symbolic_params",
+           "translational_accelerations", "CASADI_OPS", "NUMPY_OPS", "torch_ops"]

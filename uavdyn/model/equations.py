@@ -9,10 +9,23 @@ Equations (SPEC section 2; the paper's ``q_dot = M/I_y - g sin(theta)`` is a typ
 
     u_dot = X/m - g sin(theta) - q w        w_dot = Z/m + g cos(theta) + q u
     q_dot = M/I_y                           theta_dot = q
+
+Alpha-dot derivatives (optional fixed-wing keys ``C_L_alpha_dot``, ``C_m_alpha_dot``) are solved
+exactly, not lagged. With ``alpha = atan2(w, u)``, ``alpha_dot = (u w_dot - w u_dot) / V^2``.
+The alpha-dot lift ``L_ad = qbar S C_L_alpha_dot c/(2V) alpha_dot`` enters ``X`` as
+``+L_ad sin(alpha)`` and ``Z`` as ``-L_ad cos(alpha)``, so it changes
+``u w_dot - w u_dot`` by ``-L_ad (u cos(alpha) + w sin(alpha)) / m = -L_ad V / m``::
+
+    alpha_dot = A0 - L_ad / (m V) = A0 / (1 + rho S c C_L_alpha_dot / (4 m))
+
+where ``A0`` is alpha_dot from the forces without the alpha-dot terms (a linear relation solved
+in closed form; the factor does not depend on V). The moment then gets
+``qbar S c C_m_alpha_dot (c/(2V)) alpha_dot``. At their default 0 both terms are exactly 0.0.
 """
 
 from __future__ import annotations
 
+from functools import partial
 from types import SimpleNamespace
 
 from uavdyn.airframes import param_names
@@ -56,13 +69,28 @@ def propeller_thrust(P: SimpleNamespace, Va, throttle, ops=CASADI_OPS):
             + P.rho * P.D_prop**2 * P.C_T2 * Va**2)
 
 
-def fixed_wing_forces(x, u, p, ops=CASADI_OPS):
-    """Body-axis aerodynamic + propulsive force X, Z (N) and pitching moment M (N m).
+def fixed_wing_forces(x, u, p, ops=CASADI_OPS, alpha_dot: bool = True):
+    """Body-axis aerodynamic + propulsive force X, Z (N) and pitching moment M (N m), with
+    alpha (rad), airspeed V (m/s) and thrust (N).
 
     Lift, drag and moment coefficients follow Beard & McLain ch. 4: attached-flow lift
     (with the paper's quadratic term) blended to Newtonian flat-plate lift/drag past stall so the
-    model is defined over alpha in [-90, 90] deg; parabolic drag polar; linear moment.
+    model is defined over alpha in [-90, 90] deg; parabolic drag polar; linear moment; the
+    optional alpha-dot terms solved exactly (module docstring). ``x`` needs theta (``x[3]``):
+    alpha_dot depends on the whole acceleration, gravity included. ``alpha_dot=False`` leaves
+    the terms out of the graph (an airframe whose alpha-dot keys are 0: same numbers, a cheaper
+    step).
     """
+    return _fixed_wing_terms(x, u, p, ops, alpha_dot)[:6]
+
+
+def fixed_wing_alpha_dot(x, u, p, ops=CASADI_OPS):
+    """The exact alpha_dot (rad/s) of the closed form, the value the alpha-dot terms use."""
+    return _fixed_wing_terms(x, u, p, ops)[6]
+
+
+def _fixed_wing_terms(x, u, p, ops, with_alpha_dot: bool = True):
+    """Forces, moment and the closed-form alpha_dot of the fixed wing (see the callers)."""
     P = symbolic_params("fixed_wing", p)
     ub, wb, q = x[0], x[1], x[2]
     elevator, throttle = u[0], u[1]
@@ -83,10 +111,21 @@ def fixed_wing_forces(x, u, p, ops=CASADI_OPS):
     lift = qbar * P.S_wing * CL
     drag = qbar * P.S_wing * CD
     thrust = propeller_thrust(P, V, throttle, ops)
-    X = -drag * cos_a + lift * sin_a + thrust
-    Z = -drag * sin_a - lift * cos_a
-    M = qbar * P.S_wing * P.c * Cm
-    return X, Z, M, alpha, V, thrust
+    X0 = -drag * cos_a + lift * sin_a + thrust
+    Z0 = -drag * sin_a - lift * cos_a
+    M0 = qbar * P.S_wing * P.c * Cm
+    if not with_alpha_dot:
+        return X0, Z0, M0, alpha, V, thrust, None
+    # Exact alpha-dot terms: A0 from the forces without them, then the closed form.
+    u_dot0, w_dot0 = translational_accelerations(x, X0, Z0, P.mass, P.gravity, ops)
+    alpha_dot0 = (ub * w_dot0 - wb * u_dot0) / V**2
+    alpha_dot = alpha_dot0 / (1 + P.rho * P.S_wing * P.c * P.C_L_alpha_dot / (4 * P.mass))
+    ad_hat = P.c * alpha_dot / (2 * V)
+    lift_ad = qbar * P.S_wing * P.C_L_alpha_dot * ad_hat
+    X = X0 + lift_ad * sin_a
+    Z = Z0 - lift_ad * cos_a
+    M = M0 + qbar * P.S_wing * P.c * P.C_m_alpha_dot * ad_hat
+    return X, Z, M, alpha, V, thrust, alpha_dot
 
 
 def rotor_thrust(P: SimpleNamespace, throttle, ops=CASADI_OPS):
@@ -116,25 +155,32 @@ def multirotor_forces(x, u, p, ops=CASADI_OPS):
 FORCE_MODELS = {"fixed_wing": fixed_wing_forces, "multirotor": multirotor_forces}
 
 
+def translational_accelerations(x, X, Z, mass, g, ops=CASADI_OPS):
+    """``(u_dot, w_dot)`` given body forces: written once, used by the rigid body and by the
+    alpha-dot closed form (which needs the acceleration without the alpha-dot force)."""
+    ub, wb, q, theta = x[0], x[1], x[2], x[3]
+    return (X / mass - g * ops.sin(theta) - q * wb,
+            Z / mass + g * ops.cos(theta) + q * ub)
+
+
 def rigid_body_rates(x, X, Z, M, mass, Jy, g, with_position: bool, ops=CASADI_OPS):
     """Longitudinal rigid-body kinematics and dynamics given body forces and moment."""
     ub, wb, q, theta = x[0], x[1], x[2], x[3]
-    rates = [
-        X / mass - g * ops.sin(theta) - q * wb,
-        Z / mass + g * ops.cos(theta) + q * ub,
-        M / Jy,
-        q,
-    ]
+    u_dot, w_dot = translational_accelerations(x, X, Z, mass, g, ops)
+    rates = [u_dot, w_dot, M / Jy, q]
     if with_position:
         rates += [ub * ops.cos(theta) + wb * ops.sin(theta),
                   ub * ops.sin(theta) - wb * ops.cos(theta)]
     return ops.vertcat(*rates)
 
 
-def make_rhs(kind: str, with_position: bool = False, ops=CASADI_OPS):
-    """``rhs(x, u, p) -> x_dot`` of an airframe kind, evaluated with ``ops`` (feature-first)."""
+def make_rhs(kind: str, with_position: bool = False, ops=CASADI_OPS, alpha_dot: bool = True):
+    """``rhs(x, u, p) -> x_dot`` of an airframe kind, evaluated with ``ops`` (feature-first);
+    ``alpha_dot=False`` builds the fixed wing without its (then zero) alpha-dot terms."""
     names = param_names(kind)  # validates kind
     forces = FORCE_MODELS[kind]
+    if kind == "fixed_wing" and not alpha_dot:
+        forces = partial(fixed_wing_forces, alpha_dot=False)
     i_mass, i_jy, i_g = (names.index(n) for n in ("mass", "Jy", "gravity"))
 
     def rhs(x, u, p):
