@@ -105,3 +105,14 @@ def test_cli_writes_a_loadable_airframe_with_provenance(tmp_path, aerosonde, tru
     assert "identified 2 parameter(s)" in capsys.readouterr().out
     assert main(["identify", "--airframe", "aerosonde", "--dataset", str(data), "--params",
                  "nope", "--out", str(out), "--quiet"]) == 2
+
+
+def test_recovers_an_alpha_dot_derivative_from_a_zero_nominal(aerosonde):
+    """An unset optional key (nominal 0) is fitted inside the schema's physical bounds, with
+    the alpha-dot terms switched into the model because the key is being fitted."""
+    truth = aerosonde.replace(C_m_alpha_dot=-8.0)
+    result = identify(aerosonde, _sorties(truth, 3, 6), [], ["C_m_alpha_dot", "C_m_q"],
+                      progress=False)
+    fitted = {e.name: e.value for e in result.estimates}
+    assert abs(fitted["C_m_alpha_dot"] + 8.0) < 1e-4
+    assert abs(fitted["C_m_q"] - aerosonde.params.C_m_q) < 1e-4 * abs(aerosonde.params.C_m_q)

@@ -54,6 +54,10 @@ def time_histories(airframe: Airframe, sortie, nets: dict, out: Path) -> dict[st
         fig, (ax, ax_err) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
         ax.plot(sortie.time, scale(truth[:, idx]), "k-", lw=1.2, label="flight data (true)")
         for solver, style, res in runs:
+            if mode not in res:  # refused: outside the step's trained dt or time range
+                ax.plot([], [], style, label=f"{solver.name}: not shown (outside its trained "
+                                             "time range)")
+                continue
             pred, targ = res[mode]
             t = res[f"{mode}_time"]
             ax.plot(t, scale(pred[:, idx]), style, lw=1, label=f"{solver.name} @ {solver.dt:g} s")
@@ -124,11 +128,17 @@ def error_distribution(airframe: Airframe, sorties: list, nets: dict, out: Path)
         errs, maxima = [], []
         for s in sorties:
             res = evaluate_trajectory(solver, s.time, target_states(s), s.controls, airframe.p)
+            if mode not in res:  # refused: outside the step's trained dt or time range
+                continue
             pred, targ = res[mode]
             e = pred[:, 3] - targ[:, 3]
             e = e[np.isfinite(e)]
             errs.append(e)
             maxima.append(np.abs(e).max() if len(e) else np.nan)
+        if not errs:
+            ax.plot([], [], style[:2], label=f"{solver.name}: not shown (outside its trained "
+                                             "time range)")
+            continue
         allerr = np.degrees(np.concatenate(errs))
         ax.hist(allerr, bins=80, histtype="step", color=style[:2], label=solver.name)
         ax2.semilogy(np.arange(len(maxima)) + 0.1 * k, np.degrees(maxima), style[:2] + "o",

@@ -22,10 +22,11 @@ import casadi as ca
 import numpy as np
 from tqdm import tqdm
 
-from uavdyn.airframes import Airframe
+from uavdyn.airframes import BOUNDS, Airframe
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import EvalGrid, compile_function, find_compiler, rk4_step, rollout
-from uavdyn.model import build_model
+from uavdyn.model import build_model, uses_alpha_dot
+from uavdyn.model.build import ALPHA_DOT_KEYS
 
 STATE_WEIGHT_FLOOR = 1e-6
 CORRELATION_FLAG = 0.9
@@ -150,7 +151,7 @@ class _Problem:
 
     def __init__(self, airframe: Airframe, names: list[str], grid: EvalGrid, n_samples: int,
                  n_windows: int, weights: np.ndarray, noise: np.ndarray, estimate_x0: bool):
-        model = build_model(airframe)
+        model = _model(airframe, names)
         step = rk4_step(model.f)
         index = [airframe.param_names.index(n) for n in names]
         p0 = airframe.p
@@ -217,7 +218,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     dt : float, optional
         RK4 step (default: half the log interval).
     relative_bound : float
-        Each parameter stays within ``(1 +- relative_bound) x`` its nominal value (sign kept).
+        Each parameter stays within ``(1 +- relative_bound) x`` its nominal value (sign kept)
+        and inside the schema's physical bounds (the only bound where the nominal value is 0).
     max_iterations : int
         IPOPT iteration limit.
     estimate_x0 : bool
@@ -249,7 +251,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         keep = np.unique(np.linspace(0, w_train.count - 1, max_windows).round().astype(int))
         w_train = Windows(w_train.x0[keep], w_train.u[keep], w_train.y[keep],
                           [w_train.sortie[k] for k in keep])
-    nominal = rk4_step(build_model(airframe).f)
+    nominal = rk4_step(_model(airframe, names).f)
     # weights: the nominal model's residual RMS per state (puts every state on one scale)
     sim0 = rollout(nominal, L, grid.substeps).map(w_train.count, "thread", 2)
     pred0 = np.array(sim0(w_train.x0.T, w_train.u.reshape(-1, w_train.u.shape[-1]).T,
@@ -270,8 +272,9 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     if dead:
         raise IdentifyError(f"the training data do not excite parameter(s) {dead}: their "
                             "effect on the predicted states is zero")
-    lower = np.concatenate([np.full(problem.n_theta, -relative_bound),
-                            np.full(problem.n_dx, -np.inf)])
+    lo_theta, hi_theta = _theta_bounds(airframe, names, problem, relative_bound)
+    lower = np.concatenate([lo_theta, np.full(problem.n_dx, -np.inf)])
+    upper = np.concatenate([hi_theta, np.full(problem.n_dx, np.inf)])
     options = {"hess_lag": problem.hess, "ipopt.print_level": 0, "print_time": False,
                "ipopt.max_iter": max_iterations, "ipopt.tol": 1e-10, "ipopt.sb": "yes"}
     jit_dir = tempfile.TemporaryDirectory(prefix="uavdyn-identify-")
@@ -288,7 +291,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         solver = ca.nlpsol("oe", "ipopt", problem.nlp, options)
     finally:
         os.chdir(cwd)
-    sol = solver(x0=np.zeros(n_z), p=data, lbx=lower, ubx=-lower)
+    sol = solver(x0=np.zeros(n_z), p=data, lbx=lower, ubx=upper)
     if bar is not None:
         bar.close()
     stats = solver.stats()
@@ -323,8 +326,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     fitted = airframe.replace(**{n: float(p_fit[i]) for n, i in zip(names, problem.index)})
     estimates = [Estimate(n, float(airframe.p[i]), float(p_fit[i]), float(s))
                  for n, i, s in zip(names, problem.index, std)]
-    fit = {"train": _fit_summary(airframe, fitted, train, grid, L),
-           "validation": _fit_summary(airframe, fitted, validation, grid, L)
+    fit = {"train": _fit_summary(airframe, fitted, train, grid, L, names),
+           "validation": _fit_summary(airframe, fitted, validation, grid, L, names)
            if validation else None,
            "solver_status": stats.get("return_status"), "windows": w_train.count,
            "window_samples": L}
@@ -335,11 +338,34 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         seconds=time.perf_counter() - t_start, window_s=L * grid.interval, dt=grid.dt, fit=fit)
 
 
+def _theta_bounds(airframe: Airframe, names: list[str], problem: _Problem,
+                  relative_bound: float) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of the scaled unknowns: within ``(1 +- relative_bound)`` of a nonzero nominal
+    value (sign kept), and always inside the airframe schema's physical bounds (the only bound
+    for a parameter whose nominal value is 0, such as an unset alpha-dot derivative)."""
+    lo = np.empty(len(names))
+    hi = np.empty(len(names))
+    for j, name in enumerate(names):
+        p0 = problem.p0[problem.index[j]]
+        bound = BOUNDS[airframe.kind][name]
+        low, high = (bound.low - p0) / problem.scale[j], (bound.high - p0) / problem.scale[j]
+        if p0 != 0:
+            low, high = max(low, -relative_bound), min(high, relative_bound)
+        lo[j], hi[j] = low, high
+    return lo, hi
+
+
+def _model(airframe: Airframe, names: list[str]):
+    """The airframe's model, with the alpha-dot terms when they are set or being fitted."""
+    return build_model(airframe, alpha_dot=uses_alpha_dot(airframe)
+                       or any(n in ALPHA_DOT_KEYS for n in names))
+
+
 def _fit_summary(nominal: Airframe, fitted: Airframe, sorties: list[Sortie], grid: EvalGrid,
-                 L: int) -> dict:
+                 L: int, names: list[str]) -> dict:
     """Pitch RMSE over the windows of each sortie, nominal vs fitted parameters."""
     per = []
-    step = rk4_step(build_model(nominal).f)
+    step = rk4_step(_model(nominal, names).f)
     for s in sorties:
         w = make_windows([s], L, grid.stride)
         sim = rollout(step, L, grid.substeps).map(w.count)
