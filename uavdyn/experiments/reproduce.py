@@ -494,7 +494,7 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
             for f in FORMULATIONS for t in TARGETS}
     solvers = build_solvers(airframe, nets, config.dts)
     test = ds.test
-    n_work = sum(len(v) for v in solvers.values()) * len(test) * 2
+    n_work = sum(len(v) for v in solvers.values()) * len(test)  # one run per solver and sortie
     bar = tqdm(total=n_work, desc=f"[{airframe.name}] Table 1", disable=not config.progress,
                unit="run")
     table1 = accuracy_tables(airframe, test, solvers, out / "trajectories", bar.update)
