@@ -446,17 +446,7 @@ def _verify(lib: Path, key: str, name: str, signature: list) -> str | None:
         return reason
     if record["size"] != st.st_size:
         return "size differs from its sidecar"
-    try:
-        fd = os.open(lib, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
-        try:
-            digest = _sha256_fd(fd)
-        finally:
-            os.close(fd)
-    except OSError as exc:
-        return f"cannot read: {exc.strerror or exc}"
-    if digest != record["sha256"]:
-        return "SHA-256 differs from its sidecar"
-    return None
+    return _digest_reason(lib, record, check_file=False)
 
 
 def _check_file(st: os.stat_result) -> str | None:
@@ -673,12 +663,19 @@ def _verify_link(link: Path, lib: Path, key: str, name: str, signature: list) ->
     reason = _check_record(record, lib, key, name, signature)
     if reason:
         return reason
+    return _digest_reason(link, record, check_file=True)
+
+
+def _digest_reason(path: Path, record: dict, check_file: bool) -> str | None:
+    """Why the file at ``path`` (never followed if a link) does not match its sidecar's
+    SHA-256, or None; ``check_file`` re-checks the opened file's type, owner and mode."""
     try:
-        fd = os.open(link, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
         try:
-            reason = _check_file(os.fstat(fd))
-            if reason:
-                return reason
+            if check_file:
+                reason = _check_file(os.fstat(fd))
+                if reason:
+                    return reason
             digest = _sha256_fd(fd)
         finally:
             os.close(fd)
