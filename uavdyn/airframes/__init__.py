@@ -20,6 +20,15 @@ default, which changes nothing (the model, ``param_hash`` and every result are t
 without the key). Fixed wing: ``C_L_alpha_dot`` and ``C_m_alpha_dot`` (per rad, multiplied by
 ``alpha_dot c / (2 V)`` like the q-derivatives; default 0.0), solved exactly in the model.
 
+Optional ``[limits]`` table (absent: the kind's physical ranges, ``uavdyn.model.CONTROL_BOUNDS``,
+and the MPC's default rates): a real airframe's own actuator travel and rate, which may narrow but
+never widen the kind's physical range. Not parameters of ``p``, so ``param_hash`` ignores them::
+
+    [limits]
+    elevator = [-0.14, 0.14]   # a [low, high] pair per control name of the kind (low < high)
+    throttle = [0.0, 1.0]      # fixed wing: elevator, throttle; multirotor: collective, pitch_cmd
+    elevator_rate = 1.0        # '<control>_rate': a positive rate in control units per second
+
 Every value is typed (a boolean or a string is not a number) and range-checked against
 :data:`BOUNDS`, a table of honest physical limits per parameter (generous enough for any real
 airframe from a micro quadrotor to a 100 t aircraft, tight enough that unit slips such as grams
@@ -38,7 +47,7 @@ import os
 import re
 import sys
 from collections.abc import Iterable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 from typing import Union
@@ -56,7 +65,14 @@ KINDS = ("fixed_wing", "multirotor")
 AIRFRAME_MAX_BYTES = 2**20          # a parameter file with sources is a few kB
 NOMINAL_AIRSPEED_MAX = 150.0        # m/s; the flight-data speed limit is 100 m/s
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
-TOP_LEVEL_KEYS = ("name", "kind", "params", "description", "nominal_airspeed")
+TOP_LEVEL_KEYS = ("name", "kind", "params", "description", "nominal_airspeed", "limits")
+RATE_SUFFIX = "_rate"
+# Each kind's controls in model order with their physical ranges (elevator: the usual +-30 deg
+# surface travel). The one table: uavdyn.model.CONTROL_NAMES/CONTROL_BOUNDS are derived from it.
+CONTROL_RANGES: dict[str, tuple[tuple[str, tuple[float, float]], ...]] = {
+    "fixed_wing": (("elevator", (-0.5236, 0.5236)), ("throttle", (0.0, 1.0))),
+    "multirotor": (("collective", (0.0, 1.0)), ("pitch_cmd", (-1.0, 1.0))),
+}
 PARAM_ENTRY_KEYS = ("value", "source")
 
 
@@ -275,6 +291,8 @@ class Airframe:
     description: str = ""
     nominal_airspeed: float = 0.0
     origin: str = ""
+    # The file's [limits] as parsed: control -> (low, high), '<control>_rate' -> rate (1/s).
+    limits: dict[str, tuple[float, float] | float] = field(default_factory=dict)
 
     @property
     def param_names(self) -> tuple[str, ...]:
@@ -284,6 +302,20 @@ class Airframe:
     def p(self) -> np.ndarray:
         """The numeric parameter vector in model order."""
         return np.array([getattr(self.params, n) for n in self.param_names], dtype=float)
+
+    def control_bounds(self) -> tuple[tuple[float, float], ...]:
+        """The (low, high) of each control in model order: the file's ``[limits]`` where set,
+        else the kind's physical range (so trim, MPC and simulate respect the real actuator)."""
+        return tuple(tuple(map(float, self.limits.get(n, b)))  # type: ignore[arg-type]
+                     for n, b in CONTROL_RANGES[self.kind])
+
+    def rate_limits(self) -> tuple[float | None, ...] | None:
+        """Per-control rate limits (per second) from ``[limits]``, None for a control without
+        one; None if the file sets no rate at all (the caller keeps its own defaults)."""
+        rates = tuple(self.limits.get(n + RATE_SUFFIX) for n, _ in CONTROL_RANGES[self.kind])
+        if all(r is None for r in rates):
+            return None
+        return tuple(None if r is None else float(r) for r in rates)  # type: ignore[arg-type]
 
     def param_hash(self) -> str:
         """Short hash of kind + parameter values, used to tie trained weights to an airframe.
@@ -515,10 +547,63 @@ def _parse(data: dict, origin: str) -> Airframe:
             or not 0 <= nominal <= NOMINAL_AIRSPEED_MAX):  # NaN fails the comparison too
         raise AirframeError(f"{origin}: key 'nominal_airspeed' must be a number of m/s in "
                             f"[0, {NOMINAL_AIRSPEED_MAX:g}], got {_short(nominal)}")
+    limits = _parse_limits(data["limits"], kind, origin) if "limits" in data else {}
     return Airframe(
         name=name, kind=kind, params=PARAM_CLASSES[kind](**values), sources=sources,
-        description=description, nominal_airspeed=float(nominal), origin=origin,
+        description=description, nominal_airspeed=float(nominal), origin=origin, limits=limits,
     )
+
+
+def _limit_number(value: object, key: str, origin: str) -> float:
+    """One number of ``[limits]``: typed (no boolean or string) and finite."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise AirframeError(f"{origin}: key 'limits.{key}' must hold numbers, got "
+                            f"{_short(value)}")
+    try:
+        number = float(value)
+    except OverflowError:
+        number = math.inf
+    if not math.isfinite(number):
+        raise AirframeError(f"{origin}: key 'limits.{key}' must be finite, got {_short(value)}")
+    return number
+
+
+def _parse_limits(raw: object, kind: str, origin: str) -> dict[str, tuple[float, float] | float]:
+    """The ``[limits]`` table checked against the kind's control names and physical ranges:
+    an airframe may narrow an actuator's travel, never widen it past what the model allows."""
+    if not isinstance(raw, dict):
+        raise AirframeError(f"{origin}: key 'limits' must be a table, got {_short(raw)}")
+    ranges = dict(CONTROL_RANGES[kind])
+    names = tuple(ranges)
+    allowed = list(names) + [n + RATE_SUFFIX for n in names]
+    out: dict[str, tuple[float, float] | float] = {}
+    for key in sorted(raw, key=str):
+        value = raw[key]
+        if key not in allowed:
+            shown = key if key.isprintable() and len(key) <= 40 else _short(key, 30)
+            raise AirframeError(f"{origin}: unknown key 'limits.{shown}' for kind '{kind}'; "
+                                f"expected any of {allowed}")
+        if key.endswith(RATE_SUFFIX):
+            rate = _limit_number(value, key, origin)
+            if not rate > 0:
+                raise AirframeError(f"{origin}: key 'limits.{key}' must be a positive rate "
+                                    f"(per second), got {_short(value)}")
+            out[key] = rate
+            continue
+        if not isinstance(value, list) or len(value) != 2:
+            raise AirframeError(f"{origin}: key 'limits.{key}' must be a [low, high] pair, got "
+                                f"{_short(value)}")
+        low, high = (_limit_number(v, key, origin) for v in value)
+        if not low < high:
+            raise AirframeError(f"{origin}: key 'limits.{key}' needs low < high, got "
+                                f"[{low:g}, {high:g}]")
+        p_low, p_high = ranges[key]
+        if low < p_low or high > p_high:
+            raise AirframeError(f"{origin}: key 'limits.{key}' = [{low:g}, {high:g}] is wider "
+                                f"than the physical range [{p_low:g}, {p_high:g}] of a {kind} "
+                                "(an airframe may narrow it, never widen it)")
+        out[key] = (low, high)
+    return out
 
 
 def _check_values(values: dict[str, float], kind: str, origin: str) -> None:
@@ -563,9 +648,13 @@ def perturb(airframe: Airframe, scale: float = 1.15,
 
 def to_toml_dict(airframe: Airframe) -> dict:
     """The airframe in the file schema (for writing a user's own copy to edit)."""
-    return {
+    out = {
         "name": airframe.name, "kind": airframe.kind, "description": airframe.description,
         "nominal_airspeed": airframe.nominal_airspeed,
         "params": {n: {"value": getattr(airframe.params, n), "source": airframe.sources.get(n, "")}
                    for n in airframe.param_names},
     }
+    if airframe.limits:  # written only when set, so a preset's copy is unchanged
+        out["limits"] = {k: list(v) if isinstance(v, tuple) else v
+                         for k, v in airframe.limits.items()}
+    return out

@@ -54,7 +54,7 @@ from uavdyn.integrate import (
 from uavdyn.integrate.inputs import control_sequence
 from uavdyn.learned import hybrid_step, shipped_weights
 from uavdyn.linear import TrimError, discrete_map_modes, linearise, mode_table, modes, trim
-from uavdyn.model import CONTROL_BOUNDS, build_model
+from uavdyn.model import build_model
 from uavdyn.outputs import atomic_file, check_output_folder, output_folder, write_text_atomic
 
 
@@ -183,13 +183,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     t = np.arange(n + 1) * args.dt
     controls = control_sequence(args.input, t, point.u, amplitude, channel=args.channel)
     name = build_model(airframe).control_names[args.channel]
-    lo, hi = CONTROL_BOUNDS[airframe.kind][args.channel]
+    lo, hi = airframe.control_bounds()[args.channel]  # the airframe's [limits] if it sets them
     used = controls[:, args.channel]
     if used.min() < lo - 1e-12 or used.max() > hi + 1e-12:
         unit = " rad (radians, not degrees)" if name == "elevator" else ""
+        whose = (f"limits.{name} of airframe '{airframe.name}'; " if name in airframe.limits
+                 else "")
         raise CliError(f"--amplitude {amplitude:g} takes {name} to {used.min():.4g}..."
                        f"{used.max():.4g}{unit}, outside its limits [{lo:g}, {hi:g}] "
-                       f"(trim {point.u[args.channel]:.4g})")
+                       f"({whose}trim {point.u[args.channel]:.4g})")
     states = free_run(rk4_step(build_model(airframe).f), point.x, controls[:-1], airframe.p,
                       args.dt)  # compiled; raises DivergenceError with its time
     sortie = Sortie(name=Path(args.out).stem, kind=airframe.kind, time=t, states=states,

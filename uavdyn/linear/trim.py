@@ -3,7 +3,8 @@ constant-speed forward flight), solved with a CasADi Newton rootfinder.
 
 Both kinds share one parameterisation: unknowns ``z = [alpha, u1, u2]`` with
 ``x = [V cos(alpha), V sin(alpha), 0, alpha + gamma]``, residual ``[u_dot, w_dot, q_dot] = 0``.
-An infeasible request (below stall, beyond the thrust or control limits) raises
+An infeasible request (below stall, beyond the thrust or control limits: the airframe's own
+``[limits]`` where its file sets them, else the kind's physical range) raises
 :class:`TrimError` saying which limit and by how much.
 """
 
@@ -17,7 +18,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import Airframe
-from uavdyn.model import CONTROL_BOUNDS, CONTROL_NAMES, NUMPY_OPS, build_model, stall_blend
+from uavdyn.model import CONTROL_NAMES, NUMPY_OPS, build_model, stall_blend
 
 RESIDUAL_TOL = 1e-9
 
@@ -124,10 +125,12 @@ def trim(airframe: Airframe, airspeed: float | None = None, gamma: float = 0.0) 
     if alpha_max is not None and alpha > alpha_max:
         raise TrimError(f"trim at {V:g} m/s needs alpha {math.degrees(alpha):.1f} deg, past the "
                         f"stall angle {math.degrees(alpha_max):.1f} deg")
-    for i, (lo, hi) in enumerate(CONTROL_BOUNDS[airframe.kind]):
+    for i, (lo, hi) in enumerate(airframe.control_bounds()):  # the airframe's own [limits]
         value = float(z[1 + i])
         if value < lo - 1e-12 or value > hi + 1e-12:
             limit = "thrust limit" if names[i] in ("throttle", "collective") else "control limit"
+            if names[i] in airframe.limits:
+                limit += f": limits.{names[i]} of airframe '{airframe.name}'"
             raise TrimError(f"trim at {V:g} m/s, gamma {gamma:g} rad needs {names[i]} = "
                             f"{value:.4g}, outside [{lo:g}, {hi:g}] ({limit})")
     x = np.array([V * math.cos(alpha), V * math.sin(alpha), 0.0, alpha + gamma])

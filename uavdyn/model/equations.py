@@ -28,17 +28,15 @@ from __future__ import annotations
 from functools import partial
 from types import SimpleNamespace
 
-from uavdyn.airframes import param_names
+from uavdyn.airframes import CONTROL_RANGES, param_names
 from uavdyn.model.ops import CASADI_OPS
 
 STATE_NAMES = ("u", "w", "q", "theta")
 POSITION_STATE_NAMES = ("x_n", "h")
-CONTROL_NAMES = {"fixed_wing": ("elevator", "throttle"), "multirotor": ("collective", "pitch_cmd")}
-# Physical control ranges (elevator range is the usual +-30 deg surface travel).
-CONTROL_BOUNDS = {
-    "fixed_wing": ((-0.5236, 0.5236), (0.0, 1.0)),
-    "multirotor": ((0.0, 1.0), (-1.0, 1.0)),
-}
+# Control names and physical ranges per kind: one table, kept with the airframe schema (which
+# checks an airframe's own limits against it).
+CONTROL_NAMES = {kind: tuple(n for n, _ in ranges) for kind, ranges in CONTROL_RANGES.items()}
+CONTROL_BOUNDS = {kind: tuple(b for _, b in ranges) for kind, ranges in CONTROL_RANGES.items()}
 FORCE_NAMES = ("X", "Z", "M", "alpha", "V", "thrust")
 
 

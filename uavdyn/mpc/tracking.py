@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from uavdyn.airframes import Airframe
 from uavdyn.emulation import Emulator, open_loop_references
 from uavdyn.model import CONTROL_BOUNDS
 
@@ -58,8 +59,11 @@ class MPCResult:
 class TrackingMPC:
     """Pitch-attitude + altitude (+ airspeed) tracking MPC for one airframe and step model."""
 
-    def __init__(self, step: ca.Function, kind: str, p: np.ndarray, u_trim: np.ndarray,
-                 config: MPCConfig | None = None):
+    def __init__(self, step: ca.Function, kind: str | Airframe, p: np.ndarray,
+                 u_trim: np.ndarray, config: MPCConfig | None = None):
+        """``kind`` is an airframe kind or an :class:`Airframe`: given an airframe, its own
+        ``[limits]`` (actuator travel and rates) replace the kind's defaults wherever the config
+        leaves ``control_bounds``/``rate_limits`` unset, so the MPC never plans beyond them."""
         self.config = cfg = config or MPCConfig()
         if cfg.horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {cfg.horizon}")
@@ -67,11 +71,18 @@ class TrackingMPC:
             raise ValueError(f"dt must be > 0, got {cfg.dt}")
         if cfg.solver not in ("sqp", "ipopt"):
             raise ValueError(f"solver must be 'sqp' or 'ipopt', got {cfg.solver!r}")
-        self.kind = kind
+        airframe = kind if isinstance(kind, Airframe) else None
+        self.kind: str = airframe.kind if airframe is not None else kind  # type: ignore[assignment]
         self.p = np.asarray(p, float)
         self.u_trim = np.asarray(u_trim, float)
-        self.bounds = np.array(cfg.control_bounds or CONTROL_BOUNDS[kind], float)
-        self.rates = np.array(cfg.rate_limits or DEFAULT_RATE_LIMITS[kind], float)
+        bounds = (airframe.control_bounds() if airframe is not None
+                  else CONTROL_BOUNDS[self.kind])
+        rates = DEFAULT_RATE_LIMITS[self.kind]
+        own = airframe.rate_limits() if airframe is not None else None
+        if own is not None:  # a rate the file leaves out keeps the kind's default
+            rates = tuple(d if r is None else r for r, d in zip(own, rates))
+        self.bounds = np.array(cfg.control_bounds or bounds, float)
+        self.rates = np.array(cfg.rate_limits or rates, float)
         self._build(step)
         self._warm: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -287,7 +298,7 @@ def run_scenario(scenario: Scenario, prediction_step: ca.Function, airframe, poi
 
     emulator = Emulator(airframe)
     x0 = emulator.initial_state(point.x, point.u, altitude)
-    mpc = TrackingMPC(prediction_step, airframe.kind, airframe.p, point.u, config)
+    mpc = TrackingMPC(prediction_step, airframe, airframe.p, point.u, config)
     theta_ref, h_ref = scenario.references(point.x[3], altitude)
     n = int(round(scenario.duration / config.dt))
     return fly_closed_loop(mpc, emulator_plant(emulator, config.dt), x0, point.u, n, theta_ref,
