@@ -43,7 +43,7 @@ NUMPY_OPS = SimpleNamespace(
     cos=np.cos, tanh=np.tanh, sign=np.sign, fabs=np.abs, fmax=np.maximum, fmin=np.minimum,
     pi=np.pi, stack=_np_stack, vertcat=_np_stack,
     concat=lambda *blocks: np.concatenate([np.atleast_1d(b) for b in blocks], axis=0),
-    col=lambda v: np.asarray(v, float).reshape((-1,) + (1,) * 1),
+    col=lambda v: np.asarray(v, float).reshape(-1, 1),
     matmul=lambda w, z: np.asarray(w, float) @ z,
     zeros=lambda rows, like: np.zeros((rows,) + np.shape(like)[1:]),
 )
