@@ -29,6 +29,22 @@ never widen the kind's physical range. Not parameters of ``p``, so ``param_hash`
     throttle = [0.0, 1.0]      # fixed wing: elevator, throttle; multirotor: collective, pitch_cmd
     elevator_rate = 1.0        # '<control>_rate': a positive rate in control units per second
 
+Fixed wing also: ``tau_elevator``, ``tau_throttle`` (s, first-order actuator lag; the throttle
+lag is the engine's power lag in front of the thrust model or table). Multirotor: ``tau_rotor``
+(s, rotor-speed lag of both commands: rotor speed is linear in them) and ``k_inflow`` (thrust loss
+``k_inflow * omega * v_axial`` with the climb speed through the disc). A time constant of 0 means
+no lag and no actuator state.
+
+Optional model structure (absent: none of it)::
+
+    atmosphere = "isa"         # rho is then the sea-level density, scaled by the standard
+                               # atmosphere at each sortie's manifest 'altitude_m' (or the h state)
+    [delays]
+    elevator = 2               # integer transport delay per control, in samples of the step
+    [tables.C_L]               # breakpoint tables (see uavdyn.airframes.tables)
+    alpha = [-0.2, 0.0, 0.2]
+    values = [-0.9, 0.23, 1.35]
+
 Every value is typed (a boolean or a string is not a number) and range-checked against
 :data:`BOUNDS`, a table of honest physical limits per parameter (generous enough for any real
 airframe from a micro quadrotor to a 100 t aircraft, tight enough that unit slips such as grams
@@ -54,6 +70,7 @@ from typing import Union
 
 import numpy as np
 
+from uavdyn.airframes.tables import VALUE_LIMITS, Table, TableError, parse_tables
 from uavdyn.safefiles import DuplicateKey, UnreadableFile, no_duplicate_keys, read_regular
 
 if sys.version_info >= (3, 11):
@@ -65,7 +82,10 @@ KINDS = ("fixed_wing", "multirotor")
 AIRFRAME_MAX_BYTES = 2**20          # a parameter file with sources is a few kB
 NOMINAL_AIRSPEED_MAX = 150.0        # m/s; the flight-data speed limit is 100 m/s
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
-TOP_LEVEL_KEYS = ("name", "kind", "params", "description", "nominal_airspeed", "limits")
+TOP_LEVEL_KEYS = ("name", "kind", "params", "description", "nominal_airspeed", "limits",
+                  "delays", "atmosphere", "tables")
+ATMOSPHERES = ("constant", "isa")
+DELAY_MAX_SAMPLES = 50
 RATE_SUFFIX = "_rate"
 # Each kind's controls in model order with their physical ranges (elevator: the usual +-30 deg
 # surface travel). The one table: uavdyn.model.CONTROL_NAMES/CONTROL_BOUNDS are derived from it.
@@ -136,6 +156,8 @@ class FixedWingParams:
     # Optional (default = absent = no effect); see OPTIONAL_PARAMS.
     C_L_alpha_dot: float = 0.0
     C_m_alpha_dot: float = 0.0
+    tau_elevator: float = 0.0
+    tau_throttle: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -155,6 +177,9 @@ class MultirotorParams:
     drag_linear: float
     pitch_damping: float
     pitch_mix: float
+    # Optional (default = absent = no effect); see OPTIONAL_PARAMS.
+    tau_rotor: float = 0.0
+    k_inflow: float = 0.0
 
 
 ParamsType = Union[FixedWingParams, MultirotorParams]  # noqa: UP007 (runtime alias, py3.10)
@@ -209,6 +234,8 @@ _LENGTH = _b(0, 100, "m", "lengths are positive and shorter than 100 m", high_op
 _ALPHA_DOT = _b(-100, 100, "1/rad", "alpha-dot derivative (times alpha_dot c/2V): conventional "
                                     "aircraft have |x| < ~20 (e.g. C_m_alpha_dot -5 to -15)",
                 low_open=False)
+_TAU = _b(0, 10, "s", "first-order time constant; 0 = no lag (no actuator state)",
+          low_open=False)
 # The closed-form alpha-dot divides by 1 + rho S c C_L_alpha_dot / (4 m) (the alpha-dot lift
 # acts like an added mass); below this the "added mass" would more than double alpha_dot.
 ALPHA_DOT_DENOMINATOR_MIN = 0.5
@@ -240,6 +267,7 @@ BOUNDS: dict[str, dict[str, Bound]] = {
         "C_Q2": _COEFF, "C_Q1": _COEFF, "C_Q0": _COEFF,
         "C_T2": _COEFF, "C_T1": _COEFF, "C_T0": _COEFF,
         "C_L_alpha_dot": _ALPHA_DOT, "C_m_alpha_dot": _ALPHA_DOT,
+        "tau_elevator": _TAU, "tau_throttle": _TAU,
     },
     "multirotor": {
         "mass": _MASS, "Jy": _JY, "arm": _LENGTH,
@@ -254,6 +282,9 @@ BOUNDS: dict[str, dict[str, Bound]] = {
         "pitch_damping": _b(0, 1e6, "N m s/rad", "pitch damping, >= 0", low_open=False),
         "pitch_mix": _b(0, 1, "", "mixer share of pitch_cmd in a rotor's throttle (0..1)",
                         low_open=False),
+        "tau_rotor": _TAU,
+        "k_inflow": _b(0, 1e3, "N s^2/(rad m)", "thrust loss per rotor speed and axial inflow "
+                                                  "speed, >= 0", low_open=False),
     },
 }
 
@@ -293,15 +324,30 @@ class Airframe:
     origin: str = ""
     # The file's [limits] as parsed: control -> (low, high), '<control>_rate' -> rate (1/s).
     limits: dict[str, tuple[float, float] | float] = field(default_factory=dict)
+    # Integer transport delay per control, in samples of the discrete step (absent: 0).
+    delays: dict[str, int] = field(default_factory=dict)
+    # "constant": rho as given; "isa": rho is the sea-level density, scaled by the standard
+    # atmosphere at the sortie's altitude (manifest 'altitude_m') or at the h state.
+    atmosphere: str = "constant"
+    tables: dict[str, Table] = field(default_factory=dict)
 
     @property
     def param_names(self) -> tuple[str, ...]:
-        return param_names(self.kind)
+        """Names of ``p``: the kind's parameters, then the values of each table (sorted by
+        table name, row-major)."""
+        return param_names(self.kind) + tuple(
+            n for name in sorted(self.tables) for n in self.tables[name].value_names())
 
     @property
     def p(self) -> np.ndarray:
         """The numeric parameter vector in model order."""
-        return np.array([getattr(self.params, n) for n in self.param_names], dtype=float)
+        core = [getattr(self.params, n) for n in param_names(self.kind)]
+        table_values = [v for name in sorted(self.tables) for v in self.tables[name].values]
+        return np.array(core + table_values, dtype=float)
+
+    def delay_samples(self) -> tuple[int, ...]:
+        """The transport delay of each control in model order (samples of the step)."""
+        return tuple(int(self.delays.get(n, 0)) for n, _ in CONTROL_RANGES[self.kind])
 
     def control_bounds(self) -> tuple[tuple[float, float], ...]:
         """The (low, high) of each control in model order: the file's ``[limits]`` where set,
@@ -331,6 +377,16 @@ class Airframe:
                    if getattr(self.params, n) != default}
         if changed:
             doc["optional"] = changed
+        # model structure beyond p, hashed only where set (existing hashes stay valid)
+        delays = {k: v for k, v in sorted(self.delays.items()) if v}
+        if delays:
+            doc["delays"] = delays
+        if self.atmosphere != "constant":
+            doc["atmosphere"] = self.atmosphere
+        if self.tables:
+            doc["tables"] = {n: [list(map(list, (b for _, b in t.axes))),
+                                 [a for a, _ in t.axes], [repr(v) for v in t.values]]
+                             for n, t in sorted(self.tables.items())}
         return hashlib.sha256(json.dumps(doc).encode()).hexdigest()[:16]
 
     def replace(self, **changes: float) -> Airframe:
@@ -339,10 +395,28 @@ class Airframe:
         unknown = set(changes) - set(self.param_names)
         if unknown:
             raise AirframeError(f"unknown parameter(s) {sorted(unknown)} for kind '{self.kind}'")
+        numbers = {k: _as_number(v, k, origin) for k, v in changes.items()}
         values = dataclasses.asdict(self.params)
-        values.update({k: _as_number(v, k, origin) for k, v in changes.items()})
+        values.update({k: v for k, v in numbers.items() if k in values})
         _check_values(values, self.kind, origin)
-        return dataclasses.replace(self, params=PARAM_CLASSES[self.kind](**values))
+        tables = dict(self.tables)
+        for name, table in self.tables.items():
+            names = table.value_names()
+            if any(n in numbers for n in names):
+                new = [numbers.get(n, v) for n, v in zip(names, table.values)]
+                bad = [n for n, v in zip(names, new)
+                       if not (math.isfinite(v) and abs(v) < VALUE_LIMITS[name])]
+                if bad:
+                    raise AirframeError(f"{origin}: table value '{bad[0]}' must be finite and "
+                                        f"within +-{VALUE_LIMITS[name]:g}")
+                tables[name] = table.with_values(new)
+        return dataclasses.replace(self, params=PARAM_CLASSES[self.kind](**values),
+                                   tables=tables)
+
+    def with_delays(self, **delays: int) -> Airframe:
+        """A copy with some controls' transport delays (samples) changed."""
+        checked = _parse_delays({**self.delays, **delays}, self.kind, self.origin or self.name)
+        return dataclasses.replace(self, delays=checked)
 
 
 def param_names(kind: str) -> tuple[str, ...]:
@@ -548,10 +622,39 @@ def _parse(data: dict, origin: str) -> Airframe:
         raise AirframeError(f"{origin}: key 'nominal_airspeed' must be a number of m/s in "
                             f"[0, {NOMINAL_AIRSPEED_MAX:g}], got {_short(nominal)}")
     limits = _parse_limits(data["limits"], kind, origin) if "limits" in data else {}
+    delays = _parse_delays(data["delays"], kind, origin) if "delays" in data else {}
+    atmosphere = data.get("atmosphere", "constant")
+    if not isinstance(atmosphere, str) or atmosphere not in ATMOSPHERES:
+        raise AirframeError(f"{origin}: key 'atmosphere' is {_short(atmosphere)}; expected one "
+                            f"of {ATMOSPHERES}")
+    try:
+        tables = parse_tables(data["tables"], kind, origin) if "tables" in data else {}
+    except TableError as exc:
+        raise AirframeError(str(exc)) from None
     return Airframe(
         name=name, kind=kind, params=PARAM_CLASSES[kind](**values), sources=sources,
         description=description, nominal_airspeed=float(nominal), origin=origin, limits=limits,
+        delays=delays, atmosphere=atmosphere, tables=tables,
     )
+
+
+def _parse_delays(raw: object, kind: str, origin: str) -> dict[str, int]:
+    """The ``[delays]`` table: a whole number of samples (0..DELAY_MAX_SAMPLES) per control."""
+    if not isinstance(raw, dict):
+        raise AirframeError(f"{origin}: key 'delays' must be a table, got {_short(raw)}")
+    names = [n for n, _ in CONTROL_RANGES[kind]]
+    out: dict[str, int] = {}
+    for key in sorted(raw, key=str):
+        value = raw[key]
+        if key not in names:
+            raise AirframeError(f"{origin}: unknown key 'delays.{_short(str(key), 30)}' for kind "
+                                f"'{kind}'; expected any of {names}")
+        if isinstance(value, bool) or not isinstance(value, int) \
+                or not 0 <= value <= DELAY_MAX_SAMPLES:
+            raise AirframeError(f"{origin}: key 'delays.{key}' must be a whole number of samples "
+                                f"in [0, {DELAY_MAX_SAMPLES}], got {_short(value)}")
+        out[key] = int(value)
+    return out
 
 
 def _limit_number(value: object, key: str, origin: str) -> float:
@@ -657,4 +760,10 @@ def to_toml_dict(airframe: Airframe) -> dict:
     if airframe.limits:  # written only when set, so a preset's copy is unchanged
         out["limits"] = {k: list(v) if isinstance(v, tuple) else v
                          for k, v in airframe.limits.items()}
+    if any(airframe.delays.values()):
+        out["delays"] = {k: v for k, v in airframe.delays.items() if v}
+    if airframe.atmosphere != "constant":
+        out["atmosphere"] = airframe.atmosphere
+    if airframe.tables:
+        out["tables"] = {n: t.to_file() for n, t in sorted(airframe.tables.items())}
     return out

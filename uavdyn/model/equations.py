@@ -25,14 +25,14 @@ in closed form; the factor does not depend on V). The moment then gets
 
 from __future__ import annotations
 
-from functools import partial
 from types import SimpleNamespace
 
 from uavdyn.airframes import CONTROL_RANGES, param_names
+from uavdyn.model.atmosphere import isa_density_ratio
+from uavdyn.model.interpolation import interp1, interp2
 from uavdyn.model.ops import CASADI_OPS
+from uavdyn.model.structure import ModelStructure
 
-STATE_NAMES = ("u", "w", "q", "theta")
-POSITION_STATE_NAMES = ("x_n", "h")
 # Control names and physical ranges per kind: one table, kept with the airframe schema (which
 # checks an airframe's own limits against it).
 CONTROL_NAMES = {kind: tuple(n for n, _ in ranges) for kind, ranges in CONTROL_RANGES.items()}
@@ -43,6 +43,40 @@ FORCE_NAMES = ("X", "Z", "M", "alpha", "V", "thrust")
 def symbolic_params(kind: str, p) -> SimpleNamespace:
     """Name the entries of a symbolic parameter vector so equations read like the textbook."""
     return SimpleNamespace(**{name: p[i] for i, name in enumerate(param_names(kind))})
+
+
+def as_structure(kind: str | ModelStructure, alpha_dot: bool | None = None) -> ModelStructure:
+    """A structure for a kind name (fixed wing: with the alpha-dot terms unless told not)."""
+    if isinstance(kind, ModelStructure):
+        if alpha_dot is None or alpha_dot == kind.alpha_dot:
+            return kind
+        from dataclasses import replace
+        return replace(kind, alpha_dot=bool(alpha_dot) and kind.kind == "fixed_wing")
+    param_names(kind)  # validates the kind
+    return ModelStructure(kind, alpha_dot=kind == "fixed_wing" and alpha_dot is not False)
+
+
+def _table(structure: ModelStructure, name: str, p, axis_values: dict, ops):
+    """The value of table ``name`` at the named axis values (None: the airframe has none)."""
+    slices = structure.table_slices()
+    if name not in slices:
+        return None
+    axes, start, stop = slices[name]
+    values = [p[i] for i in range(start, stop)]
+    if len(axes) == 1:
+        return interp1(axes[0][1], values, axis_values[axes[0][0]], ops)
+    return interp2(axes[0][1], axes[1][1], values, axis_values[axes[0][0]],
+                   axis_values[axes[1][0]], ops)
+
+
+def air_density(P: SimpleNamespace, x, structure: ModelStructure, with_position: bool,
+                ops=CASADI_OPS):
+    """Density the aerodynamics see: ``rho``, or with ``atmosphere = "isa"`` and an ``h`` state,
+    the sea-level ``rho`` scaled by the ISA ratio at ``h`` (without an h state the caller scales
+    ``rho`` per sortie: :func:`uavdyn.model.sortie_params`)."""
+    if structure.isa and with_position:
+        return P.rho * isa_density_ratio(x[5], ops)
+    return P.rho
 
 
 def stall_blend(alpha, M, alpha0, ops=CASADI_OPS):
@@ -67,7 +101,8 @@ def propeller_thrust(P: SimpleNamespace, Va, throttle, ops=CASADI_OPS):
             + P.rho * P.D_prop**2 * P.C_T2 * Va**2)
 
 
-def fixed_wing_forces(x, u, p, ops=CASADI_OPS, alpha_dot: bool = True):
+def fixed_wing_forces(x, u, p, ops=CASADI_OPS, alpha_dot: bool = True,
+                      structure: ModelStructure | None = None, with_position: bool = False):
     """Body-axis aerodynamic + propulsive force X, Z (N) and pitching moment M (N m), with
     alpha (rad), airspeed V (m/s) and thrust (N).
 
@@ -77,38 +112,55 @@ def fixed_wing_forces(x, u, p, ops=CASADI_OPS, alpha_dot: bool = True):
     optional alpha-dot terms solved exactly (module docstring). ``x`` needs theta (``x[3]``):
     alpha_dot depends on the whole acceleration, gravity included. ``alpha_dot=False`` leaves
     the terms out of the graph (an airframe whose alpha-dot keys are 0: same numbers, a cheaper
-    step).
+    step). ``structure`` adds breakpoint tables (a ``C_L``/``C_D``/``C_m`` table replaces the
+    attached-flow polynomial, lift curve, drag polar or static moment; a ``thrust`` table the
+    motor model) and the ISA density at the ``h`` state (``with_position``).
     """
-    return _fixed_wing_terms(x, u, p, ops, alpha_dot)[:6]
+    return _fixed_wing_terms(x, u, p, ops, alpha_dot, structure, with_position)[:6]
 
 
-def fixed_wing_alpha_dot(x, u, p, ops=CASADI_OPS):
+def fixed_wing_alpha_dot(x, u, p, ops=CASADI_OPS, structure: ModelStructure | None = None,
+                         with_position: bool = False):
     """The exact alpha_dot (rad/s) of the closed form, the value the alpha-dot terms use."""
-    return _fixed_wing_terms(x, u, p, ops)[6]
+    return _fixed_wing_terms(x, u, p, ops, True, structure, with_position)[6]
 
 
-def _fixed_wing_terms(x, u, p, ops, with_alpha_dot: bool = True):
+def _fixed_wing_terms(x, u, p, ops, with_alpha_dot: bool = True,
+                      structure: ModelStructure | None = None, with_position: bool = False):
     """Forces, moment and the closed-form alpha_dot of the fixed wing (see the callers)."""
+    structure = structure or ModelStructure("fixed_wing", alpha_dot=with_alpha_dot)
     P = symbolic_params("fixed_wing", p)
     ub, wb, q = x[0], x[1], x[2]
     elevator, throttle = u[0], u[1]
     V = ops.sqrt(ub**2 + wb**2)
     alpha = ops.atan2(wb, ub)
-    qbar = 0.5 * P.rho * V**2
+    rho = air_density(P, x, structure, with_position, ops)
+    P = SimpleNamespace(**{**vars(P), "rho": rho})
+    qbar = 0.5 * rho * V**2
     q_hat = P.c * q / (2 * V)
     sigma = stall_blend(alpha, P.M_blend, P.alpha0, ops)
     aspect = P.b**2 / P.S_wing
-    CL_attached = P.C_L_0 + P.C_L_alpha * alpha + P.C_L_alpha2 * alpha**2
+    axis = {"alpha": alpha, "elevator": elevator, "airspeed": V, "throttle": throttle}
+    CL_attached = _table(structure, "C_L", p, axis, ops)
+    if CL_attached is None:
+        CL_attached = P.C_L_0 + P.C_L_alpha * alpha + P.C_L_alpha2 * alpha**2
     sin_a, cos_a = ops.sin(alpha), ops.cos(alpha)
     CL_plate = 2 * ops.sign(alpha) * sin_a**2 * cos_a
-    CD_attached = P.C_D_0 + CL_attached**2 / (ops.pi * P.e * aspect)
+    CD_attached = _table(structure, "C_D", p, axis, ops)
+    if CD_attached is None:
+        CD_attached = P.C_D_0 + CL_attached**2 / (ops.pi * P.e * aspect)
     CD_plate = P.C_D_0 + 2 * ops.fabs(sin_a) ** 3
     CL = (1 - sigma) * CL_attached + sigma * CL_plate + P.C_L_q * q_hat + P.C_L_delta_e * elevator
     CD = (1 - sigma) * CD_attached + sigma * CD_plate + P.C_D_q * q_hat + P.C_D_delta_e * elevator
-    Cm = P.C_m_0 + P.C_m_alpha * alpha + P.C_m_q * q_hat + P.C_m_delta_e * elevator
+    Cm_static = _table(structure, "C_m", p, axis, ops)
+    if Cm_static is None:
+        Cm_static = P.C_m_0 + P.C_m_alpha * alpha
+    Cm = Cm_static + P.C_m_q * q_hat + P.C_m_delta_e * elevator
     lift = qbar * P.S_wing * CL
     drag = qbar * P.S_wing * CD
-    thrust = propeller_thrust(P, V, throttle, ops)
+    thrust = _table(structure, "thrust", p, axis, ops)
+    if thrust is None:
+        thrust = propeller_thrust(P, V, throttle, ops)
     X0 = -drag * cos_a + lift * sin_a + thrust
     Z0 = -drag * sin_a - lift * cos_a
     M0 = qbar * P.S_wing * P.c * Cm
@@ -117,7 +169,7 @@ def _fixed_wing_terms(x, u, p, ops, with_alpha_dot: bool = True):
     # Exact alpha-dot terms: A0 from the forces without them, then the closed form.
     u_dot0, w_dot0 = translational_accelerations(x, X0, Z0, P.mass, P.gravity, ops)
     alpha_dot0 = (ub * w_dot0 - wb * u_dot0) / V**2
-    alpha_dot = alpha_dot0 / (1 + P.rho * P.S_wing * P.c * P.C_L_alpha_dot / (4 * P.mass))
+    alpha_dot = alpha_dot0 / (1 + rho * P.S_wing * P.c * P.C_L_alpha_dot / (4 * P.mass))
     ad_hat = P.c * alpha_dot / (2 * V)
     lift_ad = qbar * P.S_wing * P.C_L_alpha_dot * ad_hat
     X = X0 + lift_ad * sin_a
@@ -126,20 +178,28 @@ def _fixed_wing_terms(x, u, p, ops, with_alpha_dot: bool = True):
     return X, Z, M, alpha, V, thrust, alpha_dot
 
 
-def rotor_thrust(P: SimpleNamespace, throttle, ops=CASADI_OPS):
-    """Thrust of one rotor from its throttle: w = C_R*sigma + w_b, T = c_T max(w, 0)^2."""
-    omega = P.C_R * throttle + P.omega_b
-    return P.c_T * ops.fmax(omega, 0) ** 2
+def rotor_thrust(P: SimpleNamespace, throttle, v_axial=0.0, ops=CASADI_OPS):
+    """Thrust of one rotor from its throttle: w = max(C_R*sigma + w_b, 0),
+    T = max(c_T w^2 - k_inflow w v_axial, 0) with the axial inflow (climb) speed ``v_axial``
+    through the disc (momentum theory, linearised; ``k_inflow = 0``: static thrust)."""
+    omega = ops.fmax(P.C_R * throttle + P.omega_b, 0)
+    return ops.fmax(P.c_T * omega**2 - P.k_inflow * omega * v_axial, 0)
 
 
-def multirotor_forces(x, u, p, ops=CASADI_OPS):
+def multirotor_forces(x, u, p, ops=CASADI_OPS, structure: ModelStructure | None = None,
+                      with_position: bool = False):
     """Body-axis force X, Z (N) and moment M (N m) of an X-frame quadrotor in the pitch plane:
-    front pair and rear pair of rotors, body drag (linear rotor drag + quadratic parasite)."""
+    front pair and rear pair of rotors (thrust lost to axial inflow), body drag (linear rotor
+    drag + quadratic parasite)."""
     P = symbolic_params("multirotor", p)
+    if structure is not None:
+        P = SimpleNamespace(**{**vars(P), "rho": air_density(P, x, structure, with_position,
+                                                               ops)})
     ub, wb, q = x[0], x[1], x[2]
     collective, pitch_cmd = u[0], u[1]
-    t_front = rotor_thrust(P, collective + P.pitch_mix * pitch_cmd, ops)
-    t_rear = rotor_thrust(P, collective - P.pitch_mix * pitch_cmd, ops)
+    v_axial = -wb  # body z points down, the rotors push up: climbing air comes from above
+    t_front = rotor_thrust(P, collective + P.pitch_mix * pitch_cmd, v_axial, ops)
+    t_rear = rotor_thrust(P, collective - P.pitch_mix * pitch_cmd, v_axial, ops)
     thrust = 2 * (t_front + t_rear)
     lever = P.arm * ops.sqrt(0.5)
     X = -P.drag_linear * ub - 0.5 * P.rho * P.CdA_x * ops.fabs(ub) * ub
@@ -172,17 +232,27 @@ def rigid_body_rates(x, X, Z, M, mass, Jy, g, with_position: bool, ops=CASADI_OP
     return ops.vertcat(*rates)
 
 
-def make_rhs(kind: str, with_position: bool = False, ops=CASADI_OPS, alpha_dot: bool = True):
-    """``rhs(x, u, p) -> x_dot`` of an airframe kind, evaluated with ``ops`` (feature-first);
-    ``alpha_dot=False`` builds the fixed wing without its (then zero) alpha-dot terms."""
-    names = param_names(kind)  # validates kind
-    forces = FORCE_MODELS[kind]
-    if kind == "fixed_wing" and not alpha_dot:
-        forces = partial(fixed_wing_forces, alpha_dot=False)
+def body_forces(structure: ModelStructure, x, u, p, ops=CASADI_OPS,
+                with_position: bool = False):
+    """``(X, Z, M, alpha, V, thrust)`` of a structure's airframe kind at the effective
+    (actuator-side) controls ``u``."""
+    if structure.kind == "fixed_wing":
+        return fixed_wing_forces(x, u, p, ops, structure.alpha_dot, structure, with_position)
+    return multirotor_forces(x, u, p, ops, structure, with_position)
+
+
+def make_rhs(kind: str | ModelStructure, with_position: bool = False, ops=CASADI_OPS,
+             alpha_dot: bool | None = None):
+    """``rhs(x, u, p) -> x_dot`` of the rigid body, evaluated with ``ops`` (feature-first), at
+    the effective (actuator-side) controls ``u``. ``kind`` is a kind name or a
+    :class:`ModelStructure`; ``alpha_dot=False`` builds the fixed wing without its (then zero)
+    alpha-dot terms."""
+    structure = as_structure(kind, alpha_dot)
+    names = param_names(structure.kind)
     i_mass, i_jy, i_g = (names.index(n) for n in ("mass", "Jy", "gravity"))
 
     def rhs(x, u, p):
-        X, Z, M = forces(x, u, p, ops)[:3]
+        X, Z, M = body_forces(structure, x, u, p, ops, with_position)[:3]
         return rigid_body_rates(x, X, Z, M, p[i_mass], p[i_jy], p[i_g], with_position, ops)
 
     return rhs

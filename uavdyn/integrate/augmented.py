@@ -1,0 +1,160 @@
+"""The discrete step of a model with actuator dynamics: first-order lags and integer transport
+delays carried as augmented states, written once against ``ops`` (CasADi, NumPy, torch).
+
+One call advances one sample: the delayed command is read from the buffer (or is the command
+itself), each lagged channel follows it exactly (``a(s) = c + (a0 - c) exp(-s/tau)``, stable and
+exact for any step, however fast the actuator), and the rigid body is integrated by the RK
+tableau with the actuator value taken at each stage's time (a clock rides along as an extra RK
+state). A delay of ``k`` samples means a command acts ``k`` calls later: the delay counts calls
+of the step, so use the step at the sample period the delays were identified at.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import casadi as ca
+import numpy as np
+
+from uavdyn.airframes import Airframe
+from uavdyn.integrate.tableau import RK4, ButcherTableau, explicit_rk_step
+from uavdyn.model import CASADI_OPS, ModelStructure, build_model, make_rhs, structure_of
+
+STEP_INPUTS = ["x", "u", "p", "dt"]
+
+
+def _rows(z, start: int, stop: int, ops):
+    """Feature rows ``start:stop`` of a feature-first array (an empty list if none)."""
+    return [z[i] for i in range(start, stop)]
+
+
+def augmented_rk_step(structure: ModelStructure, body_rhs: Callable, z, u, p, dt,
+                      tableau: ButcherTableau = RK4, ops=CASADI_OPS,
+                      with_position: bool = False, substeps: int = 1):
+    """``z_next`` of the augmented state ``z`` (layout: :mod:`uavdyn.model.structure`) under the
+    command ``u`` held over the step ``dt`` (``substeps`` RK steps of ``dt/substeps`` for the
+    body; the lag is exact over the whole step).
+
+    ``body_rhs(x, u_effective, p)`` is the rigid body's right-hand side (e.g. the physics plus a
+    learned residual)."""
+    nb = 6 if with_position else 4
+    nu = structure.nu
+    delays = structure.delay_samples
+    buffer_start = nb + structure.n_actuator
+    delayed, new_buffer, offset = [], [], buffer_start
+    for c in range(nu):
+        d = delays[c]
+        if d:
+            delayed.append(z[offset + d - 1])
+            new_buffer += [u[c]] + _rows(z, offset, offset + d - 1, ops)
+            offset += d
+        else:
+            delayed.append(u[c])
+    a0 = _rows(z, nb, buffer_start, ops)
+    taus = [p[i] for i in structure.tau_indices]
+    targets = [delayed[c] for c in structure.lag_indices]
+
+    def actuator(s):
+        return [t + (a - t) * ops.exp(-s / tau) for a, t, tau in zip(a0, targets, taus)]
+
+    def effective(values):
+        out = list(delayed)
+        for c, v in zip(structure.lag_indices, values):
+            out[c] = v
+        return ops.stack(*out)
+
+    x = _rows(z, 0, nb, ops)
+    if not structure.n_actuator:
+        u_eff = effective([])
+        x_next = ops.stack(*x)
+        h = dt / substeps
+        for _ in range(substeps):
+            x_next = explicit_rk_step(tableau, lambda xx: body_rhs(xx, u_eff, p), x_next, h)
+        return ops.concat(x_next, ops.stack(*new_buffer)) if new_buffer else x_next
+    h = dt / substeps
+    y = ops.stack(*x, x[0] * 0.0)  # the body state and the clock (time since the step start)
+    one = x[0] * 0.0 + 1.0
+
+    def rhs(yy):
+        rates = body_rhs(ops.stack(*_rows(yy, 0, nb, ops)), effective(actuator(yy[nb])), p)
+        return ops.concat(rates, ops.stack(one))
+
+    for _ in range(substeps):
+        y = explicit_rk_step(tableau, rhs, y, h)
+    blocks = [ops.stack(*_rows(y, 0, nb, ops)), ops.stack(*actuator(dt))]
+    if new_buffer:
+        blocks.append(ops.stack(*new_buffer))
+    return ops.concat(*blocks)
+
+
+def physics_step(airframe: Airframe | ModelStructure, tableau: ButcherTableau = RK4,
+                 with_position: bool = False, substeps: int = 1, fitting=(),
+                 name: str | None = None) -> ca.Function:
+    """The physics step of an airframe as one SX Function ``(x, u, p, dt) -> x_next``; ``x`` is
+    the augmented state when the airframe has actuator lags or delays (state names:
+    ``structure.state_names()``), else the body state and the plain RK step.
+
+    Parameters
+    ----------
+    airframe : Airframe or ModelStructure
+        The airframe (its values decide the structure) or a structure.
+    tableau : ButcherTableau
+        The RK method (default classical RK4).
+    with_position : bool
+        Carry the ``[x_n, h]`` states.
+    substeps : int
+        RK steps per call (the delay buffers shift once per call).
+    fitting : sequence of str
+        Parameters about to be identified (their terms are kept even at a value of 0).
+    """
+    structure = (airframe if isinstance(airframe, ModelStructure)
+                 else structure_of(airframe, fitting))
+    if not structure.augmented and substeps == 1:
+        from uavdyn.integrate.steps import rk_step
+        return rk_step(build_model(structure, with_position).f, tableau,
+                       name or f"{tableau.name}_step")
+    nz = structure.nx(with_position)
+    z, u = ca.SX.sym("x", nz), ca.SX.sym("u", structure.nu)
+    p, dt = ca.SX.sym("p", structure.np), ca.SX.sym("dt")
+    z_next = augmented_rk_step(structure, make_rhs(structure, with_position), z, u, p, dt,
+                               tableau, CASADI_OPS, with_position, substeps)
+    return ca.Function(name or f"{tableau.name}_step", [z, u, p, dt], [z_next], STEP_INPUTS,
+                       ["x_next"])
+
+
+def actuator_history(structure: ModelStructure, controls, p, sample_dt: float) -> np.ndarray:
+    """The actuator and delay-buffer states at every sample of a recorded command history
+    (``N x nu``, row k held over sample k), starting at rest on the first command: row ``k`` is
+    what the step carries at sample ``k`` (append it to the recorded body state there)."""
+    controls = np.atleast_2d(np.asarray(controls, float))
+    n = controls.shape[0]
+    delays = structure.delay_samples
+    out = np.empty((n, structure.n_actuator + structure.n_buffer))
+    first = controls[0]
+    a = np.array([first[c] for c in structure.lag_indices])
+    taus = np.array([p[i] for i in structure.tau_indices])
+    decay = np.exp(-sample_dt / np.maximum(taus, 1e-300))
+    for k in range(n):
+        buffers = []
+        for c in range(structure.nu):
+            d = delays[c]
+            # most recent first: the commands of samples k-1, k-2, ..., k-d (the first before 0)
+            buffers += [controls[max(k - j, 0), c] if k - j >= 0 else first[c]
+                        for j in range(1, d + 1)]
+        out[k, :structure.n_actuator] = a
+        out[k, structure.n_actuator:] = buffers
+        delayed = np.array([(controls[k - delays[c], c] if k - delays[c] >= 0 else first[c])
+                            for c in range(structure.nu)])
+        target = delayed[list(structure.lag_indices)]
+        a = target + (a - target) * decay
+    return out
+
+
+def augment_states(structure: ModelStructure, states, controls, p, sample_dt: float
+                   ) -> np.ndarray:
+    """Recorded body states (``N x nb``) with the actuator/buffer states of
+    :func:`actuator_history` appended (the step's augmented state at every sample)."""
+    states = np.atleast_2d(np.asarray(states, float))
+    if not structure.augmented:
+        return states
+    return np.hstack([states, actuator_history(structure, controls, p, sample_dt)])
