@@ -15,10 +15,11 @@ from pathlib import Path
 
 import casadi as ca
 
-from uavdyn.airframes import Airframe, param_names
+from uavdyn.airframes import Airframe
 from uavdyn.integrate import STEP_INPUTS, compile_function
 from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights
-from uavdyn.model import CASADI_OPS, make_rhs, uses_alpha_dot
+from uavdyn.model import CASADI_OPS, ModelStructure, make_rhs, structure_of
+from uavdyn.model.equations import as_structure
 
 SHIPPED = "uavdyn.learned.shipped"
 
@@ -62,14 +63,38 @@ def _resolve(net: CorrectionNet | str | Path, airframe: Airframe | None) -> Corr
     return net
 
 
+def correction_structure(airframe: Airframe | None, kind: str) -> ModelStructure:
+    """The physics structure a correction runs on: the airframe's (tables, density, alpha-dot
+    terms), or the kind's default without an airframe.
+
+    Raises
+    ------
+    WeightFileError
+        For an airframe with actuator lags or transport delays, which the correction's inputs
+        do not carry yet.
+    """
+    if airframe is None:
+        return as_structure(kind)
+    structure = structure_of(airframe)
+    if structure.augmented:
+        raise WeightFileError(
+            f"airframe '{airframe.name}' has actuator lags or transport delays (tau_*, "
+            "[delays]); the learned correction does not carry actuator states yet: train and "
+            "use it on an airframe without them")
+    return structure
+
+
 def hybrid_expression(net: CorrectionNet, relu_smoothing: float | None = None,
-                      name: str = "hybrid_step", alpha_dot: bool = True) -> ca.Function:
-    """The uncompiled SX Function of the hybrid step of ``net`` (``alpha_dot=False``: without
-    the fixed-wing alpha-dot terms, for an airframe that does not set them)."""
+                      name: str = "hybrid_step", alpha_dot: bool | None = None,
+                      structure: ModelStructure | None = None) -> ca.Function:
+    """The uncompiled SX Function of the hybrid step of ``net`` on the physics ``structure``
+    (default: the kind's; ``alpha_dot=False``: without the fixed-wing alpha-dot terms, for an
+    airframe that does not set them)."""
     form = net.form
-    f = make_rhs(net.kind, alpha_dot=alpha_dot)
+    structure = as_structure(structure or net.kind, alpha_dot)
+    f = make_rhs(structure)
     x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 2)
-    p, dt, t = ca.SX.sym("p", len(param_names(net.kind))), ca.SX.sym("dt"), ca.SX.sym("t")
+    p, dt, t = ca.SX.sym("p", structure.np), ca.SX.sym("dt"), ca.SX.sym("t")
     x_next = form.step(f, x, u, p, dt, lambda inp: net.casadi(inp, relu_smoothing), CASADI_OPS,
                        t if form.takes_time else None)
     inputs, names = [x, u, p, dt], list(STEP_INPUTS)
@@ -103,7 +128,7 @@ def hybrid_step(net: CorrectionNet | str | Path, airframe: Airframe | None = Non
     """
     net = _resolve(net, airframe)
     step = hybrid_expression(net, relu_smoothing, name,
-                             uses_alpha_dot(airframe) if airframe is not None else True)
+                             structure=correction_structure(airframe, net.kind))
     if compile:
         step = compile_function(step)
     return HybridStep(step, net.dt if net.form.dt_bound else None,
@@ -114,8 +139,8 @@ def hybrid_jacobian(net: CorrectionNet | str | Path, airframe: Airframe | None =
                     compile: bool = True, name: str = "hybrid_jacobian") -> ca.Function:
     """``(x, u, p, dt[, t]) -> (x_next, A = dx_next/dx, B = dx_next/du)`` by exact algorithmic
     differentiation of the hybrid step, compiled to C like the step itself."""
-    step = hybrid_expression(_resolve(net, airframe), alpha_dot=uses_alpha_dot(airframe)
-                             if airframe is not None else True)
+    net = _resolve(net, airframe)
+    step = hybrid_expression(net, structure=correction_structure(airframe, net.kind))
     args = [ca.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
     x_next = step(*args)
     jac = ca.Function(name, args, [x_next, ca.jacobian(x_next, args[0]),

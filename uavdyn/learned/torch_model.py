@@ -18,13 +18,14 @@ from uavdyn.integrate.tableau import RK4, explicit_rk_step
 from uavdyn.learned.formulations import formulation as get_formulation
 from uavdyn.learned.mlp import mlp_forward
 from uavdyn.learned.weights import N_HIDDEN_LAYERS, CorrectionNet
-from uavdyn.model import make_rhs, torch_ops
+from uavdyn.model import ModelStructure, make_rhs, torch_ops
 
 DTYPE = torch.float64
 
 
-def torch_rhs(kind: str):
-    """``rhs(x (4,B), u (2,B), p (np,)) -> x_dot (4,B)`` from the model's own equations."""
+def torch_rhs(kind: str | ModelStructure):
+    """``rhs(x (4,B), u (2,B), p (np,)) -> x_dot (4,B)`` from the model's own equations (a
+    kind's default structure, or an airframe's)."""
     return make_rhs(kind, False, torch_ops())
 
 
@@ -34,7 +35,7 @@ class TorchCorrection(nn.Module):
 
     def __init__(self, kind: str, formulation: str, hidden: int, activation: str,
                  in_mean: np.ndarray, in_scale: np.ndarray, out_scale: np.ndarray,
-                 dt: float, seed: int = 0) -> None:
+                 dt: float, seed: int = 0, structure: ModelStructure | None = None) -> None:
         super().__init__()
         self.form = get_formulation(formulation)
         if activation not in ("relu", "tanh"):
@@ -60,7 +61,7 @@ class TorchCorrection(nn.Module):
         self.register_buffer("in_scale", torch.as_tensor(in_scale, dtype=DTYPE))
         self.register_buffer("out_mean", torch.zeros(n_out, dtype=DTYPE))
         self.register_buffer("out_scale", torch.as_tensor(out_scale, dtype=DTYPE))
-        self.rhs = torch_rhs(kind)
+        self.rhs = torch_rhs(structure or kind)
 
     def forward(self, inp: torch.Tensor) -> torch.Tensor:
         """The network on a batch ``(B, n_in)`` -> ``(B, n_out)`` (the one MLP forward)."""

@@ -37,6 +37,7 @@ from uavdyn.learned.data import (
     target_trajectories,
 )
 from uavdyn.learned.formulations import DEFAULT_FORMULATION
+from uavdyn.learned.hybrid import correction_structure
 from uavdyn.learned.torch_model import DTYPE, TorchCorrection
 from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights, save_weights
 from uavdyn.outputs import atomic_file, write_text_atomic
@@ -146,10 +147,12 @@ def train(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airf
     horizon = min(cfg.rollout_horizon, min(len(t.time) for t in tr + va) - 1)
     win_tr, win_va = rollout_windows(tr, horizon), rollout_windows(va, horizon)
 
+    structure = correction_structure(airframe, airframe.kind)
     probe = TorchCorrection(airframe.kind, cfg.formulation, cfg.hidden, cfg.activation,
                             np.zeros(6 if cfg.formulation != "paper" else 5),
                             np.ones(6 if cfg.formulation != "paper" else 5),
-                            np.ones(3 if cfg.formulation == "improved" else 4), cfg.dt)
+                            np.ones(3 if cfg.formulation == "improved" else 4), cfg.dt,
+                            structure=structure)
     with torch.no_grad():
         base_tr = _multi_step(probe, _t(pairs_tr.x0), _t(pairs_tr.u), p, cfg.dt, substeps,
                               None, physics=True).numpy()
@@ -163,7 +166,8 @@ def train(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airf
     in_mean, in_scale, out_scale = _normalisation(airframe.kind, cfg.formulation, pairs_tr,
                                                   resid, interval, cfg.dt, substeps)
     model = TorchCorrection(airframe.kind, cfg.formulation, cfg.hidden, cfg.activation,
-                            in_mean, in_scale, out_scale, cfg.dt, seed=cfg.seed)
+                            in_mean, in_scale, out_scale, cfg.dt, seed=cfg.seed,
+                            structure=structure)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     gamma = (cfg.lr_final / cfg.lr) ** (1.0 / max(1, cfg.epochs))
     sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma)

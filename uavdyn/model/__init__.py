@@ -14,8 +14,6 @@ from uavdyn.model.equations import (
     CONTROL_NAMES,
     FORCE_MODELS,
     FORCE_NAMES,
-    POSITION_STATE_NAMES,
-    STATE_NAMES,
     air_density,
     body_forces,
     fixed_wing_alpha_dot,
@@ -31,7 +29,13 @@ from uavdyn.model.equations import (
 )
 from uavdyn.model.interpolation import interp1, interp2
 from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS, torch_ops
-from uavdyn.model.structure import LAG_PARAMS, ModelStructure, structure_of
+from uavdyn.model.structure import (
+    LAG_PARAMS,
+    POSITION_STATE_NAMES,
+    STATE_NAMES,
+    ModelStructure,
+    structure_of,
+)
 
 __all__ = ["LongitudinalModel", "build_model", "numpy_rhs", "uses_alpha_dot", "sortie_params",
            "isa_density", "isa_density_ratio", "air_density", "body_forces", "interp1",
