@@ -41,13 +41,22 @@ def test_tables_have_rows_and_finite_numbers(quick_run):
         assert "baseline fine-step reference" in groups
         for label, table in groups.items():
             names = [r["solver"] for r in table["rows"]]
-            assert "RK4 (physics only) @ 0.005 s" in names
+            assert "RK4 nominal physics @ 0.005 s" in names
             assert "hybrid improved @ 0.005 s" in names
             if label != "baseline fine-step reference":  # no paper/reference weights shipped
                 assert "hybrid paper @ 0.005 s" in names
             for row in table["rows"]:
                 assert finite(row["one_step"]["theta_rmse"])
                 assert finite(row["horizon_1s"]["theta_rmse"])
+            if label.startswith("flight data"):  # the ladder: nominal -> identified physics
+                assert "RK4 identified physics @ 0.005 s" in names
+        # the identified airframe is a loadable file whose fitted values are the ones reported,
+        # and its fit is scored on the validation split
+        ident = af["identification"]
+        fitted = load_airframe(out / ident["file"])
+        for e in ident["estimates"]:
+            assert getattr(fitted.params, e["name"]) == pytest.approx(e["value"], rel=1e-9)
+        assert finite(ident["validation_theta_rmse"]["identified"])
         table2 = af["table2"]
         assert table2 and all(finite(r["initial_train_loss"]) and finite(r["best_val_loss"])
                               for r in table2)

@@ -366,7 +366,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     config = ReproduceConfig(airframes=tuple(args.airframes), out=args.out, quick=args.quick,
                              retrain=args.retrain, cache=args.cache,
                              cost_repeats=args.cost_repeats, sorties=args.sorties,
-                             duration_s=args.duration, force=args.force)
+                             duration_s=args.duration, force=args.force,
+                             identify=not args.no_identify)
     result = run(config)
     print(f"report: {Path(args.out) / 'report.md'} ({result['wall_s']:.0f} s)")
     return 0
@@ -382,7 +383,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if path.exists() and not args.force and not _own_json(out):
             raise CliError(f"{path} exists and is not an earlier 'uavdyn evaluate' result; "
                            "choose another --out or give --force")
-    result = evaluate_dataset(airframe, args.dataset, args.weights or [])
+    identified = load_airframe(args.identified) if args.identified else None
+    result = evaluate_dataset(airframe, args.dataset, args.weights or [],
+                              identified=identified)
     result["command"] = "evaluate"
     write_text_atomic(out, json.dumps(result, indent=2, default=_json) + "\n")
     write_text_atomic(md, evaluation_markdown(result))
@@ -536,8 +539,11 @@ def build_parser() -> argparse.ArgumentParser:
                    choices=["quadrotor", "fixed_wing"], help="which airframes (default both)")
     p.add_argument("--out", default="results", help="output folder (default results/)")
     p.add_argument("--quick", action="store_true", help="tiny configuration (seconds)")
+    p.add_argument("--no-identify", action="store_true",
+                   help="skip the identification step (no 'identified physics' rung)")
     p.add_argument("--retrain", action="store_true",
-                   help="train the networks here (needs torch) instead of the shipped weights")
+                   help="train the networks here (needs torch) instead of the shipped weights; "
+                        "the flight-data corrections learn on top of the identified physics")
     p.add_argument("--cache", default=None, help="dataset cache folder (default: user cache)")
     p.add_argument("--cost-repeats", type=int, default=5, help="timing repeats (default 5)")
     p.add_argument("--sorties", type=int, default=None, help="override the recipe's count")
@@ -549,6 +555,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_force(p)
     _add_airframe(p, default=None)
     p.add_argument("--dataset", required=True, help="dataset folder (manifest.json + CSVs)")
+    p.add_argument("--identified", default=None,
+                   help="airframe file fitted by 'uavdyn identify': adds the identified-physics "
+                        "rung (weights trained on it are run on it)")
     p.add_argument("--weights", nargs="*", default=None, help="weight file(s) of the hybrid")
     p.add_argument("--out", default="results/metrics.json", help="JSON output (Markdown beside)")
     p.set_defaults(func=cmd_evaluate)

@@ -11,6 +11,14 @@ from uavdyn.learned import hybrid_step
 
 FORMULATIONS = ("improved", "paper")
 TARGETS = ("data", "reference")
+NOMINAL_PHYSICS = "RK4 nominal physics"
+IDENTIFIED_PHYSICS = "RK4 identified physics"
+# What the pipeline identifies before it learns (aerodynamic/propulsive terms, not geometry);
+# the same lists as analysis/bench_identify.py measures.
+IDENTIFY_PARAMS = {
+    "fixed_wing": ("C_m_alpha", "C_m_q", "C_m_0", "C_m_delta_e", "C_L_alpha", "C_D_0"),
+    "multirotor": ("pitch_mix", "pitch_damping", "drag_linear", "CdA_x", "CdA_z", "c_T"),
+}
 
 
 def target_states(sortie: Sortie) -> np.ndarray:
@@ -22,9 +30,9 @@ def condition(sortie: Sortie) -> str:
     return str(sortie.meta.get("condition", "") or "unknown")
 
 
-def hybrid_steps(airframe: Airframe, nets: dict, target: str = "data") -> dict:
-    """``{"hybrid <formulation>": step}`` for every formulation with weights for ``target``
-    (uncompiled SX steps: exact derivatives, compiled where a rollout is timed)."""
+def hybrid_steps(airframe: Airframe, nets: dict, target: str = "data", suffix: str = "") -> dict:
+    """``{"hybrid <formulation><suffix>": step}`` for every formulation with weights for
+    ``target`` (uncompiled SX steps: exact derivatives, compiled where a rollout is timed)."""
 
-    return {f"hybrid {f}": hybrid_step(nets[(f, target)], airframe, compile=False)
+    return {f"hybrid {f}{suffix}": hybrid_step(nets[(f, target)], airframe, compile=False)
             for f in FORMULATIONS if nets.get((f, target)) is not None}

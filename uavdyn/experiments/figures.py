@@ -23,7 +23,7 @@ from uavdyn.model import build_model  # noqa: E402
 def _solvers(airframe: Airframe, nets: dict, dt: float = 0.005) -> list[tuple[Solver, str]]:
 
     styles = {"hybrid improved": "C3-", "hybrid paper": "C2:"}
-    out = [(Solver("RK4 (physics only)", rk4_step(build_model(airframe).f), dt), "C0--")]
+    out = [(Solver("RK4 nominal physics", rk4_step(build_model(airframe).f), dt), "C0--")]
     out += [(Solver(name, step, dt), styles.get(name, "C4-."))
             for name, step in hybrid_steps(airframe, nets).items()]
     return out

@@ -33,7 +33,9 @@ def headline(af: dict) -> dict:
     mode = "free_run" if af["kind"] == "fixed_wing" else "horizon_1s"
     out = {"airframe": af["airframe"], "mode": mode, "group": group}
     if calm:
-        for key, name in (("rk4", "RK4 (physics only) @ 0.005 s"),
+        for key, name in (("rk4", "RK4 nominal physics @ 0.005 s"),
+                          ("identified", "RK4 identified physics @ 0.005 s"),
+                          ("hybrid_identified", "hybrid improved on identified physics @ 0.005 s"),
                           ("hybrid", "hybrid improved @ 0.005 s"),
                           ("paper_form", "hybrid paper @ 0.005 s")):
             row = _row(calm, name)
@@ -85,6 +87,12 @@ def first_paragraph(results: dict) -> str:
                 f"**{_e(h['hybrid_rmse'])} rad** (MAE {_e(h['hybrid_mae'])}, max "
                 f"{_e(h['hybrid_max'])}) against physics-only RK4 **{_e(h['rk4_rmse'])} rad** "
                 f"({ratio:.1f}x lower) and the paper's 1.82e-3 rad. ")
+        if "identified_rmse" in h:
+            text += (f"Physics identified on the train split (`uavdyn identify`, no learning) "
+                     f"gives **{_e(h['identified_rmse'])} rad**")
+            text += (f", and the correction trained on top of it "
+                     f"**{_e(h['hybrid_identified_rmse'])} rad**. "
+                     if "hybrid_identified_rmse" in h else ". ")
         if h.get("rk4_equal_accuracy"):
             text += (f"At equal accuracy the hybrid saves "
                      f"**{100 * h['speedup_equal_accuracy']:.0f} %** of the cost of the plain RK4 "

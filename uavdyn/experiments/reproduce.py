@@ -33,7 +33,16 @@ from uavdyn.evaluation import (
     fine_reference,
     pooled_stats,
 )
-from uavdyn.experiments.common import FORMULATIONS, TARGETS, condition, hybrid_steps, target_states
+from uavdyn.experiments.common import (
+    FORMULATIONS,
+    IDENTIFIED_PHYSICS,
+    IDENTIFY_PARAMS,
+    NOMINAL_PHYSICS,
+    TARGETS,
+    condition,
+    hybrid_steps,
+    target_states,
+)
 from uavdyn.experiments.report import _table1, _table4, write_report
 from uavdyn.flightdata import Dataset, Sortie, load_dataset
 from uavdyn.integrate import (
@@ -47,6 +56,7 @@ from uavdyn.integrate import (
     rollout,
     takes_time,
 )
+from uavdyn.integrate.augmented import physics_step
 from uavdyn.learned import (
     WeightFileError,
     hybrid_step,
@@ -54,7 +64,7 @@ from uavdyn.learned import (
     save_weights,
     shipped_weights,
 )
-from uavdyn.model import build_model, numpy_rhs
+from uavdyn.model import build_model, numpy_rhs, sortie_params
 from uavdyn.outputs import output_folder
 
 PAPER = {"rmse": 1.82e-3, "mae": 1.47e-3, "max": 2.31e-3, "cost_reduction": 0.38,
@@ -78,6 +88,7 @@ class ReproduceConfig:
     cost_repeats: int = 5
     progress: bool = True
     force: bool = False  # write into a non-empty folder that is not a previous reproduce output
+    identify: bool = True  # fit the physics on the train split first (nominal -> identified)
     extra: dict = field(default_factory=dict)
 
 
@@ -120,9 +131,44 @@ def weights_path(airframe: Airframe, formulation: str, target: str,
     return Path(config.weights_dir) / f"{airframe.name}_{formulation}{suffix}.npz"
 
 
+def identify_physics(airframe: Airframe, ds: Dataset, config: ReproduceConfig, log
+                     ) -> tuple[Airframe | None, dict]:
+    """Fit :data:`IDENTIFY_PARAMS` of ``airframe`` on the train split (validation scores it);
+    the fitted airframe file and its report are written under ``identified/``. Returns the
+    fitted airframe as a user would load it, and a summary (or why there is none)."""
+    from uavdyn.identify import IdentifyError, identify, write_outputs
+
+    if not ds.train:
+        return None, {"missing": "the dataset has no train split to identify on"}
+    names = list(IDENTIFY_PARAMS[airframe.kind])
+    log(f"[{airframe.name}] identifying {', '.join(names)} on {len(ds.train)} train sorties ...")
+    try:
+        result = identify(airframe, ds.train, ds.validation, names,
+                          max_windows=40 if config.quick else 120,
+                          max_iterations=20 if config.quick else 60, progress=config.progress)
+    except IdentifyError as exc:
+        return None, {"missing": f"identification refused: {exc}"}
+    out = Path(config.out) / "identified" / f"{airframe.name}.toml"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    command = (f"uavdyn identify --airframe {airframe.name} --dataset {ds.path} --params "
+               f"{','.join(names)} --out {out.name}")
+    paths = write_outputs(result, airframe, str(ds.path), command, out,
+                          out.parent / f"{airframe.name}_report")
+    fitted = load_airframe(out)
+    summary = {"file": str(paths["airframe"]), "report": str(paths["json"]),
+               "plot": str(paths["png"]), "params": names, "seconds": result.seconds,
+               "estimates": [{"name": e.name, "nominal": e.nominal, "value": e.value,
+                              "std_error": e.std_error} for e in result.estimates],
+               "flagged_pairs": [list(p) for p in result.flagged_pairs],
+               "validation_theta_rmse": (result.fit.get("validation") or {}).get("theta_rmse"),
+               "window_s": result.window_s}
+    return fitted, summary
+
+
 def obtain_weights(airframe: Airframe, ds: Dataset, formulation: str, target: str,
                    config: ReproduceConfig, log) -> Path | None:
-    """Shipped weights, or freshly trained ones with ``retrain`` (needs torch)."""
+    """Shipped weights, or freshly trained ones with ``retrain`` (needs torch) on the physics of
+    ``airframe`` (the identified airframe by default)."""
     path = weights_path(airframe, formulation, target, config)
     if config.retrain:
         from uavdyn.learned.train import TrainConfig, train, write_history
@@ -141,6 +187,12 @@ def obtain_weights(airframe: Airframe, ds: Dataset, formulation: str, target: st
 
 
 # ----------------------------------------------------------------------------- Table 1
+
+
+def altitude(sortie: Sortie) -> float | None:
+    """The sortie's manifest ``altitude_m`` (None if the manifest does not give it)."""
+    value = sortie.meta.get("manifest_entry", {}).get("altitude_m")
+    return None if value is None else float(value)
 
 
 def free_run_runner(step, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
@@ -177,21 +229,47 @@ def usable(step, dt: float) -> bool:
     return refusal(step, dt) is None
 
 
-def build_solvers(airframe: Airframe, nets: dict, dts) -> dict[str, list[Solver]]:
-    """Solvers per target: physics RK4 and each available hybrid formulation at each dt."""
-    physics = rk4_step(build_model(airframe).f)
-    out: dict[str, list[Solver]] = {}
+@dataclass(frozen=True)
+class Candidate:
+    """A solver of the comparison with the airframe whose parameters it runs on and the rung of
+    the ladder it stands for (``nominal`` or ``identified`` physics)."""
+
+    solver: Solver
+    airframe: Airframe
+    physics: str
+
+
+def build_solvers(airframe: Airframe, nets: dict, dts, identified: Airframe | None = None,
+                  net_airframes: dict | None = None) -> dict[str, list[Candidate]]:
+    """Solvers per target, the ladder of SPEC section 4: nominal physics, identified physics
+    (flight-data target only) and each hybrid formulation with weights, on the physics its
+    weights were trained on (``net_airframes[target]``, default the nominal airframe)."""
+    out: dict[str, list[Candidate]] = {}
+    rungs = [(NOMINAL_PHYSICS, airframe, "nominal")]
+    if identified is not None:
+        rungs.append((IDENTIFIED_PHYSICS, identified, "identified"))
     for target in TARGETS:
-        solvers = [Solver(f"RK4 (physics only) @ {dt:g} s", physics, dt) for dt in dts]
-        for name, step in hybrid_steps(airframe, nets, target).items():
-            solvers += [Solver(f"{name} @ {dt:g} s", step, dt) for dt in dts if usable(step, dt)]
-        out[target] = solvers
+        cands = []
+        for label, af, physics in rungs:
+            if physics == "identified" and target != "data":
+                continue  # the reference target is the nominal model's own fine-step solution
+            step = physics_step(af)
+            cands += [Candidate(Solver(f"{label} @ {dt:g} s", step, dt), af, physics)
+                      for dt in dts]
+        base = (net_airframes or {}).get(target, airframe)
+        physics = "identified" if base is not airframe else "nominal"
+        suffix = " on identified physics" if physics == "identified" else ""
+        for name, step in hybrid_steps(base, nets, target, suffix).items():
+            cands += [Candidate(Solver(f"{name} @ {dt:g} s", step, dt), base, physics)
+                      for dt in dts if usable(step, dt)]
+        out[target] = cands
     return out
 
 
 def accuracy_tables(airframe: Airframe, sorties: list[Sortie], solvers: dict,
                     traj_dir: Path | None = None, progress=None) -> dict:
-    """Table 1: pooled error statistics per target group, solver and mode."""
+    """Table 1: pooled error statistics per target group, solver and mode; ``solvers`` maps a
+    target to :class:`Candidate` objects (or plain solvers on ``airframe``'s parameters)."""
     groups: dict[str, list[tuple[Sortie, np.ndarray, str]]] = {}
     for s in sorties:
         truth = target_states(s)
@@ -204,12 +282,16 @@ def accuracy_tables(airframe: Airframe, sorties: list[Sortie], solvers: dict,
     for label, members in groups.items():
         target = members[0][2]
         rows = []
-        for solver in solvers[target]:
+        for cand in solvers[target]:
+            if not isinstance(cand, Candidate):
+                cand = Candidate(cand, airframe, "nominal")
+            solver = cand.solver
             pairs: dict[str, list] = {m: [] for m in MODES}
             refusals: dict[str, list] = {m: [] for m in MODES}
             saved = {}
             for s, states, _ in members:
-                res = evaluate_trajectory(solver, s.time, states, s.controls, airframe.p)
+                res = evaluate_trajectory(solver, s.time, states, s.controls,
+                                          sortie_params(cand.airframe, altitude(s)))
                 for m in MODES:
                     if m in res:
                         pairs[m].append(res[m])
@@ -218,7 +300,7 @@ def accuracy_tables(airframe: Airframe, sorties: list[Sortie], solvers: dict,
                 saved[s.name] = res
                 if progress:
                     progress()
-            row = {"solver": solver.name, "dt": solver.dt}
+            row = {"solver": solver.name, "dt": solver.dt, "physics": cand.physics}
             for m in MODES:
                 if pairs[m]:
                     row[m] = pooled_stats(pairs[m])
@@ -413,12 +495,18 @@ def work_precision(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int,
 
 
 def robustness_table(airframe: Airframe, ds: Dataset, nets: dict, config: ReproduceConfig,
-                     dt: float = 0.005) -> list[dict]:
+                     dt: float = 0.005, identified: Airframe | None = None,
+                     net_airframe: Airframe | None = None) -> list[dict]:
     """Table 4: error growth, maximum error and divergence of RK4 and the hybrid in the nominal
     test sorties, the high-angle-of-attack sorties (fixed wing) and sorties flown by a truth
     model whose stability derivatives and mass terms are 15 % off (the solvers keep nominal p)."""
-    solvers = [Solver("RK4 (physics only)", rk4_step(build_model(airframe).f), dt)]
-    solvers += [Solver(name, step, dt) for name, step in hybrid_steps(airframe, nets).items()]
+    solvers = [(Solver(NOMINAL_PHYSICS, physics_step(airframe), dt), airframe)]
+    if identified is not None:
+        solvers.append((Solver(IDENTIFIED_PHYSICS, physics_step(identified), dt), identified))
+    base = net_airframe or airframe
+    suffix = " on identified physics" if base is not airframe else ""
+    solvers += [(Solver(name, step, dt), base)
+                for name, step in hybrid_steps(base, nets, "data", suffix).items()]
     test = [s for s in ds.test if condition(s) != "turbulent"] or ds.test
     scenarios = {"nominal (calm test sorties)": test}
     high = [s for s in ds.sorties if s.mission == "high_alpha" and s.split == "test"]
@@ -430,14 +518,14 @@ def robustness_table(airframe: Airframe, ds: Dataset, nets: dict, config: Reprod
         test[0].duration if test else 20.0)
     rows = []
     for scenario, sorties in scenarios.items():
-        for solver in solvers:
+        for solver, solver_airframe in solvers:
             if not sorties:
                 rows.append({"scenario": scenario, "solver": solver.name, "sorties": 0})
                 continue
             growth, refused = [], None
             for s in sorties:
                 res = evaluate_trajectory(solver, s.time, target_states(s), s.controls,
-                                          airframe.p)
+                                          sortie_params(solver_airframe, altitude(s)))
                 if "free_run" not in res:  # outside what the step was trained for
                     refused = res.get("refused", {}).get("free_run", "not evaluated")
                     break
@@ -490,9 +578,15 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
     out = Path(config.out)
     log(f"[{airframe.name}] dataset ...")
     ds = dataset_for(name, config)
-    nets = {(f, t): obtain_weights(airframe, ds, f, t, config, log)
+    identified, identification = (identify_physics(airframe, ds, config, log) if config.identify
+                                  else (None, {"missing": "not requested (--no-identify)"}))
+    # retrained flight-data corrections learn on top of the identified physics; the numerical
+    # (reference-target) correction and shipped weights belong to the nominal model
+    net_airframes = {"data": identified if (config.retrain and identified) else airframe,
+                     "reference": airframe}
+    nets = {(f, t): obtain_weights(net_airframes[t], ds, f, t, config, log)
             for f in FORMULATIONS for t in TARGETS}
-    solvers = build_solvers(airframe, nets, config.dts)
+    solvers = build_solvers(airframe, nets, config.dts, identified, net_airframes)
     test = ds.test
     n_work = sum(len(v) for v in solvers.values()) * len(test)  # one run per solver and sortie
     bar = tqdm(total=n_work, desc=f"[{airframe.name}] Table 1", disable=not config.progress,
@@ -505,12 +599,16 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
     table3 = cost_table(airframe, calm[0], nets, config.cost_repeats)
     wp_missing: list[dict] = []
     wp = work_precision(airframe, calm[0], nets, max(1, config.cost_repeats // 2), wp_missing)
-    table4 = robustness_table(airframe, ds, nets, config)
+    table4 = robustness_table(airframe, ds, nets, config, identified=identified,
+                              net_airframe=net_airframes["data"])
     result = {"airframe": airframe.name, "kind": airframe.kind,
               "dataset": {"path": str(ds.path), "sorties": len(ds.sorties),
                           "test_sorties": [s.name for s in test],
                           "sample_rate_hz": ds.sample_rate_hz},
               "weights": {f"{f}/{t}": (str(p) if p else None) for (f, t), p in nets.items()},
+              "identification": identification,
+              "corrections_trained_on": {t: ("identified" if a is not airframe else "nominal")
+                                         for t, a in net_airframes.items()},
               "table1": table1, "table2": table2, "table3": table3,
               "work_precision": wp, "work_precision_missing": wp_missing, "table4": table4}
     result["figures"] = figures.make_all(airframe, ds, nets, result, out)
@@ -568,23 +666,42 @@ def _json(value):
 
 
 def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str | Path],
-                     dts=(0.005, 0.01, 0.02), split: str = "test") -> dict:
-    """Table 1 and Table 4 figures of physics RK4 and the given hybrid weights on any dataset
-    folder in the interchange format (its ``split`` sorties, or all if it has no split)."""
+                     dts=(0.005, 0.01, 0.02), split: str = "test",
+                     identified: Airframe | None = None) -> dict:
+    """Table 1 and Table 4 figures on any dataset folder in the interchange format (its
+    ``split`` sorties, or all if it has no split): the ladder of nominal physics, identified
+    physics (``identified``, an airframe fitted by ``uavdyn identify``) and each hybrid weight
+    file, run on the airframe its weights were trained on (checked by hash)."""
 
     ds = load_dataset(dataset)
     if ds.kind != airframe.kind:
         raise ValueError(f"dataset {dataset} is of kind '{ds.kind}' but airframe "
                          f"'{airframe.name}' is '{airframe.kind}'")
     sorties = ds.split(split) or ds.sorties
-    physics = rk4_step(build_model(airframe).f)
-    solvers = [Solver(f"RK4 (physics only) @ {dt:g} s", physics, dt) for dt in dts]
+    rungs = [(NOMINAL_PHYSICS, airframe, "nominal")]
+    if identified is not None:
+        if identified.kind != airframe.kind:
+            raise ValueError(f"identified airframe '{identified.name}' is a {identified.kind}, "
+                             f"airframe '{airframe.name}' a {airframe.kind}")
+        rungs.append((IDENTIFIED_PHYSICS, identified, "identified"))
+    solvers = [Candidate(Solver(f"{label} @ {dt:g} s", physics_step(af), dt), af, physics)
+               for label, af, physics in rungs for dt in dts]
     for w in weights:
-        net = load_weights(w, airframe)
-        step = hybrid_step(net, airframe, compile=False)
-        solvers += [Solver(f"hybrid {net.formulation} ({Path(w).name}) @ {dt:g} s", step, dt)
+        net = load_weights(w)
+        owners = [(af, physics) for _, af, physics in rungs
+                  if af.param_hash() == net.airframe_hash]
+        if not owners:
+            names = " or ".join(f"'{af.name}'" for _, af, _ in rungs)
+            raise WeightFileError(f"{w}: weights trained on airframe hash {net.airframe_hash}, "
+                                  f"which is neither {names}: give the airframe they were "
+                                  "trained on (--airframe or --identified)")
+        af, physics = owners[-1]
+        step = hybrid_step(net, af, compile=False)
+        solvers += [Candidate(Solver(f"hybrid {net.formulation} ({Path(w).name}) on {physics} "
+                                     f"physics @ {dt:g} s", step, dt), af, physics)
                     for dt in dts]
-    table1 = accuracy_tables(airframe, sorties, {"data": solvers, "reference": solvers})
+    table1 = accuracy_tables(airframe, sorties, {"data": solvers, "reference": [
+        c for c in solvers if c.physics == "nominal"]})
     alpha_max = {s.name: float(np.degrees(np.max(np.arctan2(target_states(s)[:, 1],
                                                             target_states(s)[:, 0]))))
                  for s in sorties}
@@ -593,11 +710,13 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
                                                          if alpha_max[s.name] > 20.0]}
     table4 = []
     for scenario, members in groups.items():
-        for solver in solvers:
+        for cand in solvers:
+            solver = cand.solver
             if solver.dt != 0.005:
                 continue
             runs = [evaluate_trajectory(solver, s.time, target_states(s), s.controls,
-                                        airframe.p) for s in members]
+                                        sortie_params(cand.airframe, altitude(s)))
+                    for s in members]
             refused = next((r["refused"]["free_run"] for r in runs
                             if "free_run" not in r and "refused" in r), None)
             if refused:
@@ -615,6 +734,7 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
             })
     return {"airframe": airframe.name, "kind": airframe.kind, "dataset": str(dataset),
             "sorties": [s.name for s in sorties], "split": split if ds.split(split) else "all",
+            "identified": identified.origin if identified is not None else None,
             "weights": [str(w) for w in weights], "table1": table1, "table4": table4}
 
 
