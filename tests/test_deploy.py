@@ -115,3 +115,40 @@ def test_silence_unused_parameters():
     src = "static int f(const double** arg, double* w, int mem) {\n  return 0;\n}\n"
     out = silence_unused_parameters(src)
     assert "(void)arg; (void)w; (void)mem;" in out
+
+
+@pytest.mark.parametrize("rollout_steps", [0, 300])
+def test_augmented_bundle_matches_python_and_lists_its_states(tmp_path, aerosonde,
+                                                              rollout_steps):
+    """An airframe with actuator lags and a delay exports its augmented step: the header and
+    README name every state in order, the trim state is at rest, and the example's trajectory
+    is the Python one to 1e-12."""
+    from uavdyn.deploy import airframe_bundle_spec
+    from uavdyn.integrate import physics_step
+    from uavdyn.linear import trim
+    from uavdyn.model import structure_of
+
+    af = aerosonde.replace(tau_elevator=0.05, tau_throttle=0.3).with_delays(elevator=2)
+    point = trim(af, 25.0)
+    names = structure_of(af).state_names()
+    step = physics_step(af)
+    spec = airframe_bundle_spec("lagged", af, point, 0.005, example_steps=300,
+                                rollout_steps=rollout_steps)
+    assert spec.state_names == names and len(spec.x0) == len(names) == 8
+    folder = export_bundle(step, spec, tmp_path / "bundle")
+    header = (folder / "lagged.h").read_text()
+    assert f"x = [{', '.join(names)}]" in header and "#define LAGGED_NX 8" in header
+    readme = (folder / "README.md").read_text()
+    positions = [readme.index(f"`{n}`") for n in names]
+    assert positions == sorted(positions)  # listed in order
+    first, data = build_and_run(folder, "lagged")
+    assert first == ",".join(("time",) + names + spec.control_names)
+    expected = simulate(step, spec.x0, doublet_controls(spec), af.p, spec.dt)
+    assert np.abs(data[:, 1:9] - expected).max() <= 1e-12
+    assert np.ptp(expected[:, 4]) > 0.01  # the elevator actuator moved
+    # a spec whose state does not fit the step is refused
+    model = build_model(af)
+    wrong = BundleSpec("w", model.state_names, model.control_names, model.param_names, af.p,
+                       point.x, point.u, 0.005, 0.01)
+    with pytest.raises(ValueError, match="has 8 states; the spec names 4"):
+        export_bundle(step, wrong, tmp_path / "w")

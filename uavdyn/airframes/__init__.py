@@ -370,7 +370,7 @@ class Airframe:
         default, so adding an optional key to the schema leaves existing hashes (and the weight
         files tied to them) valid while any value that changes the model changes the hash."""
         optional = OPTIONAL_PARAMS[self.kind]
-        core = [repr(float(getattr(self.params, n))) for n in self.param_names
+        core = [repr(float(getattr(self.params, n))) for n in param_names(self.kind)
                 if n not in optional]
         doc: dict = {"kind": self.kind, "p": core}
         changed = {n: repr(float(getattr(self.params, n))) for n, default in optional.items()
@@ -647,7 +647,8 @@ def _parse_delays(raw: object, kind: str, origin: str) -> dict[str, int]:
     for key in sorted(raw, key=str):
         value = raw[key]
         if key not in names:
-            raise AirframeError(f"{origin}: unknown key 'delays.{_short(str(key), 30)}' for kind "
+            shown = key if key.isprintable() and len(key) <= 40 else _short(key, 30)
+            raise AirframeError(f"{origin}: unknown key 'delays.{shown}' for kind "
                                 f"'{kind}'; expected any of {names}")
         if isinstance(value, bool) or not isinstance(value, int) \
                 or not 0 <= value <= DELAY_MAX_SAMPLES:
@@ -755,7 +756,7 @@ def to_toml_dict(airframe: Airframe) -> dict:
         "name": airframe.name, "kind": airframe.kind, "description": airframe.description,
         "nominal_airspeed": airframe.nominal_airspeed,
         "params": {n: {"value": getattr(airframe.params, n), "source": airframe.sources.get(n, "")}
-                   for n in airframe.param_names},
+                   for n in param_names(airframe.kind)},
     }
     if airframe.limits:  # written only when set, so a preset's copy is unchanged
         out["limits"] = {k: list(v) if isinstance(v, tuple) else v

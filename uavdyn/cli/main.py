@@ -17,7 +17,7 @@ import numpy as np
 
 from uavdyn import __version__
 from uavdyn.airframes import AirframeError, list_presets, load_airframe
-from uavdyn.deploy import BundleSpec, export_bundle
+from uavdyn.deploy import airframe_bundle_spec, export_bundle
 from uavdyn.emulation.datagen import Recipe, generate_dataset
 from uavdyn.emulation.fingerprint import (
     DEFAULT_TOLERANCE,
@@ -48,12 +48,22 @@ from uavdyn.integrate import (
     DivergenceError,
     check_use,
     free_run,
-    rk4_step,
+    physics_step,
     takes_time,
 )
 from uavdyn.integrate.inputs import control_sequence
 from uavdyn.learned import hybrid_step, shipped_weights
-from uavdyn.linear import TrimError, discrete_map_modes, linearise, mode_table, modes, trim
+from uavdyn.linear import (
+    TrimError,
+    discrete_map_modes,
+    linear_state_names,
+    linearise,
+    mode_table,
+    modes,
+    point_params,
+    trim,
+    trim_state,
+)
 from uavdyn.model import build_model
 from uavdyn.outputs import atomic_file, check_output_folder, output_folder, write_text_atomic
 
@@ -110,11 +120,13 @@ def cmd_modes(args: argparse.Namespace) -> int:
 
     airframe, point = _trim(args)
     A, B = linearise(airframe, point)
-    found = modes(A, airframe.kind, B)
+    names = linear_state_names(airframe)
+    found = modes(A, airframe.kind, B, names)
     if args.hybrid:
         return _hybrid_modes(args, airframe, point)
     if args.json:
-        print(json.dumps({"trim": point.as_dict(), "A": A.tolist(), "B": B.tolist(),
+        print(json.dumps({"trim": point.as_dict(), "state_names": list(names),
+                          "A": A.tolist(), "B": B.tolist(),
                           "modes": [m.as_dict() for m in found]}, indent=2))
     else:
         print(f"{airframe.name} trimmed at {point.airspeed:g} m/s, gamma "
@@ -192,8 +204,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         raise CliError(f"--amplitude {amplitude:g} takes {name} to {used.min():.4g}..."
                        f"{used.max():.4g}{unit}, outside its limits [{lo:g}, {hi:g}] "
                        f"({whose}trim {point.u[args.channel]:.4g})")
-    states = free_run(rk4_step(build_model(airframe).f), point.x, controls[:-1], airframe.p,
-                      args.dt)  # compiled; raises DivergenceError with its time
+    # the airframe's step (actuator lags and delays as augmented states, at rest on the trim
+    # command); compiled; raises DivergenceError with its time; the body states are written
+    states = free_run(physics_step(airframe), trim_state(airframe, point), controls[:-1],
+                      point_params(airframe, point), args.dt)[:, :4]
     sortie = Sortie(name=Path(args.out).stem, kind=airframe.kind, time=t, states=states,
                     controls=controls, mission=args.input)
     with atomic_file(args.out, create_parents=True) as tmp:
@@ -212,7 +226,6 @@ def cmd_export_c(args: argparse.Namespace) -> int:
     if args.rollout < 0:
         raise CliError(f"--rollout must be >= 0 steps, got {args.rollout}")
     airframe, point = _trim(args)
-    model = build_model(airframe)
     if args.model == "hybrid":
 
         weights = Path(args.weights) if args.weights else shipped_weights(airframe.name)
@@ -220,13 +233,9 @@ def cmd_export_c(args: argparse.Namespace) -> int:
             raise CliError(f"no weight file {weights}; give --weights FILE")
         step = hybrid_step(weights, airframe, compile=False)
     else:
-        step = rk4_step(model.f)
-    amplitude, channel = ((math.radians(2.0), 0) if airframe.kind == "fixed_wing"
-                          else (0.05, 1))
-    spec = BundleSpec(args.name, model.state_names, model.control_names, model.param_names,
-                      airframe.p, point.x, point.u, args.dt, amplitude, doublet_channel=channel,
-                      real=args.real, rollout_steps=args.rollout,
-                      has_time_input=takes_time(step))
+        step = physics_step(airframe)
+    spec = airframe_bundle_spec(args.name, airframe, point, args.dt, real=args.real,
+                                rollout_steps=args.rollout, has_time_input=takes_time(step))
     out = export_bundle(step, spec, args.out, force=args.force)
     what = f"rollout of {args.rollout} steps" if args.rollout else "one step"
     print(f"wrote {out}/ ({args.name}.h, {args.name}.c, {args.name}_generated.c, main.c, "

@@ -12,9 +12,11 @@ from uavdyn.evaluation.metrics import (
     pitch_rmse,
     pooled_stats,
     predict_windows,
+    sortie_altitude,
     sortie_free_run,
+    step_states,
 )
 
 __all__ = ["METRIC_STATES", "MODES", "Solver", "error_growth", "error_stats",
            "evaluate_trajectory", "fine_reference", "pitch_rmse", "pooled_stats",
-           "predict_windows", "sortie_free_run"]
+           "predict_windows", "sortie_altitude", "sortie_free_run", "step_states"]

@@ -5,6 +5,14 @@ reference of the baseline model), on the logged zero-order-held control grid.
 A solver step ``dt`` smaller than the log interval runs ``sample_dt/dt`` sub-steps per logged
 control; a larger ``dt`` (e.g. 0.02 s on 100 Hz data) samples the logged control at its own
 step start and is compared at its own grid points only. Every table says which.
+
+A step on the augmented state (actuator lags, transport delays:
+:func:`uavdyn.integrate.physics_step`) is restarted from a recorded body state with the
+actuator and delay-buffer states that the recorded commands imply
+(:func:`uavdyn.integrate.augment_states`); its :class:`Solver` says the layout
+(``structure``). Errors are always computed on the body states. Delays count calls of the
+step, so a step with delays is used at the log interval (finer RK: ``physics_step(...,
+substeps=k)``) and refused at any other step size.
 """
 
 from __future__ import annotations
@@ -14,17 +22,20 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from uavdyn.airframes import Airframe
 from uavdyn.integrate import (
     EvalGrid,
     GridError,
     StepUseError,
+    augment_states,
     check_use,
     free_run,
+    physics_step,
     rk4_step,
     rollout,
     takes_time,
 )
-from uavdyn.model import build_model
+from uavdyn.model import ModelStructure, build_model, sortie_params, structure_of
 
 METRIC_STATES = {"theta": 3, "q": 2, "u": 0}
 MODES = ("one_step", "horizon_1s", "free_run")
@@ -32,15 +43,55 @@ MODES = ("one_step", "horizon_1s", "free_run")
 
 @dataclass(frozen=True)
 class Solver:
-    """A named step Function at a step size (a time-dependent step takes its named ``t``)."""
+    """A named step Function at a step size (a time-dependent step takes its named ``t``).
+
+    ``structure`` is the layout of a step on the augmented state (e.g.
+    ``structure_of(airframe)`` for ``physics_step(airframe)``); None for a step on the body
+    state."""
 
     name: str
     step: ca.Function
     dt: float
+    structure: ModelStructure | None = None
 
     @property
     def time_input(self) -> bool:
         return takes_time(self.step)
+
+
+def _check_delay_grid(step: ca.Function, structure: ModelStructure, grid: EvalGrid) -> None:
+    """Refuse a step with transport delays at a step size other than the log interval."""
+    if structure.n_buffer and (grid.substeps != 1 or grid.stride != 1):
+        raise StepUseError(
+            f"step '{step.name()}' carries transport delays counted in calls of the step: use "
+            f"it at the log interval {grid.sample_dt:g} s, not {grid.dt:g} s (finer RK inside: "
+            "physics_step(..., substeps=k))")
+
+
+def step_states(step: ca.Function, structure: ModelStructure | None, states: np.ndarray,
+                controls: np.ndarray, p, grid: EvalGrid) -> np.ndarray:
+    """The states ``step`` runs on at every recorded sample: ``states`` themselves for a step
+    on the body state, else with the actuator/buffer states the recorded commands imply
+    (:func:`uavdyn.integrate.augment_states`, at rest on the first command).
+
+    Raises
+    ------
+    ValueError
+        If the step is augmented and ``structure`` is missing or has another state size.
+    StepUseError
+        If the step has transport delays and ``grid.dt`` is not the log interval.
+    """
+    states = np.atleast_2d(np.asarray(states, float))
+    nz = step.size1_in(0)
+    if nz == states.shape[1]:
+        return states
+    if structure is None or structure.nx() != nz:
+        have = "no structure" if structure is None else f"structure with {structure.nx()} states"
+        raise ValueError(f"step '{step.name()}' has {nz} states, the data {states.shape[1]}, "
+                         f"and {have}: give the step's layout (e.g. Solver(..., "
+                         "structure=structure_of(airframe)))")
+    _check_delay_grid(step, structure, grid)
+    return augment_states(structure, states, controls, p, grid.sample_dt)
 
 
 def error_stats(predicted: np.ndarray, target: np.ndarray) -> dict[str, float]:
@@ -76,9 +127,15 @@ def predict_windows(solver: Solver, x0s: np.ndarray, controls: np.ndarray, t0s: 
                     p: np.ndarray, sample_dt: float) -> tuple[np.ndarray, int]:
     """Roll ``solver`` from each start state ``x0s[k]`` through ``controls[k]`` (``K x L x nu``,
     one row per log interval); ``t0s`` are the start times since the sortie start. Returns the
-    predicted states at the solver's grid points (``K x L/stride x nx``) and the stride."""
+    predicted states at the solver's grid points (``K x L/stride x nx``) and the stride.
+    ``x0s`` are the step's own states (augmented: :func:`step_states`)."""
     g = EvalGrid(sample_dt, solver.dt)
     K, L, nu = controls.shape
+    nz = solver.step.size1_in(0)
+    if np.shape(x0s)[-1] != nz:
+        raise ValueError(f"start states have {np.shape(x0s)[-1]} columns, step "
+                         f"'{solver.step.name()}' has {nz} states (augment recorded states "
+                         "with step_states)")
     if L % g.stride:
         raise ValueError(f"window of {L} log intervals is not a multiple of the stride "
                          f"{g.stride}")
@@ -101,20 +158,29 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
     """Predictions of one solver on one target trajectory (states ``N x 4`` at the log times,
     ``controls`` row k held over [t_k, t_k+1)). Returns, per mode, ``(predicted, target)``
     arrays of matching shape, plus the free-run time axis. A mode the step refuses (outside
-    its trained step size or time range) is absent and its reason is under ``"refused"``."""
+    its trained step size or time range; delays at another step size) is absent and its
+    reason is under ``"refused"``. An augmented step (``solver.structure``) restarts from the
+    recorded states with the actuator/buffer states of the recorded commands; predictions
+    are its body states."""
     sample_dt = float(np.median(np.diff(time)))
     N = len(time)
-    stride = EvalGrid(sample_dt, solver.dt).stride
+    grid = EvalGrid(sample_dt, solver.dt)
+    stride = grid.stride
     time = time - time[0]  # a time input is always time since the start of the sortie
     results: dict = {}
     refused: dict[str, str] = {}
+    nb = states.shape[1]
+    try:
+        z = step_states(solver.step, solver.structure, states, controls, p, grid)
+    except StepUseError as exc:
+        return {"refused": {mode: str(exc) for mode in MODES}}
 
     def one_step() -> None:  # one solver step from every recorded state on the solver's grid
         starts = np.arange(0, N - stride, stride)
-        pred, _ = predict_windows(solver, states[starts],
+        pred, _ = predict_windows(solver, z[starts],
                                   np.stack([controls[k:k + stride] for k in starts]),
                                   time[starts], p, sample_dt)
-        results["one_step"] = (pred[:, 0, :], states[starts + stride])
+        results["one_step"] = (pred[:, 0, :nb], states[starts + stride])
 
     def horizon() -> None:  # windows restarted from the recorded state every horizon
         L = int(round(horizon_s / sample_dt))
@@ -122,20 +188,20 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
         starts = np.arange(0, N - L, L)
         if not len(starts):
             return
-        pred, _ = predict_windows(solver, states[starts],
+        pred, _ = predict_windows(solver, z[starts],
                                   np.stack([controls[k:k + L] for k in starts]), time[starts], p,
                                   sample_dt)
         idx = starts[:, None] + stride * (1 + np.arange(L // stride))[None, :]
-        results["horizon_1s"] = (pred.reshape(-1, pred.shape[-1]),
+        results["horizon_1s"] = (pred[..., :nb].reshape(-1, nb),
                                  states[idx].reshape(-1, states.shape[1]))
         results["horizon_1s_time"] = time[idx].reshape(-1)
 
     def whole() -> None:  # the whole sortie from its first state
         L = (N - 1) - (N - 1) % stride
-        pred, _ = predict_windows(solver, states[:1], controls[None, :L], time[:1], p,
+        pred, _ = predict_windows(solver, z[:1], controls[None, :L], time[:1], p,
                                   sample_dt)
         idx = stride * (1 + np.arange(L // stride))
-        results["free_run"] = (pred[0], states[idx])
+        results["free_run"] = (pred[0, :, :nb], states[idx])
         results["free_run_time"] = time[idx]
 
     for mode, run in (("one_step", one_step), ("horizon_1s", horizon), ("free_run", whole)):
@@ -148,31 +214,94 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
     return results
 
 
-def fine_reference(kind: str, time: np.ndarray, x0: np.ndarray, controls: np.ndarray,
-                   p: np.ndarray, substeps: int = 20) -> np.ndarray:
+def fine_reference(kind: str | Airframe | ModelStructure, time: np.ndarray, x0: np.ndarray,
+                   controls: np.ndarray, p: np.ndarray, substeps: int = 20) -> np.ndarray:
     """The baseline model's fine-step reference trajectory (RK4 at ``sample_dt/substeps`` on
-    the logged zero-order-held controls), ``N x 4`` at the log times."""
+    the logged zero-order-held controls), ``N x 4`` at the log times.
+
+    ``kind`` is a kind name (its generic model), or an airframe (or structure): its own
+    physics step (:func:`uavdyn.integrate.physics_step`); with actuator lags or delays, one
+    call per log sample with ``substeps`` RK steps inside, started with the actuators at rest
+    on the first command, and the body states returned."""
     sample_dt = float(np.median(np.diff(time)))
-    step = rk4_step(build_model(kind).f)
-    return free_run(step, x0, controls[:-1], p, sample_dt / substeps, substeps)
+    if isinstance(kind, str):
+        step = rk4_step(build_model(kind).f)
+        return free_run(step, x0, controls[:-1], p, sample_dt / substeps, substeps)
+    structure = kind if isinstance(kind, ModelStructure) else structure_of(kind)
+    if not structure.augmented:
+        return free_run(physics_step(structure), x0, controls[:-1], p, sample_dt / substeps,
+                        substeps)
+    x0 = np.asarray(x0, float).ravel()
+    z0 = augment_states(structure, x0[None, :], np.asarray(controls, float)[:1], p,
+                        sample_dt)[0]
+    traj = free_run(physics_step(structure, substeps=substeps), z0, controls[:-1], p,
+                    sample_dt)
+    return traj[:, :len(x0)]
 
 
-def sortie_free_run(step: ca.Function, sortie, p, dt: float) -> np.ndarray:
+def sortie_altitude(sortie) -> float | None:
+    """The sortie's manifest ``altitude_m`` (None if it has none)."""
+    value = sortie.meta.get("manifest_entry", {}).get("altitude_m")
+    return None if value is None else float(value)
+
+
+def _params_and_structure(step: ca.Function, sortie, p, structure: ModelStructure | None):
+    """The sortie's parameter vector (an airframe's: its density at the sortie's altitude) and
+    the step's layout (an airframe's structure when the step is augmented)."""
+    if isinstance(p, Airframe):
+        airframe = p
+        p = sortie_params(airframe, sortie_altitude(sortie))
+        if structure is None and step.size1_in(0) != sortie.states.shape[1]:
+            structure = structure_of(airframe)
+    return np.asarray(p, float), structure
+
+
+def sortie_free_run(step: ca.Function, sortie, p, dt: float,
+                    structure: ModelStructure | None = None) -> np.ndarray:
     """Free run of ``step`` through a logged sortie from its first state with its controls
-    (``dt`` must divide the sample interval): states at the sample times, ``N x nx``. A
-    time-dependent step sees the time since the sortie start."""
+    (``dt`` must divide the sample interval): body states at the sample times, ``N x 4``. A
+    time-dependent step sees the time since the sortie start.
+
+    Parameters
+    ----------
+    step : casadi.Function
+        A step on the body state or on the augmented state (then ``structure``, or an
+        airframe as ``p``, gives its layout; it starts with the actuators at rest on the first
+        command).
+    sortie : Sortie
+        The logged flight.
+    p : array_like or Airframe
+        Parameters, or an airframe: its parameters at the sortie's altitude
+        (:func:`uavdyn.model.sortie_params`, manifest ``altitude_m``).
+    dt : float
+        Step size (s).
+    structure : ModelStructure, optional
+        Layout of an augmented step.
+
+    Raises
+    ------
+    GridError
+        If ``dt`` does not divide the sample interval.
+    StepUseError
+        If the step has transport delays and ``dt`` is not the sample interval.
+    """
     sample_dt = float(np.median(np.diff(sortie.time)))
     g = EvalGrid(sample_dt, dt)
     if g.stride != 1:
         raise GridError(f"dt {dt:g} s must divide the sample interval {sample_dt:g} s of "
                         f"sortie '{sortie.name}'")
-    return free_run(step, sortie.states[0], sortie.controls[:-1], p, dt, g.substeps, t0=0.0,
+    p, structure = _params_and_structure(step, sortie, p, structure)
+    z0 = step_states(step, structure, sortie.states[:1], sortie.controls[:1], p, g)[0]
+    traj = free_run(step, z0, sortie.controls[:-1], p, dt, g.substeps, t0=0.0,
                     compile=not step.is_a("External"))
+    return traj[:, :sortie.states.shape[1]]
 
 
-def pitch_rmse(step: ca.Function, sorties, p, dt: float) -> float:
-    """Free-run pitch RMSE (rad) over all samples of ``sorties`` (pooled)."""
-    errs = [sortie_free_run(step, s, p, dt)[:, 3] - s.states[:, 3] for s in sorties]
+def pitch_rmse(step: ca.Function, sorties, p, dt: float,
+               structure: ModelStructure | None = None) -> float:
+    """Free-run pitch RMSE (rad) over all samples of ``sorties`` (pooled); ``p`` and
+    ``structure`` as for :func:`sortie_free_run`."""
+    errs = [sortie_free_run(step, s, p, dt, structure)[:, 3] - s.states[:, 3] for s in sorties]
     return float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
 
 

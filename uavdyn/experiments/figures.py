@@ -16,14 +16,13 @@ import numpy as np  # noqa: E402
 from uavdyn.airframes import Airframe  # noqa: E402
 from uavdyn.evaluation import Solver, evaluate_trajectory  # noqa: E402
 from uavdyn.experiments.common import condition, hybrid_steps, target_states  # noqa: E402
-from uavdyn.integrate import rk4_step  # noqa: E402
-from uavdyn.model import build_model  # noqa: E402
+from uavdyn.integrate import physics_step  # noqa: E402
 
 
 def _solvers(airframe: Airframe, nets: dict, dt: float = 0.005) -> list[tuple[Solver, str]]:
 
     styles = {"hybrid improved": "C3-", "hybrid paper": "C2:"}
-    out = [(Solver("RK4 nominal physics", rk4_step(build_model(airframe).f), dt), "C0--")]
+    out = [(Solver("RK4 nominal physics", physics_step(airframe), dt), "C0--")]
     out += [(Solver(name, step, dt), styles.get(name, "C4-."))
             for name, step in hybrid_steps(airframe, nets).items()]
     return out

@@ -52,7 +52,6 @@ from uavdyn.integrate import (
     check_use,
     compile_function,
     reference_step,
-    rk4_step,
     rollout,
     takes_time,
 )
@@ -64,7 +63,7 @@ from uavdyn.learned import (
     save_weights,
     shipped_weights,
 )
-from uavdyn.model import build_model, numpy_rhs, sortie_params
+from uavdyn.model import build_model, numpy_rhs, sortie_params, structure_of
 from uavdyn.outputs import output_folder
 
 PAPER = {"rmse": 1.82e-3, "mae": 1.47e-3, "max": 2.31e-3, "cost_reduction": 0.38,
@@ -254,7 +253,8 @@ def build_solvers(airframe: Airframe, nets: dict, dts, identified: Airframe | No
             if physics == "identified" and target != "data":
                 continue  # the reference target is the nominal model's own fine-step solution
             step = physics_step(af)
-            cands += [Candidate(Solver(f"{label} @ {dt:g} s", step, dt), af, physics)
+            cands += [Candidate(Solver(f"{label} @ {dt:g} s", step, dt, structure_of(af)), af,
+                                physics)
                       for dt in dts]
         base = (net_airframes or {}).get(target, airframe)
         physics = "identified" if base is not airframe else "nominal"
@@ -276,7 +276,7 @@ def accuracy_tables(airframe: Airframe, sorties: list[Sortie], solvers: dict,
         cond = condition(s)
         label = f"flight data ({cond})" if cond in ("calm", "turbulent") else "flight data"
         groups.setdefault(label, []).append((s, truth, "data"))
-        ref = fine_reference(airframe.kind, s.time, truth[0], s.controls, airframe.p)
+        ref = fine_reference(airframe, s.time, truth[0], s.controls, airframe.p)
         groups.setdefault("baseline fine-step reference", []).append((s, ref, "reference"))
     tables: dict = {}
     for label, members in groups.items():
@@ -382,7 +382,7 @@ def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> 
 
 
     truth = target_states(sortie)
-    ref = fine_reference(airframe.kind, sortie.time, truth[0], sortie.controls, airframe.p)
+    ref = fine_reference(airframe, sortie.time, truth[0], sortie.controls, airframe.p)
     sample_dt = sortie.dt
     controls = sortie.controls[:-1]
     x0 = truth[0]
@@ -396,7 +396,7 @@ def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> 
                      "theta_rmse_vs_flight": error_stats(traj, truth)["theta_rmse"],
                      "theta_rmse_vs_reference": error_stats(traj, ref)["theta_rmse"]})
 
-    steps = {"RK4": rk4_step(build_model(airframe).f), **hybrid_steps(airframe, nets)}
+    steps = {"RK4": physics_step(airframe), **hybrid_steps(airframe, nets)}
     plan = [("RK4", 0.001), ("RK4", 0.0005), ("RK4", 0.005), ("hybrid improved", 0.005),
             ("hybrid paper", 0.005)]
     missing: list[dict] = []
@@ -461,10 +461,10 @@ def work_precision(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int,
     :func:`flight_mode`) and, free run, against the baseline fine-step reference. A point the
     step refuses (outside its trained dt or time range) goes to ``missing`` with the reason."""
     truth = target_states(sortie)
-    ref = fine_reference(airframe.kind, sortie.time, truth[0], sortie.controls, airframe.p)
+    ref = fine_reference(airframe, sortie.time, truth[0], sortie.controls, airframe.p)
     controls, x0, p, sample_dt = sortie.controls[:-1], truth[0], airframe.p, sortie.dt
     mode = flight_mode(airframe.kind)
-    families = {"RK4": (rk4_step(build_model(airframe).f), (0.01, 0.005, 0.0025, 0.002, 0.001,
+    families = {"RK4": (physics_step(airframe), (0.01, 0.005, 0.0025, 0.002, 0.001,
                                                              0.0005))}
     for target, label in (("data", ""), ("reference", " (numerical)")):
         for name, step in hybrid_steps(airframe, nets, target).items():
@@ -500,9 +500,11 @@ def robustness_table(airframe: Airframe, ds: Dataset, nets: dict, config: Reprod
     """Table 4: error growth, maximum error and divergence of RK4 and the hybrid in the nominal
     test sorties, the high-angle-of-attack sorties (fixed wing) and sorties flown by a truth
     model whose stability derivatives and mass terms are 15 % off (the solvers keep nominal p)."""
-    solvers = [(Solver(NOMINAL_PHYSICS, physics_step(airframe), dt), airframe)]
+    solvers = [(Solver(NOMINAL_PHYSICS, physics_step(airframe), dt, structure_of(airframe)),
+                airframe)]
     if identified is not None:
-        solvers.append((Solver(IDENTIFIED_PHYSICS, physics_step(identified), dt), identified))
+        solvers.append((Solver(IDENTIFIED_PHYSICS, physics_step(identified), dt,
+                               structure_of(identified)), identified))
     base = net_airframe or airframe
     suffix = " on identified physics" if base is not airframe else ""
     solvers += [(Solver(name, step, dt), base)
@@ -684,7 +686,8 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
             raise ValueError(f"identified airframe '{identified.name}' is a {identified.kind}, "
                              f"airframe '{airframe.name}' a {airframe.kind}")
         rungs.append((IDENTIFIED_PHYSICS, identified, "identified"))
-    solvers = [Candidate(Solver(f"{label} @ {dt:g} s", physics_step(af), dt), af, physics)
+    solvers = [Candidate(Solver(f"{label} @ {dt:g} s", physics_step(af), dt, structure_of(af)),
+                         af, physics)
                for label, af, physics in rungs for dt in dts]
     for w in weights:
         net = load_weights(w)

@@ -1,6 +1,15 @@
-"""Integration: explicit RK steps from a Butcher tableau, the CVODES reference step, rollouts
-with ``mapaccum``, the evaluation grid, input profiles and the compile-to-C cache."""
+"""Integration: explicit RK steps from a Butcher tableau, the physics step on the augmented state
+(actuator lags, transport delays), the CVODES reference step, rollouts with ``mapaccum``, the
+evaluation grid, input profiles and the compile-to-C cache."""
 
+from uavdyn.integrate.augmented import (
+    actuator_history,
+    actuator_rest,
+    advance_actuators,
+    augment_states,
+    augmented_rk_step,
+    physics_step,
+)
 from uavdyn.integrate.codegen import (
     CacheError,
     CodegenWarning,
@@ -33,7 +42,9 @@ from uavdyn.integrate.steps import (
 )
 from uavdyn.integrate.tableau import EULER, HEUN, RK4, ButcherTableau, explicit_rk_step
 
-__all__ = ["CacheError", "CodegenWarning", "CompileError", "cache_dir", "compile_function",
+__all__ = ["actuator_history", "actuator_rest", "advance_actuators", "augment_states",
+           "augmented_rk_step", "physics_step",
+           "CacheError", "CodegenWarning", "CompileError", "cache_dir", "compile_function",
            "find_compiler", "generate_c", "DivergenceError", "EvalGrid", "GridError",
            "StepUseError", "StepUseWarning", "check_finite", "check_use", "free_run", "rollout",
            "simulate", "takes_time", "STEP_INPUTS", "reference_step", "rk4_numpy", "rk4_step",

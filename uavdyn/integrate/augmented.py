@@ -21,6 +21,7 @@ from uavdyn.integrate.tableau import RK4, ButcherTableau, explicit_rk_step
 from uavdyn.model import CASADI_OPS, ModelStructure, build_model, make_rhs, structure_of
 
 STEP_INPUTS = ["x", "u", "p", "dt"]
+TAU_FLOOR = 1e-300  # s; a time constant of 0 is an instant jump, never 0/0 at a stage time 0
 
 
 def _rows(z, start: int, stop: int, ops):
@@ -54,8 +55,9 @@ def augmented_rk_step(structure: ModelStructure, body_rhs: Callable, z, u, p, dt
     taus = [p[i] for i in structure.tau_indices]
     targets = [delayed[c] for c in structure.lag_indices]
 
-    def actuator(s):
-        return [t + (a - t) * ops.exp(-s / tau) for a, t, tau in zip(a0, targets, taus)]
+    def actuator(s):  # a time constant at 0 (a lag about to be fitted) jumps: exp(-s/0+) = 0
+        return [t + (a - t) * ops.exp(-s / ops.fmax(tau, TAU_FLOOR))
+                for a, t, tau in zip(a0, targets, taus)]
 
     def effective(values):
         out = list(delayed)
@@ -122,31 +124,48 @@ def physics_step(airframe: Airframe | ModelStructure, tableau: ButcherTableau = 
                        ["x_next"])
 
 
+def actuator_rest(structure: ModelStructure, u) -> np.ndarray:
+    """The actuator and delay-buffer states at rest on the command ``u``: every actuator at
+    its command, every buffer full of it (layout: ``structure.state_names()`` after the body)."""
+    u = np.asarray(u, float).ravel()
+    return np.array([u[c] for c in structure.lag_indices]
+                    + [u[c] for c, d in enumerate(structure.delay_samples) for _ in range(d)],
+                    dtype=float)
+
+
+def advance_actuators(structure: ModelStructure, states, u, p, dt: float) -> np.ndarray:
+    """The actuator and delay-buffer states one call of the step later, the command ``u``
+    given over it (NumPy; what the step does to them: they do not depend on the body)."""
+    states = np.asarray(states, float).ravel()
+    u = np.asarray(u, float).ravel()
+    n_act = structure.n_actuator
+    a, buffers = states[:n_act], states[n_act:]
+    delayed, new_buffers, offset = [], [], 0
+    for c, d in enumerate(structure.delay_samples):
+        if d:
+            delayed.append(buffers[offset + d - 1])
+            new_buffers += [u[c], *buffers[offset:offset + d - 1]]
+            offset += d
+        else:
+            delayed.append(u[c])
+    target = np.array([delayed[c] for c in structure.lag_indices])
+    taus = np.array([p[i] for i in structure.tau_indices])
+    a_next = target + (a - target) * np.exp(-dt / np.maximum(taus, TAU_FLOOR))
+    return np.concatenate([a_next, np.array(new_buffers, dtype=float)])
+
+
 def actuator_history(structure: ModelStructure, controls, p, sample_dt: float) -> np.ndarray:
     """The actuator and delay-buffer states at every sample of a recorded command history
     (``N x nu``, row k held over sample k), starting at rest on the first command: row ``k`` is
     what the step carries at sample ``k`` (append it to the recorded body state there)."""
     controls = np.atleast_2d(np.asarray(controls, float))
     n = controls.shape[0]
-    delays = structure.delay_samples
     out = np.empty((n, structure.n_actuator + structure.n_buffer))
-    first = controls[0]
-    a = np.array([first[c] for c in structure.lag_indices])
-    taus = np.array([p[i] for i in structure.tau_indices])
-    decay = np.exp(-sample_dt / np.maximum(taus, 1e-300))
-    for k in range(n):
-        buffers = []
-        for c in range(structure.nu):
-            d = delays[c]
-            # most recent first: the commands of samples k-1, k-2, ..., k-d (the first before 0)
-            buffers += [controls[max(k - j, 0), c] if k - j >= 0 else first[c]
-                        for j in range(1, d + 1)]
-        out[k, :structure.n_actuator] = a
-        out[k, structure.n_actuator:] = buffers
-        delayed = np.array([(controls[k - delays[c], c] if k - delays[c] >= 0 else first[c])
-                            for c in range(structure.nu)])
-        target = delayed[list(structure.lag_indices)]
-        a = target + (a - target) * decay
+    if not n:
+        return out
+    out[0] = actuator_rest(structure, controls[0])
+    for k in range(n - 1):
+        out[k + 1] = advance_actuators(structure, out[k], controls[k], p, sample_dt)
     return out
 
 

@@ -4,12 +4,22 @@ from uavdyn.linear.modes import (
     DiscreteModeComparison,
     Mode,
     discrete_map_modes,
+    linear_state_names,
     linearise,
     mode_table,
     modes,
     participation,
 )
-from uavdyn.linear.trim import TrimError, TrimPoint, stall_speed, trim
+from uavdyn.linear.trim import (
+    TrimError,
+    TrimPoint,
+    point_params,
+    stall_speed,
+    static_lift_coefficient,
+    trim,
+    trim_state,
+)
 
-__all__ = ["DiscreteModeComparison", "Mode", "discrete_map_modes", "linearise", "mode_table",
-           "modes", "participation", "TrimError", "TrimPoint", "stall_speed", "trim"]
+__all__ = ["DiscreteModeComparison", "Mode", "discrete_map_modes", "linear_state_names",
+           "linearise", "mode_table", "modes", "participation", "TrimError", "TrimPoint",
+           "point_params", "stall_speed", "static_lift_coefficient", "trim", "trim_state"]

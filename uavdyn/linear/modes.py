@@ -1,6 +1,11 @@
 """Linearised stability: A, B from CasADi Jacobians at a trim point, and the modes (natural
 frequency, damping, period, time to half/double amplitude) named the way a flight-dynamics
 engineer reads them (short period, phugoid; for the quadrotor the real pitch/speed/heave modes).
+
+An airframe with actuator lags is linearised with its actuator states (``a_dot = (u - a)/tau``),
+so its continuous modes include the actuator poles ``-1/tau``. Transport delays have no finite
+continuous state; they appear in the discrete map (:func:`discrete_map_modes`) as one
+eigenvalue 0 per delay-buffer state.
 """
 
 from __future__ import annotations
@@ -13,8 +18,8 @@ import numpy as np
 import scipy.linalg
 
 from uavdyn.airframes import Airframe
-from uavdyn.linear.trim import TrimPoint
-from uavdyn.model import STATE_NAMES, build_model
+from uavdyn.linear.trim import TrimPoint, body_structure, point_params, trim_state
+from uavdyn.model import STATE_NAMES, build_model, structure_of
 
 
 @dataclass(frozen=True)
@@ -43,10 +48,42 @@ class Mode:
         }
 
 
-def linearise(airframe: Airframe, point: TrimPoint) -> tuple[np.ndarray, np.ndarray]:
-    """``A = df/dx`` and ``B = df/du`` at a trim point (exact, from CasADi)."""
-    jac = build_model(airframe).jacobians(point.x, point.u, airframe.p)
-    return np.array(jac[0]), np.array(jac[1])
+def linear_state_names(airframe: Airframe, actuators: bool = True) -> tuple[str, ...]:
+    """Names of the states of :func:`linearise`: the body, then one actuator state per lagged
+    control (``"<control>_actuator"``)."""
+    structure = structure_of(airframe)
+    return STATE_NAMES + (tuple(f"{c}_actuator" for c in structure.lagged) if actuators
+                          else ())
+
+
+def linearise(airframe: Airframe, point: TrimPoint, actuators: bool = True
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """``A = df/dx`` and ``B = df/du`` at a trim point (exact, from CasADi), of the airframe's
+    own model (tables, alpha-dot terms; an ISA airframe at the point's altitude).
+
+    With actuator lags (and ``actuators``), the state is augmented by one actuator state per
+    lagged control (:func:`linear_state_names`), ``a_dot = (u - a) / tau``: the body sees
+    ``a`` instead of the command, so ``A = [[A_body, B_body[:, lagged]], [0, -1/tau]]`` and
+    the command enters through ``1/tau``. Without lags: the body's ``A`` (4 x 4), ``B`` (4 x 2).
+    """
+    p = point_params(airframe, point)
+    jac = build_model(body_structure(airframe)).jacobians(point.x, point.u, p)
+    A, B = np.array(jac[0]), np.array(jac[1])
+    structure = structure_of(airframe)
+    if not (actuators and structure.n_actuator):
+        return A, B
+    lag = list(structure.lag_indices)
+    inv_tau = np.array([1.0 / p[i] for i in structure.tau_indices])
+    n, m, nu = A.shape[0], len(lag), B.shape[1]
+    A_aug = np.zeros((n + m, n + m))
+    A_aug[:n, :n] = A
+    A_aug[:n, n:] = B[:, lag]
+    A_aug[n:, n:] = -np.diag(inv_tau)
+    B_aug = np.zeros((n + m, nu))
+    B_aug[:n] = B
+    B_aug[:n, lag] = 0.0  # a lagged command reaches the body only through its actuator
+    B_aug[n + np.arange(m), lag] = inv_tau
+    return A_aug, B_aug
 
 
 def participation(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -61,9 +98,14 @@ def participation(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return eig, factors
 
 
-def modes(A: np.ndarray, kind: str, B: np.ndarray | None = None) -> list[Mode]:
+def modes(A: np.ndarray, kind: str, B: np.ndarray | None = None,
+          state_names: tuple[str, ...] | None = None) -> list[Mode]:
     """Modes of ``x_dot = A x``: eigenvalues and damping through python-control; names from the
-    kind, the frequency ordering and the modal participation factors."""
+    kind, the frequency ordering and the modal participation factors.
+
+    ``state_names`` names the states of ``A`` (default: the body state, then ``x_n``, ``h``);
+    give :func:`linear_state_names` for an airframe with actuator states, whose poles are then
+    named ``"<control> actuator lag"``."""
     A = np.asarray(A, dtype=float)
     n = A.shape[0]
     B = np.zeros((n, 1)) if B is None else np.asarray(B, dtype=float)
@@ -73,7 +115,10 @@ def modes(A: np.ndarray, kind: str, B: np.ndarray | None = None) -> list[Mode]:
     with np.errstate(invalid="ignore", divide="ignore"):
         wn, zeta, poles = ct.damp(sys, doprint=False)
     eig, factors = participation(A)
-    state_names = STATE_NAMES + ("x_n", "h")
+    if state_names is None:
+        state_names = STATE_NAMES + ("x_n", "h")
+    if len(state_names) < n:
+        raise ValueError(f"{n} states but {len(state_names)} state names {state_names}")
     entries = []
     unused = list(range(len(eig)))
     for w, z, pole in zip(wn, zeta, poles):
@@ -107,6 +152,9 @@ def _name_modes(entries, kind: str) -> list[str]:
     labels = {"u": "speed", "w": "heave", "q": "pitch", "theta": "pitch attitude"}
     for i, (pole, _, _, dom) in enumerate(entries):
         if names[i]:
+            continue
+        if dom.endswith("_actuator") and abs(pole.imag) <= 1e-9 and pole.real < 0:
+            names[i] = f"{dom[:-len('_actuator')]} actuator lag"
             continue
         base = labels.get(dom, dom)
         if abs(pole) < 1e-9:
@@ -180,18 +228,50 @@ def _match(reference: np.ndarray, values: np.ndarray) -> np.ndarray:
 def discrete_map_modes(step, airframe: Airframe, point: TrimPoint, dt: float
                        ) -> DiscreteModeComparison:
     """Linearise a step map (hybrid or plain RK4) at a trim point: eigenvalues of its Jacobian,
-    their continuous equivalents ``log(lambda)/dt``, and the exact ``exp(A dt)`` beside them."""
+    their continuous equivalents ``log(lambda)/dt``, and the exact ``exp(A dt)`` beside them.
 
-    x = ca.SX.sym("x", 4)
-    jac = ca.Function("map_jacobian", [x], [ca.jacobian(step(x, point.u, airframe.p, dt), x)])
-    F = np.array(jac(point.x))
+    The state size comes from the step: the body state (4), or the airframe's augmented state
+    (:func:`uavdyn.integrate.physics_step`), linearised at :func:`trim_state`. The exact
+    counterparts of an augmented map are the eigenvalues of ``exp(A dt)`` of the continuous
+    body + actuator model (:func:`linearise`) and one 0 per delay-buffer state (a shift
+    register). The map's continuous-equivalent modes are those of its body + actuator block.
+
+    Raises
+    ------
+    ValueError
+        If the step's state size is neither 4 nor the airframe's augmented state size.
+    """
+    structure = structure_of(airframe)
+    nz = step.size1_in(0)
+    if nz == 4:
+        augmented, z0 = False, np.asarray(point.x, float)
+    elif nz == structure.nx():
+        augmented, z0 = True, trim_state(airframe, point)
+    else:
+        raise ValueError(f"step '{step.name()}' has {nz} states; airframe '{airframe.name}' has "
+                         f"4 body states or {structure.nx()} augmented ones "
+                         f"{structure.state_names()}")
+    p = point_params(airframe, point)
+    x = ca.SX.sym("x", nz)
+    jac = ca.Function("map_jacobian", [x], [ca.jacobian(step(x, point.u, p, dt), x)])
+    F = np.array(jac(z0))
     lam = np.linalg.eigvals(F)
-    A, B = linearise(airframe, point)
-    exact = _match(lam, np.linalg.eigvals(scipy.linalg.expm(A * dt)))
-    with np.errstate(divide="ignore"):
-        cont = np.log(lam.astype(complex)) / dt
-    A_equiv = np.real_if_close(scipy.linalg.logm(F) / dt) if np.all(np.abs(lam) > 0) else F
+    A, B = linearise(airframe, point, actuators=augmented)
+    names = linear_state_names(airframe, actuators=augmented)
+    exact_all = np.linalg.eigvals(scipy.linalg.expm(A * dt))
+    if augmented:
+        exact_all = np.concatenate([exact_all, np.zeros(structure.n_buffer)])
+    exact = _match(lam, exact_all)
+    zero = lam == 0
+    cont = np.full(lam.shape, -np.inf + 0j)  # a delay state's 0 maps to -inf
+    cont[~zero] = np.log(lam[~zero].astype(complex)) / dt
+    # the buffers are a shift register beneath the body + actuator block (block triangular)
+    n = A.shape[0]
+    F_body = F[:n, :n]
+    lam_body = np.linalg.eigvals(F_body)
+    A_equiv = (np.real_if_close(scipy.linalg.logm(F_body) / dt) if np.all(np.abs(lam_body) > 0)
+               else F_body)
     return DiscreteModeComparison(
         dt=dt, map_eigenvalues=lam, map_continuous=cont, exact_eigenvalues=exact,
-        physics_modes=modes(A, airframe.kind, B),
-        map_modes=modes(np.real(A_equiv), airframe.kind))
+        physics_modes=modes(A, airframe.kind, B, names),
+        map_modes=modes(np.real(A_equiv), airframe.kind, state_names=names))

@@ -10,8 +10,11 @@ from uavdyn.mpc.tracking import (
     TrackingMPC,
     emulator_plant,
     fly_closed_loop,
+    physics_plant,
     run_scenario,
+    step_plant,
 )
 
 __all__ = ["RELU_SMOOTHING", "SCENARIOS", "ClosedLoopResult", "MPCConfig", "MPCResult",
-           "Scenario", "TrackingMPC", "emulator_plant", "fly_closed_loop", "run_scenario"]
+           "Scenario", "TrackingMPC", "emulator_plant", "fly_closed_loop", "physics_plant",
+           "run_scenario", "step_plant"]

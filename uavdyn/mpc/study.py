@@ -7,17 +7,17 @@ from pathlib import Path
 
 import numpy as np
 
-from uavdyn.integrate import rk4_step
+from uavdyn.integrate import physics_step
 from uavdyn.learned import hybrid_step, shipped_weights
-from uavdyn.model import build_model
 from uavdyn.mpc.tracking import RELU_SMOOTHING, SCENARIOS, MPCConfig, run_scenario
 
 
 def prediction_models(airframe, weights: Path | None) -> dict:
-    """The two prediction models compared: the hybrid step and physics-only RK4."""
+    """The two prediction models compared: the hybrid step and physics-only RK4 (the
+    airframe's own physics step: on the augmented state when it has actuator lags/delays)."""
     return {"hybrid": hybrid_step(weights or shipped_weights(airframe.name), airframe,
                                   compile=False, relu_smoothing=RELU_SMOOTHING),
-            "physics": rk4_step(build_model(airframe).f)}
+            "physics": physics_step(airframe)}
 
 
 def fly_all(airframe, point, models: dict, horizon: int, dt: float) -> dict:

@@ -5,6 +5,12 @@ Multiple shooting with CasADi ``nlpsol``: states ``[u, w, q, theta, h]`` over th
 (altitude from the trapezoidal integral of ``h_dot = u sin(theta) - w cos(theta)``), control
 and control-rate bounds, warm start from the shifted previous solution. The NLP is built once
 and called many times with the initial state, previous control and references as parameters.
+
+A prediction step on the augmented state (actuator lags, transport delays:
+:func:`uavdyn.integrate.physics_step`) adds its actuator and delay-buffer states after ``h``.
+They are not measured: the controller knows its own past commands, so it carries them itself
+(at rest on the previous command after a reset, then advanced by each applied command). Delays
+count calls of the step, here one per MPC interval.
 """
 
 from __future__ import annotations
@@ -17,7 +23,8 @@ import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.emulation import Emulator, open_loop_references
-from uavdyn.model import CONTROL_BOUNDS
+from uavdyn.integrate import actuator_rest, advance_actuators, physics_step
+from uavdyn.model import CONTROL_BOUNDS, ModelStructure, structure_of
 
 DEFAULT_RATE_LIMITS = {"fixed_wing": (1.0, 1.0), "multirotor": (2.0, 4.0)}  # per second
 # Softplus sharpness replacing ReLU in a hybrid prediction model: SQP stalls on ReLU kinks
@@ -52,7 +59,7 @@ class MPCResult:
     solve_time_s: float
     iterations: int
     status: str
-    predicted_states: np.ndarray
+    predicted_states: np.ndarray  # [u, w, q, theta, h, actuator/buffer states...] x (N+1)
     predicted_controls: np.ndarray
 
 
@@ -60,10 +67,20 @@ class TrackingMPC:
     """Pitch-attitude + altitude (+ airspeed) tracking MPC for one airframe and step model."""
 
     def __init__(self, step: ca.Function, kind: str | Airframe, p: np.ndarray,
-                 u_trim: np.ndarray, config: MPCConfig | None = None):
+                 u_trim: np.ndarray, config: MPCConfig | None = None,
+                 structure: ModelStructure | None = None):
         """``kind`` is an airframe kind or an :class:`Airframe`: given an airframe, its own
         ``[limits]`` (actuator travel and rates) replace the kind's defaults wherever the config
-        leaves ``control_bounds``/``rate_limits`` unset, so the MPC never plans beyond them."""
+        leaves ``control_bounds``/``rate_limits`` unset, so the MPC never plans beyond them.
+
+        A ``step`` on the augmented state needs its layout: ``structure``, or by default the
+        airframe's (``structure_of(kind)``).
+
+        Raises
+        ------
+        ValueError
+            On a bad configuration, or an augmented step without a matching structure.
+        """
         self.config = cfg = config or MPCConfig()
         if cfg.horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {cfg.horizon}")
@@ -83,15 +100,27 @@ class TrackingMPC:
             rates = tuple(d if r is None else r for r, d in zip(own, rates))
         self.bounds = np.array(cfg.control_bounds or bounds, float)
         self.rates = np.array(cfg.rate_limits or rates, float)
+        nz = step.size1_in(0)
+        if nz != 4:
+            if structure is None and airframe is not None:
+                structure = structure_of(airframe)
+            if structure is None or structure.nx() != nz:
+                have = ("no structure" if structure is None
+                        else f"a structure of {structure.nx()} states")
+                raise ValueError(f"prediction step '{step.name()}' has {nz} states and {have}: "
+                                 "give the Airframe (or structure=) of its augmented state")
+        self.structure = structure if nz != 4 else None
+        self.n_extra = nz - 4
         self._build(step)
         self._warm: tuple[np.ndarray, np.ndarray] | None = None
+        self._actuators: np.ndarray | None = None  # carried actuator/buffer states
 
     def _build(self, step: ca.Function) -> None:
         cfg, N = self.config, self.config.horizon
-        nx, nu = 5, 2
+        nx, nu = 5 + self.n_extra, 2
         X = ca.SX.sym("X", nx, N + 1)
         U = ca.SX.sym("U", nu, N)
-        # parameters: x0 (5), u_prev (2), theta_ref (N), h_ref (N), speed_ref (1)
+        # parameters: x0 (5 + extra), u_prev (2), theta_ref (N), h_ref (N), speed_ref (1)
         x0, u_prev = ca.SX.sym("x0", nx), ca.SX.sym("u_prev", nu)
         theta_ref, h_ref, v_ref = ca.SX.sym("theta_ref", N), ca.SX.sym("h_ref", N), \
             ca.SX.sym("v_ref")
@@ -102,7 +131,8 @@ class TrackingMPC:
         J = 0
         for k in range(N):
             xk, uk, xn = X[:4, k], U[:, k], X[:4, k + 1]
-            g.append(xn - step(xk, uk, p, dt))
+            zk, zn = ca.vertcat(xk, X[5:, k]), ca.vertcat(xn, X[5:, k + 1])
+            g.append(zn - step(zk, uk, p, dt))
             hdot = lambda s: s[0] * ca.sin(s[3]) - s[1] * ca.cos(s[3])  # noqa: E731
             g.append(X[4, k + 1] - X[4, k] - dt / 2 * (hdot(xk) + hdot(xn)))
             lbg += [0.0] * nx
@@ -142,18 +172,47 @@ class TrackingMPC:
         self.lbg, self.ubg = np.array(lbg), np.array(ubg)
         self.nx, self.nu, self.N = nx, nu, N
 
+    @property
+    def last_actuators(self) -> np.ndarray | None:
+        """The actuator/buffer states the last solve started from (None: none yet)."""
+        return None if self._actuators is None else self._actuators.copy()
+
+    def actuator_states(self, u_prev) -> np.ndarray:
+        """The actuator/delay-buffer states at this solve, from the controller's own commands:
+        at rest on ``u_prev`` after a reset, else the last solve's advanced by ``u_prev`` (the
+        command applied over the interval since)."""
+        if self.structure is None:
+            raise ValueError("the prediction step carries no actuator or delay states")
+        if self._actuators is None:
+            return actuator_rest(self.structure, u_prev)
+        return advance_actuators(self.structure, self._actuators, u_prev, self.p,
+                                 self.config.dt)
+
     def solve(self, x0: np.ndarray, u_prev: np.ndarray, theta_ref, h_ref, speed_ref: float,
-              weights: tuple[float, float, float] | None = None) -> MPCResult:
+              weights: tuple[float, float, float] | None = None,
+              actuators: np.ndarray | None = None) -> MPCResult:
         """Solve from state ``x0 = [u, w, q, theta, h]`` with references over the horizon
         (scalars are held constant); ``weights`` = (pitch, altitude, speed) overrides the
         config for this solve (e.g. altitude weight 0 for a pure pitch-attitude step).
-        Returns the first control of the optimal sequence."""
+        Returns the first control of the optimal sequence.
+
+        An augmented prediction step starts from the actuator/buffer states the controller
+        carries (:meth:`actuator_states`; call once per MPC interval with ``u_prev`` the command
+        applied over the last one), or from ``actuators`` when given."""
         cfg = self.config
         weights = weights if weights is not None else (cfg.w_theta, cfg.w_h, cfg.w_speed)
         N = self.N
         x0 = np.asarray(x0, float)
         if x0.shape != (5,):
             raise ValueError(f"x0 must be [u, w, q, theta, h] (5 values), got shape {x0.shape}")
+        if self.n_extra:
+            extra = (self.actuator_states(u_prev) if actuators is None
+                     else np.asarray(actuators, float).ravel())
+            if extra.shape != (self.n_extra,):
+                raise ValueError(f"actuators must be {self.n_extra} values "
+                                 f"{self.structure.state_names()[4:]}, got {extra.shape}")
+            self._actuators = extra
+            x0 = np.concatenate([x0, extra])
         theta_ref = np.broadcast_to(np.asarray(theta_ref, float), (N,))
         h_ref = np.broadcast_to(np.asarray(h_ref, float), (N,))
         par = np.concatenate([x0, u_prev, theta_ref, h_ref, [speed_ref], weights])
@@ -186,8 +245,10 @@ class TrackingMPC:
                          predicted_states=X, predicted_controls=U)
 
     def reset(self) -> None:
-        """Forget the warm start (e.g. before a new scenario)."""
+        """Forget the warm start and the carried actuator states (e.g. before a new
+        scenario)."""
         self._warm = None
+        self._actuators = None
 
 
 @dataclass
@@ -259,6 +320,33 @@ def emulator_plant(emulator, dt: float):
         return xe_next, observe(xe_next)
 
     return step
+
+
+def step_plant(step: ca.Function, p, dt: float):
+    """Wrap a step with position states (``physics_step(airframe, with_position=True)``:
+    ``[u, w, q, theta, x_n, h, actuator/buffer states...]``) as a ``plant_step`` for
+    :func:`fly_closed_loop`: one call per MPC interval, ``[u, w, q, theta, h]`` fed back. Its
+    initial state is the whole step state, e.g. ``trim_state(airframe, point, True)``."""
+    p = np.asarray(p, float)
+
+    def observe(z):
+        return np.array([z[0], z[1], z[2], z[3], z[5]])
+
+    def plant(z, u):
+        z = np.asarray(z, float).ravel()
+        if u is None:
+            return z, observe(z)
+        z_next = np.array(step(z, u, p, dt)).ravel()
+        return z_next, observe(z_next)
+
+    return plant
+
+
+def physics_plant(airframe: Airframe, dt: float, p=None, substeps: int = 1):
+    """:func:`step_plant` of the airframe's own physics (actuator lags, delays and all) with
+    ``substeps`` RK steps per MPC interval; ``p`` defaults to ``airframe.p``."""
+    step = physics_step(airframe, with_position=True, substeps=substeps)
+    return step_plant(step, airframe.p if p is None else p, dt)
 
 
 @dataclass(frozen=True)
