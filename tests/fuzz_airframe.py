@@ -2,7 +2,10 @@
 or JSON, truncated, binary, oversized, special (FIFO, /dev/zero, folder); wrong top-level
 shapes, unknown/missing/duplicated keys, values of the wrong type (a boolean or a string is not
 a number), non-finite or physically absurd values, and a ``name`` that is not an identifier
-(it is used in file names: ``../../../escaped`` must never reach a command that writes).
+(it is used in file names: ``../../../escaped`` must never reach a command that writes);
+malformed model structure (``[tables]``, ``[delays]``, ``atmosphere``, the optional lag and
+inflow parameters), each refused in one line naming the file and the key (:data:`KEYED_CASES`,
+which ``tests/test_tables.py`` also reads).
 
 Each case starts from the F450 preset written in TOML or JSON inside its folder and breaks one
 thing. Random cases are seeded, so the list is the same on every run.
@@ -249,4 +252,199 @@ def cases() -> list[Case]:
         data_case("parameter entry is a string", _entry("mass", "1.4 kg"), "json"),
         data_case("parameter entry is an array", _entry("mass", [1.4]), "toml"),
     ]
+    out += [keyed_case(*case) for case in KEYED_CASES]
     return out
+
+
+def _table(name: str, entry: object) -> Callable[[dict], None]:
+    def mutate(d: dict) -> None:
+        d.setdefault("tables", {})[name] = entry
+    return mutate
+
+
+def _tables(value: object) -> Callable[[dict], None]:
+    return _top("tables", value)
+
+
+def _delay(control: str, value: object) -> Callable[[dict], None]:
+    def mutate(d: dict) -> None:
+        d.setdefault("delays", {})[control] = value
+    return mutate
+
+
+def _bad_values(name: str, key: str, index: int, value: object,
+                entry: dict | None = None) -> Callable[[dict], None]:
+    """A valid table (default: C_L over three alphas) with one number replaced."""
+    def mutate(d: dict) -> None:
+        table = json.loads(json.dumps(entry or GOOD_TABLE))
+        table[key][index] = value
+        d.setdefault("tables", {})[name] = table
+    return mutate
+
+
+def _optional(name: str, value: object) -> Callable[[dict], None]:
+    return _entry(name, {"value": value})
+
+
+GOOD_TABLE = {"alpha": [-0.2, 0.0, 0.2], "values": [-0.9, 0.23, 1.35]}
+GOOD_2D = {"alpha": [-0.2, 0.0, 0.2], "elevator": [-0.3, 0.3],
+           "values": [[0.5, 0.3], [0.1, -0.2], [-0.3, -0.6]]}
+GOOD_THRUST = {"airspeed": [0.0, 20.0], "throttle": [0.0, 1.0], "values": [[0.0, 50.0],
+                                                                              [0.0, 30.0]]}
+
+# (description, mutate, key the message must name, format, kind): the structure keys.
+KEYED_CASES: list[tuple[str, Callable[[dict], object], str, str, str]] = [
+    ("breakpoints repeated", _table("C_L", {"alpha": [-0.2, 0.1, 0.1], "values": [0, 1, 2]}),
+     "tables.C_L.alpha", "toml", "fixed_wing"),
+    ("breakpoints decreasing", _table("C_D", {"alpha": [0.2, 0.0, -0.2],
+                                              "values": [0.1, 0.05, 0.1]}),
+     "tables.C_D.alpha", "json", "fixed_wing"),
+    ("one breakpoint", _table("C_L", {"alpha": [0.0], "values": [0.2]}), "tables.C_L.alpha",
+     "toml", "fixed_wing"),
+    ("no breakpoint", _table("C_L", {"alpha": [], "values": []}), "tables.C_L.alpha", "json",
+     "fixed_wing"),
+    ("201 breakpoints", _table("C_m", {"alpha": [i * 0.01 - 1.0 for i in range(201)],
+                                       "values": [0.0] * 201}),
+     "tables.C_m.alpha", "json", "fixed_wing"),
+    ("alpha breakpoints in degrees", _table("C_L", {"alpha": [-10.0, 0.0, 10.0],
+                                                    "values": [-0.3, 0.2, 0.9]}),
+     "tables.C_L.alpha", "toml", "fixed_wing"),
+    ("breakpoints are a string", _table("C_L", {"alpha": "-0.2, 0, 0.2", "values": [0, 1, 2]}),
+     "tables.C_L.alpha", "toml", "fixed_wing"),
+    ("breakpoint is a string", _bad_values("C_L", "alpha", 1, "0.0"), "tables.C_L.alpha[1]",
+     "json", "fixed_wing"),
+    ("breakpoint is a boolean", _bad_values("C_L", "alpha", 0, True), "tables.C_L.alpha[0]",
+     "toml", "fixed_wing"),
+    ("breakpoint is inf", _bad_values("C_L", "alpha", 2, math.inf), "tables.C_L.alpha[2]",
+     "toml", "fixed_wing"),
+    ("breakpoint is nan", _bad_values("C_L", "alpha", 1, math.nan), "tables.C_L.alpha[1]",
+     "toml", "fixed_wing"),
+    ("value is nan", _bad_values("C_L", "values", 1, math.nan), "tables.C_L.values[1]",
+     "toml", "fixed_wing"),
+    ("value is -inf", _bad_values("C_D", "values", 0, -math.inf), "tables.C_D.values[0]",
+     "toml", "fixed_wing"),
+    ("value is an integer of 400 digits", _bad_values("C_L", "values", 2, 10**400),
+     "tables.C_L.values[2]", "json", "fixed_wing"),
+    ("value is a boolean", _bad_values("C_m", "values", 0, False), "tables.C_m.values[0]",
+     "toml", "fixed_wing"),
+    ("value is a string", _bad_values("C_L", "values", 1, "0.23"), "tables.C_L.values[1]",
+     "json", "fixed_wing"),
+    ("value is null", _bad_values("C_L", "values", 1, None), "tables.C_L.values[1]",
+     "json", "fixed_wing"),
+    ("value beyond the coefficient limit", _bad_values("C_L", "values", 1, 2000.0),
+     "tables.C_L.values", "toml", "fixed_wing"),
+    ("too few values", _table("C_L", {"alpha": [-0.2, 0.0, 0.2], "values": [0.0, 1.0]}),
+     "tables.C_L.values", "toml", "fixed_wing"),
+    ("too many values", _table("C_L", {"alpha": [-0.2, 0.0, 0.2], "values": [0, 1, 2, 3]}),
+     "tables.C_L.values", "json", "fixed_wing"),
+    ("1-D values given as rows", _table("C_L", {"alpha": [-0.2, 0.0, 0.2],
+                                                "values": [[0.0, 1.0, 2.0]]}),
+     "tables.C_L.values[0]", "toml", "fixed_wing"),
+    ("2-D table with too few rows", _table("C_m", dict(GOOD_2D, values=GOOD_2D["values"][:2])),
+     "tables.C_m.values", "toml", "fixed_wing"),
+    ("2-D table with too many rows", _table(
+        "C_m", dict(GOOD_2D, values=GOOD_2D["values"] + [[0.0, 0.0]])),
+     "tables.C_m.values", "json", "fixed_wing"),
+    ("2-D table with a short row", _table(
+        "C_m", dict(GOOD_2D, values=[[0.5, 0.3], [0.1], [-0.3, -0.6]])),
+     "tables.C_m.values[1]", "toml", "fixed_wing"),
+    ("2-D table with flat values", _table(
+        "C_m", dict(GOOD_2D, values=[0.5, 0.3, 0.1, -0.2, -0.3, -0.6])),
+     "tables.C_m.values", "json", "fixed_wing"),
+    ("2-D table value is nan", _table(
+        "C_L", dict(GOOD_2D, values=[[0.5, 0.3], [0.1, math.nan], [-0.3, -0.6]])),
+     "tables.C_L.values[1][1]", "toml", "fixed_wing"),
+    ("2-D table with both second axes", _table(
+        "C_m", dict(GOOD_2D, airspeed=[10.0, 30.0])), "tables.C_m", "toml", "fixed_wing"),
+    ("elevator breakpoints in degrees", _table(
+        "C_m", dict(GOOD_2D, elevator=[-20.0, 20.0])), "tables.C_m.elevator", "toml",
+     "fixed_wing"),
+    ("unknown table name", _table("C_Y", GOOD_TABLE), "tables.C_Y", "toml", "fixed_wing"),
+    ("unknown axis name", _table("C_L", dict(GOOD_TABLE, mach=[0.1, 0.2])), "tables.C_L.mach",
+     "json", "fixed_wing"),
+    ("thrust table over alpha", _table("thrust", GOOD_TABLE), "tables.thrust.alpha", "toml",
+     "fixed_wing"),
+    ("C_L table over throttle", _table("C_L", dict(GOOD_TABLE, throttle=[0.0, 1.0])),
+     "tables.C_L.throttle", "toml", "fixed_wing"),
+    ("table without values", _table("C_D", {"alpha": [0.0, 0.1]}), "tables.C_D.values",
+     "toml", "fixed_wing"),
+    ("table without its first axis", _table("C_D", {"values": [0.0, 0.1]}),
+     "tables.C_D.alpha", "json", "fixed_wing"),
+    ("thrust table without throttle", _table(
+        "thrust", {"airspeed": [0.0, 20.0], "values": [10.0, 5.0]}),
+     "tables.thrust.throttle", "toml", "fixed_wing"),
+    ("thrust table with negative airspeed", _table(
+        "thrust", dict(GOOD_THRUST, airspeed=[-5.0, 20.0])), "tables.thrust.airspeed", "json",
+     "fixed_wing"),
+    ("thrust table with throttle in percent", _table(
+        "thrust", dict(GOOD_THRUST, throttle=[0.0, 100.0])), "tables.thrust.throttle", "toml",
+     "fixed_wing"),
+    ("thrust value beyond 1e7 N", _table(
+        "thrust", dict(GOOD_THRUST, values=[[0.0, 1e8], [0.0, 30.0]])),
+     "tables.thrust.values", "json", "fixed_wing"),
+    ("a table is an array", _table("C_L", [[-0.2, 0.0], [0.23, 1.35]]), "tables.C_L", "toml",
+     "fixed_wing"),
+    ("tables is a number", _tables(5), "'tables'", "toml", "fixed_wing"),
+    ("tables on a multirotor", _table("C_L", GOOD_TABLE), "'tables'", "toml", "multirotor"),
+    ("delay is a fraction", _delay("elevator", 1.5), "delays.elevator", "toml", "fixed_wing"),
+    ("delay is a float", _delay("throttle", 2.0), "delays.throttle", "json", "fixed_wing"),
+    ("delay is negative", _delay("elevator", -1), "delays.elevator", "toml", "fixed_wing"),
+    ("delay above 50 samples", _delay("elevator", 51), "delays.elevator", "json",
+     "fixed_wing"),
+    ("delay of 10**30 samples", _delay("collective", 10**30), "delays.collective", "json",
+     "multirotor"),
+    ("delay is a boolean", _delay("pitch_cmd", True), "delays.pitch_cmd", "toml",
+     "multirotor"),
+    ("delay is a string", _delay("elevator", "2"), "delays.elevator", "toml", "fixed_wing"),
+    ("delay is nan", _delay("elevator", math.nan), "delays.elevator", "toml", "fixed_wing"),
+    ("delay of an unknown control", _delay("rudder", 1), "delays.rudder", "toml",
+     "fixed_wing"),
+    ("delay of the other kind's control", _delay("elevator", 1), "delays.elevator", "json",
+     "multirotor"),
+    ("delays is a number", _top("delays", 2), "'delays'", "toml", "fixed_wing"),
+    ("atmosphere in capitals", _top("atmosphere", "ISA"), "'atmosphere'", "toml",
+     "fixed_wing"),
+    ("atmosphere unknown", _top("atmosphere", "standard"), "'atmosphere'", "json",
+     "multirotor"),
+    ("atmosphere is a boolean", _top("atmosphere", True), "'atmosphere'", "toml",
+     "fixed_wing"),
+    ("atmosphere is an array", _top("atmosphere", ["isa"]), "'atmosphere'", "json",
+     "fixed_wing"),
+    ("tau_elevator negative", _optional("tau_elevator", -0.05), "'tau_elevator'", "toml",
+     "fixed_wing"),
+    ("tau_throttle of 20 s", _optional("tau_throttle", 20.0), "'tau_throttle'", "json",
+     "fixed_wing"),
+    ("tau_elevator is a string", _optional("tau_elevator", "0.05"), "'tau_elevator'", "toml",
+     "fixed_wing"),
+    ("tau_rotor is nan", _optional("tau_rotor", math.nan), "'tau_rotor'", "toml",
+     "multirotor"),
+    ("tau_rotor is a boolean", _optional("tau_rotor", True), "'tau_rotor'", "json",
+     "multirotor"),
+    ("k_inflow negative", _optional("k_inflow", -1e-4), "'k_inflow'", "toml", "multirotor"),
+    ("k_inflow is inf", _optional("k_inflow", math.inf), "'k_inflow'", "toml", "multirotor"),
+    ("tau_rotor on a fixed wing", _optional("tau_rotor", 0.05), "tau_rotor", "toml",
+     "fixed_wing"),
+    ("k_inflow on a fixed wing", _optional("k_inflow", 1e-4), "k_inflow", "json",
+     "fixed_wing"),
+    ("tau_elevator on a multirotor", _optional("tau_elevator", 0.05), "tau_elevator", "toml",
+     "multirotor"),
+]
+
+
+def _load_naming_file(path: Path) -> object:
+    """``load_airframe``, and the error must name the file as well as the key."""
+    try:
+        return load_airframe(path)
+    except AirframeError as exc:
+        if path.name not in str(exc):
+            raise AssertionError(f"message does not name {path.name}: {exc}") from exc
+        raise
+
+
+def keyed_case(name: str, mutate: Callable[[dict], object], key: str, fmt: str,
+               kind: str) -> Case:
+    """A structure case: the message must name ``key`` and the file."""
+    case = data_case(f"{kind} {name}", mutate, fmt, kind, tags=("schema", "structure"))
+    case.names = key
+    case.load = _load_naming_file
+    return case

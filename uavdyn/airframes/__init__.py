@@ -654,7 +654,8 @@ def _parse_delays(raw: object, kind: str, origin: str) -> dict[str, int]:
                 or not 0 <= value <= DELAY_MAX_SAMPLES:
             raise AirframeError(f"{origin}: key 'delays.{key}' must be a whole number of samples "
                                 f"in [0, {DELAY_MAX_SAMPLES}], got {_short(value)}")
-        out[key] = int(value)
+        if value:  # a zero delay is no delay (kept out, so a file round-trips equal)
+            out[key] = int(value)
     return out
 
 
@@ -746,7 +747,8 @@ def perturb(airframe: Airframe, scale: float = 1.15,
     unknown = [n for n in chosen if n not in airframe.param_names]
     if unknown:
         raise AirframeError(f"perturb: unknown parameter(s) {unknown} for kind '{airframe.kind}'")
-    new = airframe.replace(**{n: getattr(airframe.params, n) * scale for n in chosen})
+    values = dict(zip(airframe.param_names, airframe.p))
+    new = airframe.replace(**{n: values[n] * scale for n in chosen})
     return dataclasses.replace(new, name=f"{airframe.name}*{scale:g}")
 
 

@@ -80,19 +80,28 @@ class Table:
         return out
 
 
+def _shown(value: object, limit: int = 40) -> str:
+    """A short printable repr of a value for a message (cut with '...', never silently)."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 128:
+        return f"an integer of about {int(value.bit_length() * math.log10(2)) + 1} digits"
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
 def _numbers(raw: object, where: str, origin: str) -> list[float]:
     if not isinstance(raw, list) or not raw:
-        raise TableError(f"{origin}: key '{where}' must be a non-empty array of numbers")
+        raise TableError(f"{origin}: key '{where}' must be a non-empty array of numbers, got "
+                         f"{_shown(raw)}")
     out = []
     for i, v in enumerate(raw):
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise TableError(f"{origin}: key '{where}[{i}]' must be a number, got {v!r:.40}")
+            raise TableError(f"{origin}: key '{where}[{i}]' must be a number, got {_shown(v)}")
         try:
             f = float(v)
         except OverflowError:
             f = math.inf
         if not math.isfinite(f):
-            raise TableError(f"{origin}: key '{where}[{i}]' must be finite, got {v!r:.40}")
+            raise TableError(f"{origin}: key '{where}[{i}]' must be finite, got {_shown(v)}")
         out.append(f)
     return out
 
@@ -116,7 +125,7 @@ def _breakpoints(raw: object, axis: str, where: str, origin: str) -> tuple[float
 def parse_tables(raw: object, kind: str, origin: str) -> dict[str, Table]:
     """The ``[tables]`` of an airframe file, checked (names, axes, shapes, finite values)."""
     if not isinstance(raw, dict):
-        raise TableError(f"{origin}: key 'tables' must be a table, got {raw!r:.40}")
+        raise TableError(f"{origin}: key 'tables' must be a table, got {_shown(raw)}")
     if kind != "fixed_wing" and raw:
         raise TableError(f"{origin}: key 'tables' is for fixed wings only (kind '{kind}')")
     out: dict[str, Table] = {}
