@@ -2,9 +2,14 @@
 ``ops`` so the CasADi hybrid step and the torch training step are the same code.
 
 ``improved`` (default)
-    inputs ``[x_k, u_k]``, output a residual acceleration ``[du_dot, dw_dot, dq_dot]`` (SI units)
-    added to the physics right-hand side in every RK stage and held over the step (grey-box /
-    UDE style): ``theta_dot = q`` stays exact and one network serves every ``dt``.
+    inputs: the step's whole state (body state, the physics' actuator and delay-buffer states,
+    and a command memory: each command low-passed at a few time constants, exact exponential
+    filters carried as augmented states) and the command ``u_k``: causal and state-complete,
+    no absolute time. Output: a residual acceleration ``[du_dot, dw_dot, dq_dot]`` (SI units),
+    bounded (``bound * tanh(raw / bound)``) and multiplied by the envelope gate
+    (:mod:`uavdyn.learned.envelope`: 1 inside the training data, exactly 0 outside), added to
+    the physics right-hand side in every RK stage and held over the step (grey-box / UDE
+    style): ``theta_dot = q`` stays exact, far from the data the step IS the physics step.
 ``paper``
     inputs ``[t, x_base]`` (time since the start of the sortie and the RK4 state), output ``dx``:
     ``x_next = x_base + y`` as the paper states it; valid only at its trained ``dt`` and inside
@@ -16,10 +21,14 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from uavdyn.integrate.augmented import augmented_rk_step
 from uavdyn.integrate.tableau import RK4, explicit_rk_step
+from uavdyn.learned.envelope import bounded
+from uavdyn.model import ModelStructure
 
 HYPERSOLVER_ORDER = 5  # dt**(p+1) with p = 4 for RK4
 STATE_DIM = 4
@@ -53,19 +62,92 @@ class Formulation:
     def n_in(self) -> int:
         return len(self.input_names)
 
-    def step(self, rhs: Callable, x, u, p, dt, net: Callable, ops, t=None):
+    def step(self, rhs: Callable, x, u, p, dt, net: Callable, ops, t=None,
+             layout: CorrectionLayout | None = None):
         """``x_next`` of the hybrid step; ``rhs(x, u, p)`` is the physics, ``net(inp)`` the
-        network on a feature-first block (both evaluated with ``ops``)."""
+        network on a feature-first block (both evaluated with ``ops``). ``improved`` works on
+        the augmented state of ``layout`` (default: the body state alone, as in format 2)."""
         if self.name == "improved":
-            accel = net(ops.concat(x, u))
-            extra = ops.concat(accel, ops.zeros(STATE_DIM - self.n_out, accel))
-            return explicit_rk_step(RK4, lambda xx: rhs(xx, u, p) + extra, x, dt)
+            return improved_step(layout or CorrectionLayout(), rhs, x, u, p, dt, net, ops)
         base = explicit_rk_step(RK4, lambda xx: rhs(xx, u, p), x, dt)
         if self.name == "paper":
             if t is None:
                 raise ValueError("the 'paper' formulation needs the time input t")
             return base + net(ops.concat(t, base))
         return base + dt**HYPERSOLVER_ORDER * net(ops.concat(x, u))
+
+
+@dataclass(frozen=True)
+class CorrectionLayout:
+    """The state the ``improved`` correction steps: the physics ``structure``'s augmented state
+    (None: the 4 body states) followed by one memory state per command and time constant in
+    ``memory_tau`` (s); the network's gate (``gate(inp, ops)``, None: 1) and output bound
+    (per-output array, None: unbounded)."""
+
+    structure: ModelStructure | None = None
+    memory_tau: tuple[float, ...] = ()
+    gate: Callable | None = None
+    bound: object = None
+
+    @property
+    def n_physics(self) -> int:
+        return self.structure.nx() if self.structure is not None else STATE_DIM
+
+    @property
+    def nu(self) -> int:
+        return self.structure.nu if self.structure is not None else 2
+
+    @property
+    def n_state(self) -> int:
+        return self.n_physics + self.nu * len(self.memory_tau)
+
+    def state_names(self, control_names: tuple[str, ...] = ("u1", "u2")) -> tuple[str, ...]:
+        physics = (self.structure.state_names() if self.structure is not None
+                   else ("u", "w", "q", "theta"))
+        names = self.structure.control_names if self.structure is not None else control_names
+        return physics + tuple(f"{c}_memory_{tau:g}s" for tau in self.memory_tau for c in names)
+
+    def input_names(self) -> tuple[str, ...]:
+        names = self.structure.control_names if self.structure is not None else ("u1", "u2")
+        return self.state_names() + tuple(names)
+
+
+def memory_update(memory: list, u, taus: tuple[float, ...], dt, ops) -> list:
+    """Exact update over ``dt`` of each command's low-pass memory (command held): one state per
+    time constant and command, ``m + (u - m)(1 - exp(-dt/tau))``."""
+    out = []
+    nu = len(memory) // max(1, len(taus)) if taus else 0
+    for j, tau in enumerate(taus):
+        decay = math.exp(-dt / tau) if isinstance(dt, (int, float)) else ops.exp(-dt / tau)
+        for c in range(nu):
+            m = memory[j * nu + c]
+            out.append(u[c] + (m - u[c]) * decay)
+    return out
+
+
+def improved_step(layout: CorrectionLayout, rhs: Callable, z, u, p, dt, net: Callable, ops):
+    """The ``improved`` hybrid step on the layout's state ``z`` (see the module docstring)."""
+    inp = ops.concat(z, u)
+    accel = net(inp)
+    if layout.bound is not None:
+        accel = bounded(accel, layout.bound, ops)
+    if layout.gate is not None:
+        accel = accel * layout.gate(inp, ops)
+    extra = ops.concat(accel, ops.zeros(STATE_DIM - accel.shape[0], accel))
+    n_phys = layout.n_physics
+    z_phys = ops.stack(*[z[i] for i in range(n_phys)]) if layout.memory_tau else z
+
+    def body(x, u_eff, pp):
+        return rhs(x, u_eff, pp) + extra
+
+    if layout.structure is None:
+        z_next = explicit_rk_step(RK4, lambda xx: body(xx, u, p), z_phys, dt)
+    else:
+        z_next = augmented_rk_step(layout.structure, body, z_phys, u, p, dt, RK4, ops)
+    if not layout.memory_tau:
+        return z_next
+    memory = [z[i] for i in range(n_phys, layout.n_state)]
+    return ops.concat(z_next, ops.stack(*memory_update(memory, u, layout.memory_tau, dt, ops)))
 
 
 FORMULATIONS: dict[str, Formulation] = {

@@ -63,24 +63,25 @@ def _resolve(net: CorrectionNet | str | Path, airframe: Airframe | None) -> Corr
     return net
 
 
-def correction_structure(airframe: Airframe | None, kind: str) -> ModelStructure:
+def correction_structure(airframe: Airframe | None, kind: str,
+                         formulation: str = "improved") -> ModelStructure:
     """The physics structure a correction runs on: the airframe's (tables, density, alpha-dot
-    terms), or the kind's default without an airframe.
+    terms, actuator lags and delays), or the kind's default without an airframe.
 
     Raises
     ------
     WeightFileError
-        For an airframe with actuator lags or transport delays, which the correction's inputs
-        do not carry yet.
+        For an airframe with actuator lags or transport delays and a formulation other than
+        ``improved`` (only that one carries actuator states).
     """
     if airframe is None:
         return as_structure(kind)
     structure = structure_of(airframe)
-    if structure.augmented:
+    if structure.augmented and formulation != "improved":
         raise WeightFileError(
             f"airframe '{airframe.name}' has actuator lags or transport delays (tau_*, "
-            "[delays]); the learned correction does not carry actuator states yet: train and "
-            "use it on an airframe without them")
+            f"[delays]); the '{formulation}' formulation works on the 4 body states only: use "
+            "the 'improved' formulation")
     return structure
 
 
@@ -92,11 +93,13 @@ def hybrid_expression(net: CorrectionNet, relu_smoothing: float | None = None,
     airframe that does not set them)."""
     form = net.form
     structure = as_structure(structure or net.kind, alpha_dot)
+    layout = net.layout(structure) if form.name == "improved" else None
     f = make_rhs(structure)
-    x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 2)
+    x = ca.SX.sym("x", layout.n_state if layout is not None else 4)
+    u = ca.SX.sym("u", 2)
     p, dt, t = ca.SX.sym("p", structure.np), ca.SX.sym("dt"), ca.SX.sym("t")
     x_next = form.step(f, x, u, p, dt, lambda inp: net.casadi(inp, relu_smoothing), CASADI_OPS,
-                       t if form.takes_time else None)
+                       t if form.takes_time else None, layout)
     inputs, names = [x, u, p, dt], list(STEP_INPUTS)
     if form.takes_time:
         inputs, names = [*inputs, t], [*names, "t"]
@@ -128,10 +131,14 @@ def hybrid_step(net: CorrectionNet | str | Path, airframe: Airframe | None = Non
     """
     net = _resolve(net, airframe)
     step = hybrid_expression(net, relu_smoothing, name,
-                             structure=correction_structure(airframe, net.kind))
+                             structure=correction_structure(airframe, net.kind, net.formulation))
     if compile:
         step = compile_function(step)
-    return HybridStep(step, net.dt if net.form.dt_bound else None,
+    # delay buffers count calls of the step: such a step is tied to the step size it was
+    # trained at (the data's sample period), like a formulation that is dt-bound
+    structure = correction_structure(airframe, net.kind, net.formulation)
+    tied = net.form.dt_bound or structure.n_buffer > 0
+    return HybridStep(step, net.dt if tied else None,
                       net.t_range if net.form.takes_time else None, strict)
 
 
@@ -140,7 +147,8 @@ def hybrid_jacobian(net: CorrectionNet | str | Path, airframe: Airframe | None =
     """``(x, u, p, dt[, t]) -> (x_next, A = dx_next/dx, B = dx_next/du)`` by exact algorithmic
     differentiation of the hybrid step, compiled to C like the step itself."""
     net = _resolve(net, airframe)
-    step = hybrid_expression(net, structure=correction_structure(airframe, net.kind))
+    step = hybrid_expression(net, structure=correction_structure(airframe, net.kind,
+                                                                 net.formulation))
     args = [ca.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
     x_next = step(*args)
     jac = ca.Function(name, args, [x_next, ca.jacobian(x_next, args[0]),

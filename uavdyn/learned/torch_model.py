@@ -15,6 +15,8 @@ import torch
 from torch import nn
 
 from uavdyn.integrate.tableau import RK4, explicit_rk_step
+from uavdyn.learned.envelope import Envelope
+from uavdyn.learned.formulations import CorrectionLayout
 from uavdyn.learned.formulations import formulation as get_formulation
 from uavdyn.learned.mlp import mlp_forward
 from uavdyn.learned.weights import N_HIDDEN_LAYERS, CorrectionNet
@@ -35,14 +37,18 @@ class TorchCorrection(nn.Module):
 
     def __init__(self, kind: str, formulation: str, hidden: int, activation: str,
                  in_mean: np.ndarray, in_scale: np.ndarray, out_scale: np.ndarray,
-                 dt: float, seed: int = 0, structure: ModelStructure | None = None) -> None:
+                 dt: float, seed: int = 0, structure: ModelStructure | None = None,
+                 layout: CorrectionLayout | None = None, envelope: Envelope | None = None
+                 ) -> None:
         super().__init__()
         self.form = get_formulation(formulation)
         if activation not in ("relu", "tanh"):
             raise ValueError(f"unknown activation '{activation}'; expected relu or tanh")
         self.kind, self.formulation, self.activation = kind, formulation, activation
         self.dt = float(dt)
-        n_in, n_out = self.form.n_in, self.form.n_out
+        self.layout, self.envelope = layout, envelope
+        n_in = layout.n_state + 2 if layout is not None else self.form.n_in
+        n_out = self.form.n_out
         gen = torch.Generator().manual_seed(seed)
         sizes = [n_in] + [hidden] * N_HIDDEN_LAYERS + [n_out]
         self.layers = nn.ModuleList()
@@ -61,7 +67,8 @@ class TorchCorrection(nn.Module):
         self.register_buffer("in_scale", torch.as_tensor(in_scale, dtype=DTYPE))
         self.register_buffer("out_mean", torch.zeros(n_out, dtype=DTYPE))
         self.register_buffer("out_scale", torch.as_tensor(out_scale, dtype=DTYPE))
-        self.rhs = torch_rhs(structure or kind)
+        self.rhs = torch_rhs(structure or (layout.structure if layout is not None
+                                           and layout.structure is not None else kind))
 
     def forward(self, inp: torch.Tensor) -> torch.Tensor:
         """The network on a batch ``(B, n_in)`` -> ``(B, n_out)`` (the one MLP forward)."""
@@ -79,7 +86,8 @@ class TorchCorrection(nn.Module):
         tt = None if t is None else t.reshape(1, -1)
         if isinstance(dt, torch.Tensor) and dt.dim() == 2:  # a (B, 1) step size per sample
             dt = dt.T
-        return self.form.step(self.rhs, x.T, u.T, p, dt, self._net, torch_ops(), tt).T
+        return self.form.step(self.rhs, x.T, u.T, p, dt, self._net, torch_ops(), tt,
+                              self.layout).T
 
     def physics_step(self, x, u, p, dt) -> torch.Tensor:
         """The physics-only RK4 step on a batch (same tableau routine as the CasADi step)."""
@@ -92,19 +100,33 @@ class TorchCorrection(nn.Module):
         def arr(t: torch.Tensor) -> np.ndarray:
             return t.detach().cpu().numpy().astype(float).copy()
 
+        extra = {}
+        if self.layout is not None:
+            extra = {"n_state": self.layout.n_state, "memory_tau": tuple(self.layout.memory_tau),
+                     "envelope": self.envelope,
+                     "out_bound": (None if self.layout.bound is None
+                                   else np.asarray(self.layout.bound, float).copy())}
         return CorrectionNet(
             formulation=self.formulation, activation=self.activation, kind=self.kind,
-            airframe_hash=airframe_hash, dt=self.dt, t_range=t_range,
+            airframe_hash=airframe_hash, dt=self.dt, t_range=t_range, **extra,
             weights=tuple(arr(layer.weight) for layer in self.layers),
             biases=tuple(arr(layer.bias) for layer in self.layers),
             in_mean=arr(self.in_mean), in_scale=arr(self.in_scale),
             out_mean=arr(self.out_mean), out_scale=arr(self.out_scale), info=info or {})
 
     @classmethod
-    def from_net(cls, net: CorrectionNet) -> TorchCorrection:
-        """Rebuild a torch module from exported weights (for checks and fine-tuning)."""
+    def from_net(cls, net: CorrectionNet, structure: ModelStructure | None = None
+                 ) -> TorchCorrection:
+        """Rebuild a torch module from exported weights (for checks and fine-tuning) on the
+        physics ``structure`` (default: the kind's)."""
+        layout = None
+        if net.formulation == "improved" and (structure is not None or net.n_state != 4
+                                              or net.envelope is not None
+                                              or net.out_bound is not None):
+            layout = net.layout(structure)
         module = cls(net.kind, net.formulation, net.hidden[0], net.activation, net.in_mean,
-                     net.in_scale, net.out_scale, net.dt)
+                     net.in_scale, net.out_scale, net.dt, structure=structure, layout=layout,
+                     envelope=net.envelope)
         if len(set(net.hidden)) != 1:
             raise ValueError("TorchCorrection expects equal hidden widths")
         with torch.no_grad():

@@ -28,13 +28,15 @@ from pathlib import Path
 
 import numpy as np
 
-from uavdyn.learned.formulations import FORMULATIONS, Formulation
+from uavdyn.learned.envelope import Envelope
+from uavdyn.learned.formulations import FORMULATIONS, CorrectionLayout, Formulation
 from uavdyn.learned.mlp import ACTIVATIONS, mlp_forward
 from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS
 from uavdyn.safefiles import UnreadableFile, read_regular
 
-FORMAT_VERSION = 2
-READABLE_VERSIONS = (1, 2)
+FORMAT_VERSION = 3
+READABLE_VERSIONS = (1, 2, 3)
+MAX_MEMORY_FILTERS = 8
 N_HIDDEN_LAYERS = 3
 MAX_FILE_BYTES = 64 * 2**20          # a weight file is a few kB; refuse before reading more
 MAX_UNCOMPRESSED_BYTES = 256 * 2**20  # zip bombs: bound on the members' declared sizes
@@ -46,7 +48,11 @@ REQUIRED_KEYS = (
     "in_mean", "in_scale", "out_mean", "out_scale",
     *(f"W{i}" for i in range(N_HIDDEN_LAYERS + 1)), *(f"b{i}" for i in range(N_HIDDEN_LAYERS + 1)),
 )
-OPTIONAL_KEYS = ("info", "t_range")
+# format 3 (the safe correction): the state size of the step (physics augmented state plus the
+# command memory), the memory filters' time constants, the training input envelope and the
+# output bound; absent (format 1-2), the correction is ungated and unbounded on 4 body states
+ENVELOPE_KEYS = ("env_low", "env_high", "env_fade")
+OPTIONAL_KEYS = ("info", "t_range", "n_state", "memory_tau", "out_bound", *ENVELOPE_KEYS)
 NAME_KEYS = ("formulation", "activation", "kind", "airframe_hash")
 
 
@@ -77,9 +83,31 @@ class CorrectionNet:
     out_scale: np.ndarray
     info: dict = field(default_factory=dict)
     t_range: tuple[float, float] | None = None
+    n_state: int = 4
+    memory_tau: tuple[float, ...] = ()
+    envelope: Envelope | None = None
+    out_bound: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         check_consistent(self, "<in memory>")
+
+    def layout(self, structure=None) -> CorrectionLayout:
+        """The state layout, gate and bound of the ``improved`` step on the physics
+        ``structure`` (an airframe's :func:`uavdyn.model.structure_of`).
+
+        Raises
+        ------
+        WeightFileError
+            If the network was made for a step with another number of states.
+        """
+        gate = self.envelope.gate if self.envelope is not None else None
+        layout = CorrectionLayout(structure, tuple(self.memory_tau), gate, self.out_bound)
+        if layout.n_state != self.n_state:
+            raise WeightFileError(
+                f"correction network key 'n_state' is {self.n_state} but the airframe's step "
+                f"with {len(self.memory_tau)} memory filter(s) per command has "
+                f"{layout.n_state} states ({', '.join(layout.state_names())})")
+        return layout
 
     @property
     def form(self) -> Formulation:
@@ -87,7 +115,7 @@ class CorrectionNet:
 
     @property
     def n_in(self) -> int:
-        return self.form.n_in
+        return self.n_state + 2 if self.formulation == "improved" else self.form.n_in
 
     @property
     def n_out(self) -> int:
@@ -150,7 +178,16 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
     if len(net.weights) != n_layers or len(net.biases) != n_layers:
         raise WeightFileError(f"{origin}: expected {n_layers} weight matrices W0..W3 and biases "
                               f"b0..b3, got {len(net.weights)} and {len(net.biases)}")
-    n_in, n_out = FORMULATIONS[net.formulation].n_in, FORMULATIONS[net.formulation].n_out
+    if isinstance(net.n_state, bool) or not isinstance(net.n_state, (int, np.integer)) \
+            or not 4 <= net.n_state <= 200 or (net.formulation != "improved" and net.n_state != 4):
+        raise WeightFileError(f"{origin}: key 'n_state' must be a whole number of states in "
+                              f"4..200 (4 for the '{net.formulation}' formulation), got "
+                              f"{_show(net.n_state)}")
+    taus = tuple(net.memory_tau)
+    if len(taus) > MAX_MEMORY_FILTERS or not all(np.isfinite(t) and t > 0 for t in taus):
+        raise WeightFileError(f"{origin}: key 'memory_tau' must hold at most "
+                              f"{MAX_MEMORY_FILTERS} positive time constants, got {_show(taus)}")
+    n_in, n_out = net.n_in, FORMULATIONS[net.formulation].n_out
     expect_in = n_in
     for i, (w, b) in enumerate(zip(net.weights, net.biases)):
         if w.ndim != 2 or w.shape[1] != expect_in:
@@ -181,6 +218,14 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
             raise WeightFileError(f"{origin}: key '{key}' contains non-finite values")
     if np.any(net.in_scale <= 0):
         raise WeightFileError(f"{origin}: key 'in_scale' must be > 0")
+    if net.out_bound is not None:
+        bound = np.asarray(net.out_bound)
+        if bound.shape != (n_out,) or not np.all(np.isfinite(bound)) or np.any(bound <= 0):
+            raise WeightFileError(f"{origin}: key 'out_bound' must hold {n_out} positive finite "
+                                  f"numbers, got {_show(bound.tolist())}")
+    if net.envelope is not None and net.envelope.n_in != n_in:
+        raise WeightFileError(f"{origin}: key 'env_low' has {net.envelope.n_in} entries; the "
+                              f"network has {n_in} inputs")
     if net.t_range is not None or net.form.takes_time:
         t_range = net.t_range
         if (t_range is None or len(t_range) != 2 or not all(map(np.isfinite, t_range))
@@ -224,6 +269,14 @@ def save_weights(net: CorrectionNet, path: str | Path) -> Path:
     }
     if net.t_range is not None:
         arrays["t_range"] = np.asarray(net.t_range, float)
+    if net.n_state != 4 or net.memory_tau:
+        arrays["n_state"] = np.array(int(net.n_state))
+        arrays["memory_tau"] = np.asarray(net.memory_tau, float)
+    if net.out_bound is not None:
+        arrays["out_bound"] = np.asarray(net.out_bound, float)
+    if net.envelope is not None:
+        arrays.update(env_low=net.envelope.low, env_high=net.envelope.high,
+                      env_fade=net.envelope.fade)
     for i, (w, b) in enumerate(zip(net.weights, net.biases)):
         arrays[f"W{i}"], arrays[f"b{i}"] = np.asarray(w, float), np.asarray(b, float)
     tmp: str | None = None
@@ -299,6 +352,24 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
     t_range = None
     if "t_range" in content:
         t_range = tuple(float(v) for v in _real(path, content, "t_range", 1))
+    extra: dict = {}
+    if "n_state" in content:
+        extra["n_state"] = _integer(path, content, "n_state")
+    if "memory_tau" in content:
+        extra["memory_tau"] = tuple(float(v) for v in _real(path, content, "memory_tau", 1))
+    if "out_bound" in content:
+        extra["out_bound"] = _real(path, content, "out_bound", 1)
+    present = [k for k in ENVELOPE_KEYS if k in content]
+    if present:
+        if len(present) != len(ENVELOPE_KEYS):
+            raise WeightFileError(f"{path}: key(s) {sorted(set(ENVELOPE_KEYS) - set(present))} "
+                                  f"missing beside {present}: the envelope needs all three")
+        low, high, fade = (_real(path, content, k, 1) for k in ENVELOPE_KEYS)
+        try:
+            extra["envelope"] = Envelope(low, high, fade)
+        except ValueError as exc:
+            raise WeightFileError(f"{path}: key 'env_low'/'env_high'/'env_fade': {exc}") \
+                from None
     try:
         net = CorrectionNet(
             formulation=names["formulation"], activation=names["activation"],
@@ -309,7 +380,8 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
             in_mean=_real(path, content, "in_mean", 1),
             in_scale=_real(path, content, "in_scale", 1),
             out_mean=_real(path, content, "out_mean", 1),
-            out_scale=_real(path, content, "out_scale", 1), info=info, t_range=t_range)
+            out_scale=_real(path, content, "out_scale", 1), info=info, t_range=t_range,
+            **extra)
     except WeightFileError as exc:
         raise WeightFileError(str(exc).replace("<in memory>", str(path))) from None
     if airframe is not None:

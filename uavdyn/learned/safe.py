@@ -1,0 +1,313 @@
+"""Training of the safe correction (the ``improved`` formulation, weight format 3): causal,
+state-complete inputs on the identified physics' augmented state plus a command memory, an
+envelope gate and an output bound, rollout losses over several horizons from recorded states, a
+stability penalty at trims over the training envelope, selection by the validation 1 s error,
+an exact stability check before anything is written, and the rule that a correction which does
+not beat the physics on the validation split is not kept.
+
+Losses are normalised so the physics-only step scores exactly 1 (per state by the physics'
+rollout error, per horizon step by the physics' error growth), so every number reads as "the
+fraction of the physics' squared error left".
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from uavdyn.airframes import Airframe
+from uavdyn.flightdata import Sortie
+from uavdyn.integrate import augment_states, compile_function, physics_step, rollout
+from uavdyn.learned.envelope import Envelope
+from uavdyn.learned.formulations import CorrectionLayout
+from uavdyn.learned.hybrid import correction_structure, hybrid_step
+from uavdyn.learned.stability import (
+    DEFAULT_MARGIN,
+    StabilityReport,
+    allowed_abscissa,
+    body_abscissa,
+    check_map_stability,
+    envelope_trims,
+    map_jacobian,
+    stability_penalty,
+)
+from uavdyn.learned.torch_model import DTYPE, TorchCorrection
+from uavdyn.learned.weights import CorrectionNet
+from uavdyn.model import sortie_params
+
+THETA = 3
+
+
+class SafeTrainingError(ValueError):
+    """The data cannot train a correction (the message says why)."""
+
+
+@dataclass
+class SafeConfig:
+    """Everything that defines a safe-correction training run (saved with the weights)."""
+
+    hidden: int = 16
+    activation: str = "relu"
+    memory_tau: tuple[float, ...] | None = None  # None: (0.05, 0.2) s without actuator states
+    horizon_s: float = 2.0            # rollout windows from recorded states, this long
+    window_stride_s: float = 0.5
+    selection_horizon_s: float = 1.0  # validation metric: pitch RMSE over this horizon
+    batch_windows: int = 24
+    batches_per_epoch: int = 6
+    epochs: int = 40
+    lr: float = 3e-3
+    lr_final: float = 3e-4
+    patience: int = 10
+    stability_weight: float = 10.0
+    stability_margin: float = DEFAULT_MARGIN
+    envelope_quantile: float = 0.001
+    envelope_fade: float = 0.25
+    bound_factor: float = 2.0
+    seed: int = 0
+    threads: int = 1
+    max_seconds: float = 600.0
+    progress: bool = True
+
+
+@dataclass
+class SafeResult:
+    """The trained network (or None when it is not kept), its history and the checks."""
+
+    net: CorrectionNet | None
+    kept: bool
+    reason: str
+    history: list[dict]
+    config: SafeConfig
+    best_epoch: int
+    seconds: float
+    validation: dict = field(default_factory=dict)
+    stability: StabilityReport | None = None
+
+
+def _memory(controls: np.ndarray, taus: tuple[float, ...], sample_dt: float) -> np.ndarray:
+    """Each command low-passed at each time constant along a recorded history (at rest on the
+    first command; row k = the memory at sample k), layout ``[tau0: u1 u2, tau1: u1 u2, ...]``."""
+    n, nu = controls.shape
+    out = np.empty((n, nu * len(taus)))
+    for j, tau in enumerate(taus):
+        decay = math.exp(-sample_dt / tau)
+        m = controls[0].copy()
+        for k in range(n):
+            out[k, j * nu:(j + 1) * nu] = m
+            m = controls[k] + (m - controls[k]) * decay
+    return out
+
+
+def hybrid_states(airframe: Airframe, layout: CorrectionLayout, sortie: Sortie, p: np.ndarray,
+                  sample_dt: float) -> np.ndarray:
+    """The hybrid step's state at every recorded sample of ``sortie``: recorded body states,
+    actuator/buffer states and command memory implied by the recorded commands."""
+    z = augment_states(layout.structure, sortie.states, sortie.controls, p, sample_dt)
+    if layout.memory_tau:
+        z = np.hstack([z, _memory(sortie.controls, layout.memory_tau, sample_dt)])
+    return z
+
+
+@dataclass
+class _Windows:
+    z0: np.ndarray      # (W, nz)
+    u: np.ndarray       # (W, H, nu)
+    y: np.ndarray       # (W, H, 4) recorded body states after each sample
+    p: np.ndarray       # (W, np)
+    physics: np.ndarray  # (W, H, 4) physics-only prediction
+
+
+def _windows(airframe: Airframe, layout: CorrectionLayout, sorties: list[Sortie],
+             H: int, stride: int, sample_dt: float, physics_sim) -> _Windows:
+    z0, us, ys, ps = [], [], [], []
+    for s in sorties:
+        p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
+        z = hybrid_states(airframe, layout, s, p, sample_dt)
+        for k in range(0, len(s.time) - H, stride):
+            z0.append(z[k])
+            us.append(s.controls[k:k + H])
+            ys.append(s.states[k + 1:k + H + 1])
+            ps.append(p)
+    if not z0:
+        raise SafeTrainingError(f"no sortie is longer than the {H}-sample rollout window")
+    w = _Windows(np.array(z0), np.array(us), np.array(ys), np.array(ps), np.empty(0))
+    W = len(w.z0)
+    pred = np.array(physics_sim.map(W)(w.z0[:, :layout.n_physics].T,
+                                       w.u.reshape(W * H, -1).T, w.p.T, sample_dt))
+    w.physics = pred[:4].reshape(4, W, H).transpose(1, 2, 0)
+    return w
+
+
+def _t(a) -> torch.Tensor:
+    return torch.as_tensor(np.ascontiguousarray(a), dtype=DTYPE)
+
+
+def _rollout(model: TorchCorrection, z0, u, p, dt: float) -> torch.Tensor:
+    """Free run of the torch hybrid step through each window: body states (W, H, 4)."""
+    z, out = z0, []
+    for k in range(u.shape[1]):
+        z = model.step(z, u[:, k], p, dt)
+        out.append(z[:, :4])
+    return torch.stack(out, dim=1)
+
+
+def _theta_rmse(pred: np.ndarray, y: np.ndarray, H: int) -> float:
+    return float(np.sqrt(np.mean((pred[:, :H, THETA] - y[:, :H, THETA]) ** 2)))
+
+
+def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
+               config: SafeConfig | None = None) -> SafeResult:
+    """Train the safe correction on top of ``airframe``'s physics (the identified airframe).
+
+    Parameters
+    ----------
+    train_sorties, val_sorties : list of Sortie
+        Training and validation sorties (one sample rate); windows restart from recorded
+        states, so closed-loop data are fine.
+    airframe : Airframe
+        The physics the correction sits on; its lags and delays become inputs.
+    config : SafeConfig, optional
+        Hyper-parameters.
+
+    Returns
+    -------
+    SafeResult
+        ``kept`` is False, with the reason, when the correction fails the stability check or
+        does not beat the physics at the selection horizon on the validation split.
+    """
+    cfg = config or SafeConfig()
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    rng = np.random.default_rng(cfg.seed)
+    start = time.perf_counter()
+    if not train_sorties or not val_sorties:
+        raise SafeTrainingError("training needs train and validation sorties")
+    sample_dt = float(np.median(np.diff(train_sorties[0].time)))
+    dt = sample_dt  # one call per log sample (delay buffers and memory count samples)
+    structure = correction_structure(airframe, airframe.kind, "improved")
+    taus = cfg.memory_tau if cfg.memory_tau is not None else (
+        () if structure.n_actuator else (0.05, 0.2))
+    layout0 = CorrectionLayout(structure, tuple(taus))
+    H = max(1, int(round(cfg.horizon_s / sample_dt)))
+    H_sel = max(1, min(H, int(round(cfg.selection_horizon_s / sample_dt))))
+    stride = max(1, int(round(cfg.window_stride_s / sample_dt)))
+    phys = physics_step(structure)
+    physics_sim = compile_function(rollout(phys, H), warn=False)
+    tr = _windows(airframe, layout0, train_sorties, H, stride, sample_dt, physics_sim)
+    va = _windows(airframe, layout0, val_sorties, H, stride, sample_dt, physics_sim)
+    # normalisation, envelope and bound from the training inputs and residuals
+    rows = np.vstack([np.hstack([hybrid_states(airframe, layout0, s, sortie_params(
+        airframe, s.meta.get("manifest_entry", {}).get("altitude_m")), sample_dt),
+        s.controls]) for s in train_sorties])
+    in_mean = rows.mean(axis=0)
+    in_scale = rows.std(axis=0)
+    in_scale = np.where(in_scale > 1e-9 * (1 + np.abs(in_mean)), in_scale, 1.0)
+    envelope = Envelope.from_samples(rows, cfg.envelope_quantile, cfg.envelope_fade)
+    one_step = (tr.y[:, 0, :3] - tr.physics[:, 0, :3]) / dt  # residual acceleration
+    out_scale = np.sqrt(np.mean(one_step**2, axis=0))
+    out_scale = np.where(out_scale > 0, out_scale, 1.0)
+    bound = cfg.bound_factor * np.maximum(np.quantile(np.abs(one_step), 0.999, axis=0),
+                                          1e-6 * (1 + out_scale))
+    layout = CorrectionLayout(structure, tuple(taus), envelope.gate, bound)
+    model = TorchCorrection(airframe.kind, "improved", cfg.hidden, cfg.activation, in_mean,
+                            in_scale, out_scale, dt, seed=cfg.seed, structure=structure,
+                            layout=layout, envelope=envelope)
+    # loss normalisation: the physics scores exactly 1
+    err_p = tr.physics - tr.y                                      # (W, H, 4)
+    state_scale = np.sqrt(np.mean(err_p**2, axis=(0, 1)))
+    state_scale = np.where(state_scale > 0, state_scale, 1.0)
+    growth = np.mean((err_p / state_scale) ** 2, axis=(0, 2))       # (H,)
+    growth = np.where(growth > 0, growth, 1.0)
+    S, G = _t(state_scale), _t(growth)
+    T = {k: _t(getattr(tr, k)) for k in ("z0", "u", "y", "p")}
+    V = {k: _t(getattr(va, k)) for k in ("z0", "u", "y", "p")}
+    trims, skipped = envelope_trims(airframe, train_sorties, layout)
+    phys_sigma = []
+    jp = map_jacobian(phys)
+    for t in trims:
+        phys_sigma.append(body_abscissa(np.array(jp(t.z[:layout.n_physics], t.u, t.p, dt)),
+                                        dt)[0])
+    targets = [allowed_abscissa(s, cfg.stability_margin) - (0.1 * abs(s) + 0.01)
+               for s in phys_sigma]
+
+    def loss_of(D, idx=None) -> torch.Tensor:
+        sel = (lambda a: a) if idx is None else (lambda a: a[idx])
+        pred = _rollout(model, sel(D["z0"]), sel(D["u"]), sel(D["p"]).T, dt)
+        e = ((pred - sel(D["y"])) / S) ** 2
+        return torch.mean(torch.mean(e, dim=2) / G)
+
+    def selection(D) -> float:
+        with torch.no_grad():
+            pred = _rollout(model, D["z0"], D["u"][:, :H_sel], D["p"].T, dt).numpy()
+        return _theta_rmse(pred, va.y, H_sel)
+
+    physics_val = _theta_rmse(va.physics, va.y, H_sel)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    gamma = (cfg.lr_final / cfg.lr) ** (1.0 / max(1, cfg.epochs))
+    sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma)
+    history = [{"epoch": 0, "val_theta_rmse": selection(V), "physics_val_theta_rmse":
+                physics_val, "seconds": time.perf_counter() - start}]
+    best = (history[0]["val_theta_rmse"], 0, {k: v.clone() for k, v in
+                                              model.state_dict().items()})
+    bar = tqdm(range(1, cfg.epochs + 1), desc=f"train {airframe.name} (safe)", unit="epoch",
+               disable=not cfg.progress)
+    n_w = len(tr.z0)
+    for epoch in bar:
+        sum_l = sum_s = 0.0
+        for _ in range(cfg.batches_per_epoch):
+            idx = torch.as_tensor(rng.choice(n_w, min(cfg.batch_windows, n_w), replace=False))
+            loss = loss_of(T, idx)
+            pen = stability_penalty(model, trims, targets, dt) if trims else loss * 0
+            total = loss + cfg.stability_weight * pen
+            opt.zero_grad()
+            total.backward()
+            opt.step()
+            sum_l, sum_s = sum_l + loss.item(), sum_s + float(pen.detach())
+        sched.step()
+        val = selection(V)
+        elapsed = time.perf_counter() - start
+        history.append({"epoch": epoch, "train_loss": sum_l / cfg.batches_per_epoch,
+                        "stability_penalty": sum_s / cfg.batches_per_epoch,
+                        "val_theta_rmse": val, "physics_val_theta_rmse": physics_val,
+                        "lr": sched.get_last_lr()[0], "seconds": elapsed})
+        bar.set_postfix(loss=f"{sum_l / cfg.batches_per_epoch:.3g}", val=f"{val:.3g}",
+                        physics=f"{physics_val:.3g}")
+        if val < best[0] and math.isfinite(val):
+            best = (val, epoch, {k: v.clone() for k, v in model.state_dict().items()})
+        elif epoch - best[1] >= cfg.patience:
+            break
+        if elapsed > cfg.max_seconds:
+            break
+    bar.close()
+    model.load_state_dict(best[2])
+    info = {"config": asdict(cfg), "airframe": airframe.name, "best_epoch": best[1],
+            "val_theta_rmse": best[0], "physics_val_theta_rmse": physics_val,
+            "selection_horizon_s": H_sel * sample_dt, "epochs_run": len(history) - 1,
+            "n_train_sorties": len(train_sorties), "n_val_sorties": len(val_sorties),
+            "trims": [t.describe() for t in trims], "trims_skipped": skipped,
+            "memory_tau": list(taus), "train_seconds": time.perf_counter() - start}
+    net = model.export(airframe.param_hash(), info)
+    step = hybrid_step(net, airframe, compile=False)
+    report = check_map_stability(step, phys, trims, dt, cfg.stability_margin, skipped)
+    validation = {"selection_horizon_s": H_sel * sample_dt, "physics_theta_rmse": physics_val,
+                  "corrected_theta_rmse": best[0],
+                  "ratio": best[0] / physics_val if physics_val > 0 else math.inf}
+    seconds = time.perf_counter() - start
+    if not report.ok:
+        return SafeResult(None, False, report.describe() + "; raise --stability-weight (now "
+                          f"{cfg.stability_weight:g}) or --stability-margin (now "
+                          f"{cfg.stability_margin:g}) and retrain", history, cfg, best[1],
+                          seconds, validation, report)
+    if not best[0] < physics_val:
+        return SafeResult(None, False, f"the correction does not beat the physics on the "
+                          f"validation split at {H_sel * sample_dt:g} s (pitch RMSE "
+                          f"{best[0]:.4g} vs {physics_val:.4g} rad): the physics is kept",
+                          history, cfg, best[1], seconds, validation, report)
+    return SafeResult(net, True, f"validation pitch RMSE at {H_sel * sample_dt:g} s "
+                      f"{physics_val:.4g} -> {best[0]:.4g} rad; {report.describe()}", history,
+                      cfg, best[1], seconds, validation, report)

@@ -1,0 +1,211 @@
+"""Stability of the hybrid discrete map over the training envelope: trim points sampled where the
+data were flown, the eigenvalues of the map's Jacobian there, and the rule a correction must
+keep (checked exactly in CasADi before weights are written; enforced in training by a
+differentiable penalty, :func:`stability_penalty`).
+
+The network changes only the body rows of the step (``u, w, q, theta``); actuator, delay-buffer
+and command-memory states do not depend on the body state, so the map's Jacobian is block
+triangular and its eigenvalues are those of the 4 x 4 body block plus constants (``exp(-dt /
+tau)``, 0 for a buffer). The rule, per trim point, on the spectral abscissa
+``sigma = max log|lambda| / dt`` (1/s) of the body block::
+
+    allowed = sigma_physics + margin * |sigma_physics|   if sigma_physics < 0  (stable physics)
+    allowed = sigma_physics                               otherwise (neutral or unstable)
+
+so a stable physics map stays stable and its slowest decay rate may at most shrink by the
+fraction ``margin``; a neutral mode (a hovering quadrotor's pitch attitude) may not be pushed
+outward at all.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from uavdyn.airframes import Airframe
+from uavdyn.flightdata import Sortie
+from uavdyn.learned.formulations import CorrectionLayout
+from uavdyn.linear import TrimError, point_params, trim, trim_state
+
+BODY = 4
+DEFAULT_MARGIN = 0.5
+TOLERANCE = 1e-9  # 1/s: round-off allowance of the exact check
+
+
+@dataclass(frozen=True)
+class TrimSample:
+    """One trim point of the envelope with the hybrid step's state and command there."""
+
+    airspeed: float
+    gamma: float
+    z: np.ndarray
+    u: np.ndarray
+    p: np.ndarray
+
+    def describe(self) -> str:
+        return f"trim at {self.airspeed:.3g} m/s, gamma {math.degrees(self.gamma):+.3g} deg"
+
+
+def hybrid_trim_state(airframe: Airframe, point, layout: CorrectionLayout) -> np.ndarray:
+    """The hybrid step's state at a trim point: the physics' augmented trim state and every
+    command memory at the trim command."""
+    z = trim_state(airframe, point)
+    memory = np.tile(np.asarray(point.u, float), len(layout.memory_tau))
+    return np.concatenate([z, memory])
+
+
+def envelope_trims(airframe: Airframe, sorties: list[Sortie], layout: CorrectionLayout,
+                   n_speeds: int = 4) -> tuple[list[TrimSample], list[str]]:
+    """Trim points over the flown envelope: airspeeds between the 5th and 95th percentile of
+    the sorties' airspeed, level and +-3 deg climb for a fixed wing; hover and forward flight
+    for a multirotor. Returns the points and why others could not be trimmed."""
+    speeds = np.concatenate([np.hypot(s.states[:, 0], s.states[:, 1]) for s in sorties])
+    lo, hi = np.percentile(speeds, [5, 95])
+    if airframe.kind == "fixed_wing":
+        grid = [(v, g) for v in np.linspace(lo, hi, n_speeds)
+                for g in (0.0, math.radians(-3), math.radians(3))]
+    else:
+        forward = np.linspace(max(lo, 1.0), max(hi, 1.0), n_speeds - 1) if hi > 1.0 else []
+        grid = [(0.0, 0.0)] + [(float(v), 0.0) for v in forward]
+    out, skipped = [], []
+    for v, g in grid:
+        try:
+            point = trim(airframe, float(v), float(g))
+        except TrimError as exc:
+            skipped.append(f"{v:.3g} m/s, gamma {math.degrees(g):+.3g} deg: {exc}")
+            continue
+        out.append(TrimSample(float(v), float(g), hybrid_trim_state(airframe, point, layout),
+                              np.asarray(point.u, float), point_params(airframe, point)))
+    return out, skipped
+
+
+def allowed_abscissa(sigma_physics: float, margin: float = DEFAULT_MARGIN) -> float:
+    """The largest spectral abscissa (1/s) the hybrid map may have where the physics has
+    ``sigma_physics`` (module docstring)."""
+    if sigma_physics < 0:
+        return sigma_physics + margin * abs(sigma_physics)
+    return sigma_physics
+
+
+def body_abscissa(jacobian: np.ndarray, dt: float) -> tuple[float, complex]:
+    """``max log|lambda| / dt`` over the body block's eigenvalues, and that eigenvalue."""
+    lam = np.linalg.eigvals(np.asarray(jacobian)[:BODY, :BODY])
+    i = int(np.argmax(np.abs(lam)))
+    with np.errstate(divide="ignore"):
+        return float(np.log(np.abs(lam[i])) / dt), complex(lam[i])
+
+
+@dataclass(frozen=True)
+class Finding:
+    """The check at one trim point."""
+
+    trim: str
+    sigma_physics: float
+    sigma_hybrid: float
+    allowed: float
+    eigenvalue: complex
+
+    @property
+    def ok(self) -> bool:
+        return self.sigma_hybrid <= self.allowed + TOLERANCE
+
+
+@dataclass
+class StabilityReport:
+    """The check over all trim points (``ok`` when every point keeps the rule)."""
+
+    dt: float
+    margin: float
+    findings: list[Finding] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return all(f.ok for f in self.findings)
+
+    @property
+    def failures(self) -> list[Finding]:
+        return [f for f in self.findings if not f.ok]
+
+    def describe(self) -> str:
+        """One line: the worst failure (trim, eigenvalue, rates) or the number of points."""
+        if self.ok:
+            return (f"the hybrid map keeps the stability rule at all {len(self.findings)} trim "
+                    f"points (margin {self.margin:g})")
+        worst = max(self.failures, key=lambda f: f.sigma_hybrid - f.allowed)
+        lam = worst.eigenvalue
+        return (f"the correction destabilises the map at {worst.trim}: eigenvalue "
+                f"{lam.real:.6f}{lam.imag:+.6f}j (|lambda| = {abs(lam):.6f}, growth rate "
+                f"{worst.sigma_hybrid:+.4g} 1/s) where the physics has {worst.sigma_physics:+.4g} "
+                f"1/s and at most {worst.allowed:+.4g} 1/s is allowed ({len(self.failures)} of "
+                f"{len(self.findings)} trim points fail)")
+
+    def to_dict(self) -> dict:
+        return {"dt": self.dt, "margin": self.margin, "ok": self.ok, "skipped": self.skipped,
+                "points": [{"trim": f.trim, "sigma_physics": f.sigma_physics,
+                            "sigma_hybrid": f.sigma_hybrid, "allowed": f.allowed,
+                            "eigenvalue": [f.eigenvalue.real, f.eigenvalue.imag], "ok": f.ok}
+                           for f in self.findings]}
+
+
+def map_jacobian(step: ca.Function) -> ca.Function:
+    """``(z, u, p, dt) -> d z_next / d z`` of a step Function (exact, SX)."""
+    args = [ca.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(4)]
+    return ca.Function("map_jacobian", args, [ca.jacobian(step(*args), args[0])])
+
+
+def check_map_stability(hybrid: ca.Function, physics: ca.Function, trims: list[TrimSample],
+                        dt: float, margin: float = DEFAULT_MARGIN,
+                        skipped: list[str] | None = None) -> StabilityReport:
+    """Exact check of the rule at every trim point with CasADi Jacobians.
+
+    Parameters
+    ----------
+    hybrid : casadi.Function
+        The hybrid step ``(z, u, p, dt)`` on the layout's state.
+    physics : casadi.Function
+        The physics step on its own augmented state (a prefix of ``z``).
+    trims : list of TrimSample
+        Points from :func:`envelope_trims`.
+    dt : float
+        The step size the map is used at.
+    margin : float
+        See the module docstring.
+    """
+    jh, jp = map_jacobian(hybrid), map_jacobian(physics)
+    n_phys = physics.size1_in(0)
+    report = StabilityReport(dt, margin, skipped=list(skipped or []))
+    for t in trims:
+        sigma_p, _ = body_abscissa(np.array(jp(t.z[:n_phys], t.u, t.p, dt)), dt)
+        sigma_h, lam = body_abscissa(np.array(jh(t.z, t.u, t.p, dt)), dt)
+        report.findings.append(Finding(t.describe(), sigma_p, sigma_h,
+                                       allowed_abscissa(sigma_p, margin), lam))
+    return report
+
+
+def stability_penalty(model, trims: list[TrimSample], targets, dt: float):
+    """Differentiable penalty (torch): ``sum relu(sigma_hybrid - target)^2`` over the trim
+    points, ``sigma`` from the eigenvalues of the body block of the torch hybrid step's
+    Jacobian; ``targets`` are the allowed abscissas minus a safety buffer."""
+    import torch
+
+    total = torch.zeros((), dtype=torch.float64)
+    for t, target in zip(trims, targets):
+        z = torch.as_tensor(t.z, dtype=torch.float64)
+        u = torch.as_tensor(t.u, dtype=torch.float64).reshape(1, -1)
+        p = torch.as_tensor(t.p, dtype=torch.float64)
+        rest = z[BODY:].reshape(1, -1)
+
+        def body_map(x, rest=rest, u=u, p=p):
+            return model.step(torch.cat([x.reshape(1, -1), rest], dim=1), u, p, dt)[0, :BODY]
+
+        jac = torch.autograd.functional.jacobian(body_map, z[:BODY], create_graph=True)
+        lam = torch.linalg.eigvals(jac)
+        sigma = torch.log(torch.abs(lam).max()) / dt
+        excess = torch.relu(sigma - float(target))
+        if torch.isfinite(excess):
+            total = total + excess**2
+    return total
