@@ -595,7 +595,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hidden-layer activation (default relu: cheapest in C; tanh is smooth "
                         "and bounded)")
     p.add_argument("--hidden", type=int, default=16, help="hidden-layer width (default 16)")
-    p.add_argument("--dt", type=float, default=0.005, help="hybrid step in s (default 0.005)")
+    p.add_argument("--dt", type=float, default=0.005,
+                   help="hybrid step in s (default 0.005; the improved correction on flight "
+                        "data steps once per log sample)")
     p.add_argument("--epochs", type=int, default=60, help="maximum epochs (default 60)")
     p.add_argument("--rollout-horizon", type=int, default=25,
                    help="rollout-loss window in samples (default 25)")
@@ -608,6 +610,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="wall-clock budget in s (default 270)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--stability-weight", type=float, default=10.0,
+                   help="improved/data: weight of the stability penalty at trims over the "
+                        "training envelope (default 10)")
+    p.add_argument("--stability-margin", type=float, default=0.5,
+                   help="improved/data: how much a stable physics mode's decay rate may shrink "
+                        "(fraction, default 0.5); a neutral mode may never grow")
+    p.add_argument("--horizon", type=float, default=2.0,
+                   help="improved/data: rollout window from recorded states in s (default 2)")
+    p.add_argument("--memory-tau", type=float, nargs="*", default=None,
+                   help="improved/data: command-memory time constants in s (default 0.05 0.2 "
+                        "when the airframe has no actuator lag, none otherwise)")
     p.add_argument("--out", default=None,
                    help="weight file (default results/weights/<airframe>_<formulation>.npz)")
     p.add_argument("--history", default=None,

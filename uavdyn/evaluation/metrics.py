@@ -83,6 +83,11 @@ def step_states(step: ca.Function, structure: ModelStructure | None, states: np.
     """
     states = np.atleast_2d(np.asarray(states, float))
     nz = step.size1_in(0)
+    start = getattr(step, "start_states", None)  # a learned step on its own augmented state
+    if start is not None:
+        if structure is not None:
+            _check_delay_grid(step, structure, grid)
+        return start(states, controls, p, grid.sample_dt)
     if nz == states.shape[1]:
         return states
     if structure is None or structure.nx() != nz:

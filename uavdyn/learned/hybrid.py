@@ -10,13 +10,18 @@ library) refuses a use outside them.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
+from functools import partial
 from importlib import resources
 from pathlib import Path
 
 import casadi as ca
+import numpy as np
 
 from uavdyn.airframes import Airframe
-from uavdyn.integrate import STEP_INPUTS, compile_function
+from uavdyn.integrate import STEP_INPUTS, augment_states, compile_function
+from uavdyn.learned.formulations import CorrectionLayout
 from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights
 from uavdyn.model import CASADI_OPS, ModelStructure, make_rhs, structure_of
 from uavdyn.model.equations import as_structure
@@ -26,14 +31,47 @@ SHIPPED = "uavdyn.learned.shipped"
 
 class HybridStep(ca.Function):
     """A CasADi Function (use it like any other) that also knows the step size and time range
-    its network was trained at (``None`` where the formulation is not tied to them)."""
+    its network was trained at (``None`` where the formulation is not tied to them) and, for a
+    step on an augmented state, how to build that state from recorded data
+    (``start_states(states, controls, p, sample_dt)``, else None)."""
 
     def __init__(self, func: ca.Function, trained_dt: float | None,
-                 t_range: tuple[float, float] | None, strict: bool = True):
+                 t_range: tuple[float, float] | None, strict: bool = True,
+                 start_states: Callable | None = None):
         super().__init__(func)
         self.trained_dt = trained_dt
         self.t_range = t_range
         self.strict = strict
+        self.start_states = start_states
+
+
+def command_memory(controls, taus: tuple[float, ...], sample_dt: float) -> np.ndarray:
+    """Each command low-passed at each time constant along a recorded history (``N x nu``, row
+    k held over sample k; at rest on the first command): row k is the memory at sample k,
+    laid out ``[tau0: u1 u2, tau1: u1 u2, ...]`` like the step's memory states."""
+    controls = np.atleast_2d(np.asarray(controls, float))
+    n, nu = controls.shape
+    out = np.empty((n, nu * len(taus)))
+    for j, tau in enumerate(taus):
+        decay = math.exp(-sample_dt / tau)
+        m = controls[0].copy()
+        for k in range(n):
+            out[k, j * nu:(j + 1) * nu] = m
+            m = controls[k] + (m - controls[k]) * decay
+    return out
+
+
+def layout_states(layout: CorrectionLayout, states, controls, p, sample_dt: float
+                  ) -> np.ndarray:
+    """The correction step's state at every recorded sample: the recorded body states, the
+    actuator/buffer states and command memory the recorded commands imply (at rest on the first
+    command)."""
+    states = np.atleast_2d(np.asarray(states, float))
+    z = (augment_states(layout.structure, states, controls, p, sample_dt)
+         if layout.structure is not None else states)
+    if layout.memory_tau:
+        z = np.hstack([z, command_memory(controls, layout.memory_tau, sample_dt)])
+    return z
 
 
 def shipped_weights(airframe_name: str, formulation: str = "improved",
@@ -138,8 +176,11 @@ def hybrid_step(net: CorrectionNet | str | Path, airframe: Airframe | None = Non
     # trained at (the data's sample period), like a formulation that is dt-bound
     structure = correction_structure(airframe, net.kind, net.formulation)
     tied = net.form.dt_bound or structure.n_buffer > 0
+    start = None
+    if net.formulation == "improved" and net.n_state != 4:
+        start = partial(layout_states, net.layout(structure))
     return HybridStep(step, net.dt if tied else None,
-                      net.t_range if net.form.takes_time else None, strict)
+                      net.t_range if net.form.takes_time else None, strict, start)
 
 
 def hybrid_jacobian(net: CorrectionNet | str | Path, airframe: Airframe | None = None,

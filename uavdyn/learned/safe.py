@@ -12,6 +12,7 @@ fraction of the physics' squared error left".
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -22,10 +23,10 @@ from tqdm import tqdm
 
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
-from uavdyn.integrate import augment_states, compile_function, physics_step, rollout
+from uavdyn.integrate import compile_function, physics_step, rollout
 from uavdyn.learned.envelope import Envelope
 from uavdyn.learned.formulations import CorrectionLayout
-from uavdyn.learned.hybrid import correction_structure, hybrid_step
+from uavdyn.learned.hybrid import correction_structure, hybrid_step, layout_states
 from uavdyn.learned.stability import (
     DEFAULT_MARGIN,
     StabilityReport,
@@ -89,28 +90,11 @@ class SafeResult:
     stability: StabilityReport | None = None
 
 
-def _memory(controls: np.ndarray, taus: tuple[float, ...], sample_dt: float) -> np.ndarray:
-    """Each command low-passed at each time constant along a recorded history (at rest on the
-    first command; row k = the memory at sample k), layout ``[tau0: u1 u2, tau1: u1 u2, ...]``."""
-    n, nu = controls.shape
-    out = np.empty((n, nu * len(taus)))
-    for j, tau in enumerate(taus):
-        decay = math.exp(-sample_dt / tau)
-        m = controls[0].copy()
-        for k in range(n):
-            out[k, j * nu:(j + 1) * nu] = m
-            m = controls[k] + (m - controls[k]) * decay
-    return out
-
-
 def hybrid_states(airframe: Airframe, layout: CorrectionLayout, sortie: Sortie, p: np.ndarray,
                   sample_dt: float) -> np.ndarray:
-    """The hybrid step's state at every recorded sample of ``sortie``: recorded body states,
-    actuator/buffer states and command memory implied by the recorded commands."""
-    z = augment_states(layout.structure, sortie.states, sortie.controls, p, sample_dt)
-    if layout.memory_tau:
-        z = np.hstack([z, _memory(sortie.controls, layout.memory_tau, sample_dt)])
-    return z
+    """The hybrid step's state at every recorded sample of ``sortie``
+    (:func:`uavdyn.learned.hybrid.layout_states`)."""
+    return layout_states(layout, sortie.states, sortie.controls, p, sample_dt)
 
 
 @dataclass
@@ -195,6 +179,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     layout0 = CorrectionLayout(structure, tuple(taus))
     H = max(1, int(round(cfg.horizon_s / sample_dt)))
     H_sel = max(1, min(H, int(round(cfg.selection_horizon_s / sample_dt))))
+    horizon_sel = round(H_sel * sample_dt, 9)
     stride = max(1, int(round(cfg.window_stride_s / sample_dt)))
     phys = physics_step(structure)
     physics_sim = compile_function(rollout(phys, H), warn=False)
@@ -287,14 +272,14 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     model.load_state_dict(best[2])
     info = {"config": asdict(cfg), "airframe": airframe.name, "best_epoch": best[1],
             "val_theta_rmse": best[0], "physics_val_theta_rmse": physics_val,
-            "selection_horizon_s": H_sel * sample_dt, "epochs_run": len(history) - 1,
+            "selection_horizon_s": horizon_sel, "epochs_run": len(history) - 1,
             "n_train_sorties": len(train_sorties), "n_val_sorties": len(val_sorties),
             "trims": [t.describe() for t in trims], "trims_skipped": skipped,
             "memory_tau": list(taus), "train_seconds": time.perf_counter() - start}
     net = model.export(airframe.param_hash(), info)
     step = hybrid_step(net, airframe, compile=False)
     report = check_map_stability(step, phys, trims, dt, cfg.stability_margin, skipped)
-    validation = {"selection_horizon_s": H_sel * sample_dt, "physics_theta_rmse": physics_val,
+    validation = {"selection_horizon_s": horizon_sel, "physics_theta_rmse": physics_val,
                   "corrected_theta_rmse": best[0],
                   "ratio": best[0] / physics_val if physics_val > 0 else math.inf}
     seconds = time.perf_counter() - start
@@ -305,9 +290,61 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                           seconds, validation, report)
     if not best[0] < physics_val:
         return SafeResult(None, False, f"the correction does not beat the physics on the "
-                          f"validation split at {H_sel * sample_dt:g} s (pitch RMSE "
+                          f"validation split at {horizon_sel:g} s (pitch RMSE "
                           f"{best[0]:.4g} vs {physics_val:.4g} rad): the physics is kept",
                           history, cfg, best[1], seconds, validation, report)
-    return SafeResult(net, True, f"validation pitch RMSE at {H_sel * sample_dt:g} s "
+    return SafeResult(net, True, f"validation pitch RMSE at {horizon_sel:g} s "
                       f"{physics_val:.4g} -> {best[0]:.4g} rad; {report.describe()}", history,
                       cfg, best[1], seconds, validation, report)
+
+
+def write_safe_history(result: SafeResult, path) -> tuple:
+    """The run's history, validation figures and stability check as JSON (``path``) and a PNG
+    beside it (validation pitch RMSE per epoch against the physics, training loss, penalty)."""
+    from pathlib import Path
+
+    from uavdyn.outputs import atomic_file, write_text_atomic
+
+    path = Path(path)
+    doc = {"kind": "safe correction training", "kept": result.kept, "reason": result.reason,
+           "config": asdict(result.config), "best_epoch": result.best_epoch,
+           "seconds": result.seconds, "validation": result.validation,
+           "stability": result.stability.to_dict() if result.stability else None,
+           "network": result.net.describe() if result.net is not None else None,
+           "history": result.history}
+    write_text_atomic(path, json.dumps(doc, indent=2, default=str) + "\n")
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:  # pragma: no cover
+        return path, None
+    epochs = [h["epoch"] for h in result.history]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    ax = axes[0]
+    ax.plot(epochs, [h["val_theta_rmse"] for h in result.history], "C0-o", ms=3,
+            label="corrected (validation)")
+    ax.axhline(result.history[0]["physics_val_theta_rmse"], color="k", ls="--",
+               label="physics (validation)")
+    ax.axvline(result.best_epoch, color="grey", lw=0.8)
+    ax.set_xlabel("epoch")
+    ax.set_ylabel(f"pitch RMSE at {result.validation.get('selection_horizon_s', 1):g} s (rad)")
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    rest = result.history[1:]
+    if rest:
+        ax.semilogy([h["epoch"] for h in rest], [h["train_loss"] for h in rest], "C1-o", ms=3,
+                    label="train loss (physics = 1)")
+        pen = [(h["epoch"], h["stability_penalty"]) for h in rest if h["stability_penalty"] > 0]
+        if pen:
+            ax.semilogy(*zip(*pen), "C3:o", ms=3, label="stability penalty")
+    ax.set_xlabel("epoch")
+    ax.legend(fontsize=8)
+    fig.suptitle(result.reason[:150], fontsize=8)
+    fig.tight_layout()
+    png = path.with_suffix(".png")
+    with atomic_file(png) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return path, png

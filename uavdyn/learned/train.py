@@ -366,6 +366,8 @@ def run(args: argparse.Namespace) -> dict:
     out = Path(args.out or f"results/weights/{airframe.name}_{args.formulation}.npz")
     hist = Path(args.history) if args.history else out.with_name(out.stem + "_history.json")
     _check_replaceable(out, hist, getattr(args, "force", False))
+    if args.formulation == "improved" and args.target == "data":
+        return _run_safe(args, airframe, tr, va, te, source, out, hist)
     result = train(tr, va, airframe, cfg)
     net = CorrectionNet(**{**result.net.__dict__,
                            "info": {**result.net.info, "data_source": source}})
@@ -377,3 +379,32 @@ def run(args: argparse.Namespace) -> dict:
             "n_val": len(va), "n_test": len(te), "best_epoch": result.best_epoch,
             "stopped": result.stopped, "seconds": round(result.seconds, 1),
             "val_total_initial": h0["val_total"], "val_total_best": hb["val_total"]}
+
+
+class NotKept(ValueError):
+    """Training ran but its correction is not written (unstable map or physics not beaten)."""
+
+
+def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist: Path) -> dict:
+    """``uavdyn train`` of the safe correction (improved formulation on flight data)."""
+    from uavdyn.learned.safe import SafeConfig, train_safe, write_safe_history
+
+    cfg = SafeConfig(hidden=args.hidden, activation=args.activation, epochs=args.epochs,
+                     lr=args.lr, patience=args.patience, max_seconds=args.max_seconds,
+                     seed=args.seed, threads=args.threads, progress=not args.quiet,
+                     stability_weight=args.stability_weight,
+                     stability_margin=args.stability_margin, horizon_s=args.horizon,
+                     memory_tau=(tuple(args.memory_tau) if args.memory_tau is not None
+                                 else None))
+    result = train_safe(tr, va, airframe, cfg)
+    write_safe_history(result, hist)
+    if not result.kept:
+        raise NotKept(f"no weights written: {result.reason} (history: {hist})")
+    net = CorrectionNet(**{**result.net.__dict__,
+                           "info": {**result.net.info, "data_source": source}})
+    save_weights(net, out)
+    return {"weights": str(out), "history": str(hist), "png": str(hist.with_suffix(".png")),
+            "network": net.describe(), "data_source": source, "n_train": len(tr),
+            "n_val": len(va), "n_test": len(te), "best_epoch": result.best_epoch,
+            "seconds": round(result.seconds, 1), "validation": result.validation,
+            "stability": result.stability.describe() if result.stability else None}
