@@ -1,0 +1,193 @@
+"""Benchmark of the safe correction (issue 12) on the emulated datasets of the shipped recipes:
+identify the physics on the train split, train the safe correction on top of it (train and
+validation splits), then on the TEST split, calm and turbulent separately: 1 s-horizon and
+free-run pitch RMSE of identified physics vs corrected (against the noise-free states), the
+ratio per sortie with every sortie where the correction is worse flagged, divergences, the
+stability check at trims over the training envelope, and the cost of the compiled hybrid step
+against the compiled physics step on the same state (one interleaved timing harness).
+
+Usage: ``python analysis/bench_safe.py [--airframes fixed_wing quadrotor] [--out F]
+[--epochs N] [--weights-dir DIR]``. Prints JSON; ``--out`` writes it too.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from uavdyn.airframes import load_airframe
+from uavdyn.evaluation import Solver, evaluate_trajectory
+from uavdyn.experiments.common import IDENTIFY_PARAMS
+from uavdyn.experiments.reproduce import ReproduceConfig, dataset_for
+from uavdyn.identify import identify
+from uavdyn.integrate import compile_function, physics_step, rollout
+from uavdyn.learned import hybrid_step, save_weights
+from uavdyn.learned.safe import SafeConfig, train_safe, write_safe_history
+from uavdyn.model import sortie_params, structure_of
+
+PRESET = {"fixed_wing": "aerosonde", "quadrotor": "f450"}
+N_TIMING = 2000
+
+
+def _rmse(err: np.ndarray) -> float:
+    with np.errstate(over="ignore", invalid="ignore"):
+        value = float(np.sqrt(np.mean(err**2)))
+    return value if math.isfinite(value) and value < 1e3 else math.inf
+
+
+def score(solver: Solver, airframe, sorties) -> list[dict]:
+    rows = []
+    for s in sorties:
+        p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
+        res = evaluate_trajectory(solver, s.time, s.true_states if s.true_states is not None
+                                  else s.states, s.controls, p)
+        row = {"sortie": s.name, "condition": s.meta.get("condition", "") or "unknown"}
+        for mode in ("horizon_1s", "free_run"):
+            if mode in res:
+                pred, targ = res[mode]
+                row[mode] = _rmse(pred[..., 3] - targ[..., 3])
+            else:
+                row[mode] = None
+                row.setdefault("refused", {})[mode] = res.get("refused", {}).get(mode)
+        rows.append(row)
+    return rows
+
+
+def cost_ratio(step, physics, z0, u, p, dt: float, repeats: int = 7) -> dict:
+    """Median µs per step of both compiled steps inside a mapaccum rollout, interleaved."""
+    runs = {}
+    for name, st, x0 in (("physics", physics, z0[:physics.size1_in(0)]), ("hybrid", step, z0)):
+        f = compile_function(rollout(st, N_TIMING))
+        args = [x0, np.tile(u[:, None], (1, N_TIMING)), p, dt]
+        f(*args)
+        runs[name] = (f, args)
+    times = {k: [] for k in runs}
+    for _ in range(repeats):
+        for name, (f, args) in runs.items():
+            t0 = time.perf_counter()
+            f(*args)
+            times[name].append(time.perf_counter() - t0)
+    us = {k: statistics.median(v) / N_TIMING * 1e6 for k, v in times.items()}
+    return {"physics_us_per_step": us["physics"], "hybrid_us_per_step": us["hybrid"],
+            "ratio": us["hybrid"] / us["physics"], "repeats": repeats, "steps": N_TIMING}
+
+
+def run_airframe(name: str, args) -> dict:
+    nominal = load_airframe(PRESET[name])
+    ds = dataset_for(name, ReproduceConfig(cache=args.cache, progress=False))
+    t0 = time.perf_counter()
+    ident = identify(nominal, ds.train, ds.validation, list(IDENTIFY_PARAMS[nominal.kind]),
+                     progress=False)
+    t_ident = time.perf_counter() - t0
+    fitted = ident.airframe
+    cfg = SafeConfig(epochs=args.epochs, progress=not args.quiet, max_seconds=args.max_seconds)
+    t0 = time.perf_counter()
+    result = train_safe(ds.train, ds.validation, fitted, cfg)
+    t_train = time.perf_counter() - t0
+    out: dict = {"airframe": nominal.name, "dataset": str(ds.path),
+                 "identified": {e.name: e.value for e in ident.estimates},
+                 "identify_seconds": t_ident, "train_seconds": t_train,
+                 "kept": result.kept, "reason": result.reason,
+                 "validation": result.validation,
+                 "stability": result.stability.to_dict() if result.stability else None}
+    if args.weights_dir:
+        folder = Path(args.weights_dir)
+        folder.mkdir(parents=True, exist_ok=True)
+        write_safe_history(result, folder / f"{nominal.name}_safe_history.json")
+        if result.net is not None:
+            save_weights(result.net, folder / f"{nominal.name}_safe.npz")
+    sample_dt = float(np.median(np.diff(ds.test[0].time)))
+    physics = physics_step(fitted)
+    rows_p = score(Solver("identified physics", physics, sample_dt, structure_of(fitted)),
+                   fitted, ds.test)
+    per_sortie = []
+    if result.net is not None:
+        step = hybrid_step(result.net, fitted)
+        rows_h = score(Solver("corrected", step, sample_dt, structure_of(fitted)), fitted,
+                       ds.test)
+        for rp, rh in zip(rows_p, rows_h):
+            row = {"sortie": rp["sortie"], "condition": rp["condition"]}
+            for mode in ("horizon_1s", "free_run"):
+                a, b = rp[mode], rh[mode]
+                row[f"{mode}_physics"], row[f"{mode}_corrected"] = a, b
+                row[f"{mode}_ratio"] = (b / a if a and b is not None and math.isfinite(a)
+                                        and a > 0 else None)
+            row["worse_at_1s"] = bool(row["horizon_1s_ratio"] is not None
+                                      and row["horizon_1s_ratio"] > 1.0)
+            row["diverged_where_physics_did_not"] = bool(
+                rh["free_run"] is not None and not math.isfinite(rh["free_run"])
+                and rp["free_run"] is not None and math.isfinite(rp["free_run"]))
+            per_sortie.append(row)
+        z0 = np.concatenate([ds.test[0].states[0], np.tile(ds.test[0].controls[0],
+                                                           len(result.net.memory_tau))])
+        if physics.size1_in(0) != 4:
+            z0 = step.start_states(ds.test[0].states[:1], ds.test[0].controls[:1], fitted.p,
+                                   sample_dt)[0]
+        out["cost"] = cost_ratio(step, physics, z0, ds.test[0].controls[0], fitted.p,
+                                 sample_dt)
+    else:
+        per_sortie = [{"sortie": r["sortie"], "condition": r["condition"],
+                       "horizon_1s_physics": r["horizon_1s"],
+                       "free_run_physics": r["free_run"]} for r in rows_p]
+    groups: dict = {}
+    for row in per_sortie:
+        groups.setdefault(row["condition"], []).append(row)
+    pooled = {}
+    for cond, rows in groups.items():
+        entry = {"sorties": len(rows)}
+        for mode in ("horizon_1s", "free_run"):
+            for which in ("physics", "corrected"):
+                vals = [r.get(f"{mode}_{which}") for r in rows]
+                if any(v is None for v in vals):
+                    continue
+                entry[f"{mode}_{which}"] = (math.sqrt(float(np.mean(np.square(vals))))
+                                            if all(math.isfinite(v) for v in vals)
+                                            else math.inf)
+            ratios = [r.get(f"{mode}_ratio") for r in rows if r.get(f"{mode}_ratio")]
+            if ratios:
+                entry[f"{mode}_ratio_min_median_max"] = [float(np.min(ratios)),
+                                                          float(np.median(ratios)),
+                                                          float(np.max(ratios))]
+        entry["worse_at_1s"] = sum(bool(r.get("worse_at_1s")) for r in rows)
+        entry["worse_by_more_than_10pct_at_1s"] = sum(
+            1 for r in rows if (r.get("horizon_1s_ratio") or 0) > 1.1)
+        entry["diverged_where_physics_did_not"] = sum(
+            bool(r.get("diverged_where_physics_did_not")) for r in rows)
+        pooled[cond] = entry
+    out["pooled"] = pooled
+    out["per_sortie"] = per_sortie
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--airframes", nargs="+", default=["fixed_wing", "quadrotor"],
+                        choices=sorted(PRESET))
+    parser.add_argument("--epochs", type=int, default=40)
+    parser.add_argument("--max-seconds", type=float, default=600.0)
+    parser.add_argument("--cache", default=None, help="dataset cache folder")
+    parser.add_argument("--weights-dir", default=None, help="keep weights and histories here")
+    parser.add_argument("--out", default=None)
+    parser.add_argument("--quiet", action="store_true")
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    result = {"command": "python analysis/bench_safe.py " + " ".join(
+        sys.argv[1:] if argv is None else argv), "machine": platform.processor() or
+        platform.machine(), "airframes": [run_airframe(a, args) for a in args.airframes]}
+    text = json.dumps(result, indent=2, default=str)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(text + "\n")
+    print(text)
+    return result
+
+
+if __name__ == "__main__":
+    main()
