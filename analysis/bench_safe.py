@@ -25,7 +25,7 @@ import numpy as np
 
 from uavdyn.airframes import load_airframe
 from uavdyn.evaluation import Solver, evaluate_trajectory
-from uavdyn.experiments.common import IDENTIFY_PARAMS
+from uavdyn.experiments.common import IDENTIFY_PARAMS, identification_sorties
 from uavdyn.experiments.reproduce import ReproduceConfig, dataset_for
 from uavdyn.identify import identify
 from uavdyn.integrate import compile_function, physics_step, rollout
@@ -84,7 +84,8 @@ def run_airframe(name: str, args) -> dict:
     nominal = load_airframe(PRESET[name])
     ds = dataset_for(name, ReproduceConfig(cache=args.cache, progress=False))
     t0 = time.perf_counter()
-    ident = identify(nominal, ds.train, ds.validation, list(IDENTIFY_PARAMS[nominal.kind]),
+    fit_on, _ = identification_sorties(ds.train)
+    ident = identify(nominal, fit_on, ds.validation, list(IDENTIFY_PARAMS[nominal.kind]),
                      progress=False)
     t_ident = time.perf_counter() - t0
     fitted = ident.airframe

@@ -319,8 +319,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if not ds.validation:
         print("warning: no validation split; the fit is scored on the training sorties only",
               file=sys.stderr)
+    if args.max_delay < 0:
+        raise CliError(f"--max-delay must be >= 0 samples, got {args.max_delay}")
     result = identify(nominal, ds.train, ds.validation, names, window_s=args.window,
-                      dt=args.dt, progress=not args.quiet)
+                      dt=args.dt, max_delay=args.max_delay, progress=not args.quiet)
     report = Path(args.report) if args.report else out.with_name(out.stem + "_report")
     command = "uavdyn " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["identify"] else \
         f"uavdyn identify --airframe {args.airframe} --dataset {args.dataset} --params " \
@@ -329,8 +331,14 @@ def cmd_identify(args: argparse.Namespace) -> int:
     print(f"identified {len(names)} parameter(s) of '{nominal.name}' on {len(ds.train)} train "
           f"sorties in {result.seconds:.1f} s ({result.iterations} iterations)")
     for e in result.estimates:
-        print(f"  {e.name:>14} = {e.value:12.6g} +- {e.std_error:.2g}  (nominal {e.nominal:.6g},"
-              f" {100 * e.relative_change:+.2f} %)")
+        if e.searched:
+            print(f"  {e.name:>14} = {int(e.value):12d} samples (searched 0..{args.max_delay}; "
+                  f"nominal {int(e.nominal)})")
+            continue
+        change = f", {100 * e.relative_change:+.2f} %" if e.nominal else ""
+        bound = f", on its {e.at_bound} bound" if e.at_bound else ""
+        print(f"  {e.name:>14} = {e.value:12.6g} +- {e.std_error:.2g}  (nominal "
+              f"{e.nominal:.6g}{change}{bound})")
     for a, b, c in result.flagged_pairs:
         print(f"  highly correlated: {a} and {b} (r = {c:+.3f})")
     for split in ("train", "validation"):
@@ -538,6 +546,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="RK4 step in s (default half the log interval)")
     p.add_argument("--lowpass-hz", type=float, default=None,
                    help="zero-phase low-pass filter of the data before fitting")
+    p.add_argument("--max-delay", type=int, default=5,
+                   help="largest transport delay (samples) searched for delay_<control> names "
+                        "(default 5)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_identify)
 

@@ -36,3 +36,11 @@ def hybrid_steps(airframe: Airframe, nets: dict, target: str = "data", suffix: s
 
     return {f"hybrid {f}{suffix}": hybrid_step(nets[(f, target)], airframe, compile=False)
             for f in FORMULATIONS if nets.get((f, target)) is not None}
+
+
+def identification_sorties(sorties: list[Sortie], minimum: int = 3) -> tuple[list[Sortie], str]:
+    """The sorties to identify the physics on: the calm ones where the data label at least
+    ``minimum`` of them, else all. Output error has no wind model; gusts are unmodelled inputs
+    that fitted coefficients would absorb (identification manoeuvres are flown in calm air)."""
+    calm = [s for s in sorties if condition(s) == "calm"]
+    return (calm, "calm train") if len(calm) >= minimum else (list(sorties), "train")

@@ -41,6 +41,7 @@ from uavdyn.experiments.common import (
     TARGETS,
     condition,
     hybrid_steps,
+    identification_sorties,
     target_states,
 )
 from uavdyn.experiments.report import _table1, _table4, write_report
@@ -140,9 +141,10 @@ def identify_physics(airframe: Airframe, ds: Dataset, config: ReproduceConfig, l
     if not ds.train:
         return None, {"missing": "the dataset has no train split to identify on"}
     names = list(IDENTIFY_PARAMS[airframe.kind])
-    log(f"[{airframe.name}] identifying {', '.join(names)} on {len(ds.train)} train sorties ...")
+    fit_on, which = identification_sorties(ds.train)
+    log(f"[{airframe.name}] identifying {', '.join(names)} on {len(fit_on)} {which} sorties ...")
     try:
-        result = identify(airframe, ds.train, ds.validation, names,
+        result = identify(airframe, fit_on, ds.validation, names,
                           max_windows=40 if config.quick else 120,
                           max_iterations=20 if config.quick else 60, progress=config.progress)
     except IdentifyError as exc:
@@ -160,6 +162,7 @@ def identify_physics(airframe: Airframe, ds: Dataset, config: ReproduceConfig, l
                               "std_error": e.std_error} for e in result.estimates],
                "flagged_pairs": [list(p) for p in result.flagged_pairs],
                "validation_theta_rmse": (result.fit.get("validation") or {}).get("theta_rmse"),
+               "fitted_on": f"{len(fit_on)} {which} sorties",
                "window_s": result.window_s}
     return fitted, summary
 

@@ -1,17 +1,19 @@
 """Identification of physical parameters from flight data: output-error least squares over
 windows restarted from recorded states (CasADi ``nlpsol``, exact Jacobians, Gauss-Newton
-Hessian), standard errors and correlations, and an airframe file with provenance."""
+Hessian) on the model structure of the airframe (actuator lags, searched integer delays,
+per-sortie density, table values), standard errors and correlations, and a complete airframe
+file with provenance."""
 
+from uavdyn.identify.errors import IdentifyError
 from uavdyn.identify.output_error import (
     Estimate,
     IdentificationResult,
-    IdentifyError,
-    Windows,
     identify,
-    make_windows,
     measurement_noise,
 )
 from uavdyn.identify.report import airframe_toml, write_outputs
+from uavdyn.identify.windows import Windows, free_run_sortie, make_windows, predict_windows
 
 __all__ = ["Estimate", "IdentificationResult", "IdentifyError", "Windows", "identify",
-           "make_windows", "measurement_noise", "airframe_toml", "write_outputs"]
+           "make_windows", "measurement_noise", "predict_windows", "free_run_sortie",
+           "airframe_toml", "write_outputs"]

@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import math
 from dataclasses import replace
 from pathlib import Path
 
-from uavdyn.airframes import Airframe
+import numpy as np
+
+from uavdyn.airframes import OPTIONAL_PARAMS, Airframe, param_names
 from uavdyn.identify.output_error import IdentificationResult
 from uavdyn.outputs import atomic_file, write_text_atomic
 
@@ -17,15 +20,56 @@ def _toml_string(text: str) -> str:
     return json.dumps(str(text), ensure_ascii=False)  # a JSON string is a TOML basic string
 
 
+def _toml_number(value: float) -> str:
+    number = float(value)
+    if not math.isfinite(number):
+        raise ValueError(f"cannot write the non-finite number {number!r} to an airframe file")
+    return repr(number)
+
+
+def _toml_array(values) -> str:
+    return "[" + ", ".join(_toml_number(v) for v in values) + "]"
+
+
 def airframe_toml(airframe: Airframe, header: list[str]) -> str:
-    """A complete airframe file (the loader's schema) with ``header`` as comment lines."""
+    """A complete airframe file (the loader's schema) with ``header`` as comment lines: every
+    parameter of the kind (an optional one where it differs from its no-effect default), the
+    atmosphere, ``[limits]``, ``[delays]`` and ``[tables]`` with their values, so that
+    :func:`uavdyn.airframes.load_airframe` gives back the same ``p``, delays and structure."""
     lines = [f"# {h}" for h in header] + [
         "", f"name = {_toml_string(airframe.name)}", f"kind = {_toml_string(airframe.kind)}",
         f"description = {_toml_string(airframe.description)}",
-        f"nominal_airspeed = {float(airframe.nominal_airspeed)!r}", ""]
-    for name in airframe.param_names:
-        lines += [f"[params.{name}]", f"value = {float(getattr(airframe.params, name))!r}",
+        f"nominal_airspeed = {_toml_number(airframe.nominal_airspeed)}"]
+    if airframe.atmosphere != "constant":
+        lines.append(f"atmosphere = {_toml_string(airframe.atmosphere)}")
+    lines.append("")
+    optional = OPTIONAL_PARAMS[airframe.kind]
+    for name in param_names(airframe.kind):
+        value = float(getattr(airframe.params, name))
+        if name in optional and value == optional[name]:
+            continue  # absent = its default, which changes nothing
+        lines += [f"[params.{name}]", f"value = {_toml_number(value)}",
                   f"source = {_toml_string(airframe.sources.get(name, ''))}"]
+    if airframe.limits:
+        lines += ["", "[limits]"]
+        for key, value in airframe.limits.items():
+            text = (_toml_array(value) if isinstance(value, (tuple, list))
+                    else _toml_number(value))
+            lines.append(f"{key} = {text}")
+    delays = {k: int(v) for k, v in airframe.delays.items() if v}
+    if delays:
+        lines += ["", "[delays]"] + [f"{k} = {v}" for k, v in delays.items()]
+    for name in sorted(airframe.tables):
+        table = airframe.tables[name]
+        lines += ["", f"[tables.{name}]"]
+        lines += [f"{axis} = {_toml_array(points)}" for axis, points in table.axes]
+        if len(table.axes) == 1:
+            lines.append(f"values = {_toml_array(table.values)}")
+        else:
+            n1 = table.shape[1]
+            rows = [_toml_array(table.values[i * n1:(i + 1) * n1])
+                    for i in range(table.shape[0])]
+            lines.append("values = [\n    " + ",\n    ".join(rows) + ",\n]")
     return "\n".join(lines) + "\n"
 
 
@@ -33,14 +77,28 @@ def provenance(result: IdentificationResult, nominal: Airframe, dataset: str, co
                ) -> list[str]:
     """Header lines saying where the identified numbers come from."""
     date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    interval = result.dt * result.substeps
     lines = [f"Identified by uavdyn from '{nominal.name}' on {date}",
              f"dataset: {dataset}", f"command: {command}",
              f"output-error fit over {result.fit['windows']} windows of {result.window_s:g} s "
-             f"restarted from recorded states, RK4 dt {result.dt:g} s, "
-             f"{result.iterations} IPOPT iterations ({result.fit['solver_status']})"]
+             f"restarted from recorded states, RK4 {result.substeps} x {result.dt:g} s per "
+             f"{interval:g} s sample, {result.iterations} IPOPT iterations "
+             f"({result.fit['solver_status']})"]
+    if nominal.atmosphere == "isa":
+        lines.append("  atmosphere isa: rho is the sea-level density, scaled per sortie by the "
+                     "standard atmosphere at its manifest altitude_m")
     for e in result.estimates:
+        if e.searched:
+            edge = ", the largest searched" if e.at_bound else ""
+            ms = 1000 * int(e.value) * interval
+            lines.append(f"  {e.name} = {int(e.value)} samples ({ms:g} ms; searched integer"
+                         f"{edge}, nominal {int(e.nominal)})")
+            continue
+        change = ("" if not math.isfinite(e.relative_change)
+                  else f", {100 * e.relative_change:+.2f} %")
+        bound = f"; on its {e.at_bound} bound" if e.at_bound else ""
         lines.append(f"  {e.name} = {e.value:.6g} +- {e.std_error:.2g} (1 s.e., Cramer-Rao; "
-                     f"nominal {e.nominal:.6g}, {100 * e.relative_change:+.2f} %)")
+                     f"nominal {e.nominal:.6g}{change}{bound})")
     for a, b, c in result.flagged_pairs:
         lines.append(f"  highly correlated: {a} and {b} (r = {c:+.3f})")
     return lines
@@ -51,6 +109,8 @@ def identified_airframe(result: IdentificationResult, nominal: Airframe, dataset
     """The fitted airframe with each estimated parameter's source saying so."""
     sources = dict(result.airframe.sources)
     for e in result.estimates:
+        if e.searched or e.name not in param_names(nominal.kind):
+            continue  # delays and table values have no source entry
         sources[e.name] = (f"identified from {dataset}: {e.value:.6g} +- {e.std_error:.2g} "
                            f"(nominal {e.nominal:.6g}; was: {nominal.sources.get(e.name, '')})")
     return replace(result.airframe, name=f"{nominal.name}_identified", sources=sources,
@@ -81,18 +141,24 @@ def _plot(result: IdentificationResult, path: Path) -> Path:
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
     est = result.estimates
     ax = axes[0]
-    rel = [100 * e.relative_change for e in est]
+    rel = [100 * e.relative_change if math.isfinite(e.relative_change) else 0.0 for e in est]
     err = [100 * e.std_error / abs(e.nominal) if e.nominal else 0.0 for e in est]
     ax.barh([e.name for e in est], rel, xerr=[2 * v for v in err], color="C0", capsize=4)
+    for i, e in enumerate(est):  # no relative change from a nominal 0: the value is written
+        if not math.isfinite(e.relative_change):
+            text = f"{int(e.value)} samples" if e.searched else f"{e.value:.4g} (from 0)"
+            ax.text(0, i, " " + text, va="center", fontsize=8)
     ax.axvline(0, color="k", lw=0.8)
     ax.set_xlabel("change from nominal (%), bars: +-2 standard errors")
     ax.set_title("estimates")
     ax = axes[1]
-    im = ax.imshow(result.correlation, vmin=-1, vmax=1, cmap="coolwarm")
-    ax.set_xticks(range(len(est)), [e.name for e in est], rotation=45, ha="right", fontsize=8)
-    ax.set_yticks(range(len(est)), [e.name for e in est], fontsize=8)
-    for i in range(len(est)):
-        for j in range(len(est)):
+    names = [e.name for e in est if not e.searched]
+    im = ax.imshow(result.correlation if names else np.zeros((1, 1)), vmin=-1, vmax=1,
+                   cmap="coolwarm")
+    ax.set_xticks(range(len(names)), names, rotation=45, ha="right", fontsize=8)
+    ax.set_yticks(range(len(names)), names, fontsize=8)
+    for i in range(len(names)):
+        for j in range(len(names)):
             ax.text(j, i, f"{result.correlation[i, j]:.2f}", ha="center", va="center",
                     fontsize=7)
     fig.colorbar(im, ax=ax, fraction=0.046)
