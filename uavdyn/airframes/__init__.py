@@ -70,7 +70,13 @@ from typing import Union
 
 import numpy as np
 
-from uavdyn.airframes.tables import VALUE_LIMITS, Table, TableError, parse_tables
+from uavdyn.airframes.tables import (
+    VALUE_LIMITS,
+    Table,
+    TableError,
+    number_value,
+    parse_tables,
+)
 from uavdyn.safefiles import DuplicateKey, UnreadableFile, no_duplicate_keys, read_regular
 
 if sys.version_info >= (3, 11):
@@ -638,6 +644,13 @@ def _parse(data: dict, origin: str) -> Airframe:
     )
 
 
+def _unknown_key(origin: str, table: str, key: str, kind: str, allowed) -> AirframeError:
+    """The error for a key a table of the kind does not have (the key shown as written)."""
+    shown = key if key.isprintable() and len(key) <= 40 else _short(key, 30)
+    return AirframeError(f"{origin}: unknown key '{table}.{shown}' for kind '{kind}'; expected "
+                         f"any of {list(allowed)}")
+
+
 def _parse_delays(raw: object, kind: str, origin: str) -> dict[str, int]:
     """The ``[delays]`` table: a whole number of samples (0..DELAY_MAX_SAMPLES) per control."""
     if not isinstance(raw, dict):
@@ -647,9 +660,7 @@ def _parse_delays(raw: object, kind: str, origin: str) -> dict[str, int]:
     for key in sorted(raw, key=str):
         value = raw[key]
         if key not in names:
-            shown = key if key.isprintable() and len(key) <= 40 else _short(key, 30)
-            raise AirframeError(f"{origin}: unknown key 'delays.{shown}' for kind "
-                                f"'{kind}'; expected any of {names}")
+            raise _unknown_key(origin, "delays", key, kind, names)
         if isinstance(value, bool) or not isinstance(value, int) \
                 or not 0 <= value <= DELAY_MAX_SAMPLES:
             raise AirframeError(f"{origin}: key 'delays.{key}' must be a whole number of samples "
@@ -661,13 +672,10 @@ def _parse_delays(raw: object, kind: str, origin: str) -> dict[str, int]:
 
 def _limit_number(value: object, key: str, origin: str) -> float:
     """One number of ``[limits]``: typed (no boolean or string) and finite."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    number = number_value(value)
+    if number is None:
         raise AirframeError(f"{origin}: key 'limits.{key}' must hold numbers, got "
                             f"{_short(value)}")
-    try:
-        number = float(value)
-    except OverflowError:
-        number = math.inf
     if not math.isfinite(number):
         raise AirframeError(f"{origin}: key 'limits.{key}' must be finite, got {_short(value)}")
     return number
@@ -685,9 +693,7 @@ def _parse_limits(raw: object, kind: str, origin: str) -> dict[str, tuple[float,
     for key in sorted(raw, key=str):
         value = raw[key]
         if key not in allowed:
-            shown = key if key.isprintable() and len(key) <= 40 else _short(key, 30)
-            raise AirframeError(f"{origin}: unknown key 'limits.{shown}' for kind '{kind}'; "
-                                f"expected any of {allowed}")
+            raise _unknown_key(origin, "limits", key, kind, allowed)
         if key.endswith(RATE_SUFFIX):
             rate = _limit_number(value, key, origin)
             if not rate > 0:

@@ -88,18 +88,26 @@ def _shown(value: object, limit: int = 40) -> str:
     return text if len(text) <= limit else text[:limit] + "..."
 
 
+def number_value(value: object) -> float | None:
+    """A file value as a float: None for anything that is not a number (a boolean is not one),
+    ``inf`` for an integer too large for a float (so a finiteness check catches it)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf
+
+
 def _numbers(raw: object, where: str, origin: str) -> list[float]:
     if not isinstance(raw, list) or not raw:
         raise TableError(f"{origin}: key '{where}' must be a non-empty array of numbers, got "
                          f"{_shown(raw)}")
     out = []
     for i, v in enumerate(raw):
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
+        f = number_value(v)
+        if f is None:
             raise TableError(f"{origin}: key '{where}[{i}]' must be a number, got {_shown(v)}")
-        try:
-            f = float(v)
-        except OverflowError:
-            f = math.inf
         if not math.isfinite(f):
             raise TableError(f"{origin}: key '{where}[{i}]' must be finite, got {_shown(v)}")
         out.append(f)
