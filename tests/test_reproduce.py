@@ -169,5 +169,18 @@ def test_train_and_evaluate_on_a_hand_written_dataset(tmp_path, capsys):
         for mode in ("one_step", "horizon_1s", "free_run"):
             assert finite(row[mode]["theta_rmse"])
     assert out.with_suffix(".md").read_text().startswith("# Evaluation of aerosonde")
+    # per sortie: the correction against the physics it sits on, ratios recomputed from the
+    # two RMSEs, every worse sortie flagged
+    safety = metrics["per_sortie"]
+    assert len(safety) == 1
+    for r in safety[0]["sorties"]:
+        for mode in ("horizon_1s", "free_run"):
+            ratio = r[f"{mode}_corrected"] / r[f"{mode}_physics"]
+            assert r[f"{mode}_ratio"] == pytest.approx(ratio, rel=1e-12)
+            assert (mode in r["worse"]) == (ratio > 1.0)
+        assert 0.0 <= r["outside_envelope"] <= 1.0
+    assert safety[0]["worse_at_1s"] == sum("horizon_1s" in r["worse"]
+                                           for r in safety[0]["sorties"])
+    assert "Per sortie" in out.with_suffix(".md").read_text()
     assert metrics["table4"] and all(finite(r["max_error_rad"]) for r in metrics["table4"]
                                      if r["sorties"])

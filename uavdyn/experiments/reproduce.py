@@ -172,6 +172,21 @@ def obtain_weights(airframe: Airframe, ds: Dataset, formulation: str, target: st
     """Shipped weights, or freshly trained ones with ``retrain`` (needs torch) on the physics of
     ``airframe`` (the identified airframe by default)."""
     path = weights_path(airframe, formulation, target, config)
+    if config.retrain and formulation == "improved" and target == "data":
+        from uavdyn.learned.safe import SafeConfig, train_safe, write_safe_history
+
+        out = Path(config.out) / "weights" / path.name
+        cfg = SafeConfig(progress=config.progress)
+        if config.quick:
+            cfg.epochs, cfg.max_seconds, cfg.batches_per_epoch = 3, 60.0, 3
+        log(f"training the safe {formulation} correction for {airframe.name} ...")
+        result = train_safe(ds.train, ds.validation, airframe, cfg)
+        write_safe_history(result, out.with_name(out.stem + "_history.json"))
+        if not result.kept:
+            log(f"[{airframe.name}] correction not kept: {result.reason}")
+            return None
+        save_weights(result.net, out)
+        return out
     if config.retrain:
         from uavdyn.learned.train import TrainConfig, train, write_history
 
@@ -348,8 +363,13 @@ def convergence_table(weight_files: dict) -> list[dict]:
             continue
         doc = json.loads(hist_path.read_text())
         hist = doc["history"]
-        train_key = "train_total" if "train_total" in hist[-1] else "train_one_step"
-        val = [h.get("val_total") for h in hist if h.get("val_total") is not None]
+        # the safe trainer's losses: training rollout loss (physics = 1) and the validation
+        # 1 s pitch RMSE it selects by
+        safe = "val_theta_rmse" in hist[-1]
+        train_key = ("train_loss" if safe else "train_total" if "train_total" in hist[-1]
+                     else "train_one_step")
+        val_key = "val_theta_rmse" if safe else "val_total"
+        val = [h.get(val_key) for h in hist if h.get(val_key) is not None]
         train = [h.get(train_key) for h in hist if h.get(train_key) is not None]
         rows.append({
             "weights": Path(path).name, "formulation": formulation, "target": target,
@@ -362,6 +382,8 @@ def convergence_table(weight_files: dict) -> list[dict]:
             "monotonic_train": bool(np.all(np.diff(train) <= 0)) if len(train) > 1 else None,
             "monotonic_val": bool(np.all(np.diff(val) <= 0)) if len(val) > 1 else None,
             "history_file": str(hist_path),
+            **({"validation_metric": "1 s pitch RMSE (rad)", "train_metric":
+                "rollout loss (physics = 1)"} if safe else {}),
         })
     return rows
 
@@ -708,6 +730,7 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
                     for dt in dts]
     table1 = accuracy_tables(airframe, sorties, {"data": solvers, "reference": [
         c for c in solvers if c.physics == "nominal"]})
+    safety = per_sortie_safety(solvers, sorties, [load_weights(w) for w in weights])
     alpha_max = {s.name: float(np.degrees(np.max(np.arctan2(target_states(s)[:, 1],
                                                             target_states(s)[:, 0]))))
                  for s in sorties}
@@ -741,7 +764,62 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
     return {"airframe": airframe.name, "kind": airframe.kind, "dataset": str(dataset),
             "sorties": [s.name for s in sorties], "split": split if ds.split(split) else "all",
             "identified": identified.origin if identified is not None else None,
-            "weights": [str(w) for w in weights], "table1": table1, "table4": table4}
+            "weights": [str(w) for w in weights], "table1": table1, "table4": table4,
+            "per_sortie": safety}
+
+
+def _pitch_rmse(res: dict, mode: str) -> float | None:
+    if mode not in res:
+        return None
+    pred, targ = res[mode]
+    with np.errstate(over="ignore", invalid="ignore"):
+        value = float(np.sqrt(np.mean((pred[..., 3] - targ[..., 3]) ** 2)))
+    return value if math.isfinite(value) else math.inf
+
+
+def per_sortie_safety(candidates: list[Candidate], sorties: list[Sortie], nets: list
+                      ) -> list[dict]:
+    """For every correction (at the sample interval, or the first step size it allows), per
+    sortie: its pitch RMSE at 1 s and over the free run against the physics it sits on, the
+    ratio corrected/physics, a flag where the correction is worse, and the share of samples
+    outside the correction's training envelope (where its gate is below 1)."""
+    out = []
+    hybrids = [c for c in candidates if c.solver.name.startswith("hybrid")]
+    for k, cand in enumerate(hybrids):
+        physics = next((c for c in candidates if c.physics == cand.physics
+                        and not c.solver.name.startswith("hybrid")
+                        and c.solver.dt == cand.solver.dt), None)
+        if physics is None or any(h.solver.dt < cand.solver.dt and h.solver.name.split(" @ ")[0]
+                                  == cand.solver.name.split(" @ ")[0] for h in hybrids[:k]):
+            continue  # one step size per correction: the first listed
+        net = next((n for n in nets if n.airframe_hash == cand.airframe.param_hash()
+                    and cand.solver.name.startswith(f"hybrid {n.formulation}")), None)
+        rows = []
+        for s in sorties:
+            p = sortie_params(cand.airframe, altitude(s))
+            truth = target_states(s)
+            rh = evaluate_trajectory(cand.solver, s.time, truth, s.controls, p)
+            rp = evaluate_trajectory(physics.solver, s.time, truth, s.controls, p)
+            row = {"sortie": s.name, "condition": condition(s)}
+            for mode in ("horizon_1s", "free_run"):
+                a, b = _pitch_rmse(rp, mode), _pitch_rmse(rh, mode)
+                row[f"{mode}_physics"], row[f"{mode}_corrected"] = a, b
+                row[f"{mode}_ratio"] = (b / a if a and b is not None and math.isfinite(a)
+                                        else None)
+            row["worse"] = [m for m in ("horizon_1s", "free_run")
+                            if row[f"{m}_ratio"] is not None and row[f"{m}_ratio"] > 1.0]
+            start = getattr(cand.solver.step, "start_states", None)
+            if net is not None and net.envelope is not None:
+                z = (start(s.states, s.controls, p, float(np.median(np.diff(s.time))))
+                     if start is not None else s.states)
+                row["outside_envelope"] = net.envelope.fraction_outside(
+                    np.hstack([z, s.controls]))
+            rows.append(row)
+        out.append({"correction": cand.solver.name, "physics": physics.solver.name,
+                    "sorties": rows,
+                    "worse_at_1s": sum("horizon_1s" in r["worse"] for r in rows),
+                    "worse_free_run": sum("free_run" in r["worse"] for r in rows)})
+    return out
 
 
 def evaluation_markdown(result: dict) -> str:
@@ -752,4 +830,23 @@ def evaluation_markdown(result: dict) -> str:
              + (", ".join(result["weights"]) or "none"), "", "## Table 1: accuracy", ""]
     lines += _table1(result) + ["## Table 4: robustness (free run, dt = 0.005 s)", ""]
     lines += _table4(result)
+    for entry in result.get("per_sortie", []):
+        lines += ["", f"## Per sortie: {entry['correction']} against {entry['physics']}", "",
+                  f"Worse than its physics at 1 s on {entry['worse_at_1s']} of "
+                  f"{len(entry['sorties'])} sorties, over the free run on "
+                  f"{entry['worse_free_run']}.", "",
+                  "| sortie | condition | 1 s: physics | corrected | ratio | free run: physics "
+                  "| corrected | ratio | outside envelope | worse |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
+        for r in entry["sorties"]:
+            def f(v):
+                return "n/a" if v is None else f"{v:.4g}"
+            outside = r.get("outside_envelope")
+            lines.append(
+                f"| {r['sortie']} | {r['condition']} | {f(r['horizon_1s_physics'])} | "
+                f"{f(r['horizon_1s_corrected'])} | {f(r['horizon_1s_ratio'])} | "
+                f"{f(r['free_run_physics'])} | {f(r['free_run_corrected'])} | "
+                f"{f(r['free_run_ratio'])} | "
+                f"{'n/a' if outside is None else f'{100 * outside:.1f} %'} | "
+                f"{'**' + ', '.join(r['worse']) + '**' if r['worse'] else ''} |")
     return "\n".join(lines)
