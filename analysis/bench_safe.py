@@ -29,8 +29,8 @@ from uavdyn.experiments.common import IDENTIFY_PARAMS, identification_sorties
 from uavdyn.experiments.reproduce import ReproduceConfig, dataset_for
 from uavdyn.identify import identify
 from uavdyn.integrate import compile_function, physics_step, rollout
-from uavdyn.learned import hybrid_step, save_weights
-from uavdyn.learned.safe import SafeConfig, train_safe, write_safe_history
+from uavdyn.learned import hybrid_step, load_weights, save_weights
+from uavdyn.learned.safe import SafeConfig, SafeResult, train_safe, write_safe_history
 from uavdyn.model import sortie_params, structure_of
 
 PRESET = {"fixed_wing": "aerosonde", "quadrotor": "f450"}
@@ -91,15 +91,24 @@ def run_airframe(name: str, args) -> dict:
     fitted = ident.airframe
     cfg = SafeConfig(epochs=args.epochs, progress=not args.quiet, max_seconds=args.max_seconds)
     t0 = time.perf_counter()
-    result = train_safe(ds.train, ds.validation, fitted, cfg)
+    saved = Path(args.weights_dir or ".") / f"{nominal.name}_safe.npz"
+    if args.reuse and saved.exists():  # the weights of an earlier run on the same data
+        doc = json.loads(saved.with_name(saved.stem + "_history.json").read_text())
+        net = load_weights(saved, fitted)
+        result = SafeResult(net, True, doc["reason"], doc["history"], cfg, doc["best_epoch"],
+                            doc["seconds"], doc["validation"])
+        stability = doc["stability"]
+    else:
+        result = train_safe(ds.train, ds.validation, fitted, cfg)
+        stability = result.stability.to_dict() if result.stability else None
     t_train = time.perf_counter() - t0
     out: dict = {"airframe": nominal.name, "dataset": str(ds.path),
                  "identified": {e.name: e.value for e in ident.estimates},
                  "identify_seconds": t_ident, "train_seconds": t_train,
                  "kept": result.kept, "reason": result.reason,
                  "validation": result.validation,
-                 "stability": result.stability.to_dict() if result.stability else None}
-    if args.weights_dir:
+                 "stability": stability}
+    if args.weights_dir and not (args.reuse and saved.exists()):
         folder = Path(args.weights_dir)
         folder.mkdir(parents=True, exist_ok=True)
         write_safe_history(result, folder / f"{nominal.name}_safe_history.json")
@@ -111,7 +120,7 @@ def run_airframe(name: str, args) -> dict:
                    fitted, ds.test)
     per_sortie = []
     if result.net is not None:
-        step = hybrid_step(result.net, fitted)
+        step = hybrid_step(result.net, fitted, compile=False)
         rows_h = score(Solver("corrected", step, sample_dt, structure_of(fitted)), fitted,
                        ds.test)
         for rp, rh in zip(rows_p, rows_h):
@@ -177,6 +186,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--cache", default=None, help="dataset cache folder")
     parser.add_argument("--weights-dir", default=None, help="keep weights and histories here")
     parser.add_argument("--out", default=None)
+    parser.add_argument("--reuse", action="store_true",
+                        help="use the weights already in --weights-dir (no training)")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     result = {"command": "python analysis/bench_safe.py " + " ".join(

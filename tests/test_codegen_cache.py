@@ -388,3 +388,19 @@ def test_save_weights_is_atomic(tmp_path, aerosonde, monkeypatch):
     save_weights(random_net(aerosonde, seed=1), path)
     assert path.read_bytes() != old and load_weights(path).dt == 0.005
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w.npz"]
+
+
+def test_a_graph_calling_a_compiled_function_is_refused_not_crashed(tmp_path):
+    """Generated C that calls an External would fail to resolve its symbol when called (a
+    process-killing error): compile_function refuses it with one line naming the callee."""
+    from uavdyn.airframes import load_airframe
+    from uavdyn.integrate import CompileError, compile_function, physics_step, rollout
+
+    airframe = load_airframe("aerosonde")
+    step = compile_function(physics_step(airframe), directory=tmp_path)
+    if not step.is_a("External"):
+        pytest.skip("no C compiler")
+    with pytest.raises(CompileError, match="calls the already compiled Function"):
+        compile_function(rollout(step, 5), directory=tmp_path)
+    assert compile_function(rollout(physics_step(airframe), 5), directory=tmp_path).is_a(
+        "External")

@@ -21,6 +21,7 @@ import contextlib
 import hashlib
 import json
 import os
+import re
 import shutil
 import stat
 import struct
@@ -272,6 +273,14 @@ def compile_function(func: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS,
     signature = _signature(func)
     with tempfile.TemporaryDirectory() as tmp:
         source = generate_c(func, Path(tmp), name)
+        external = _external_calls(source.read_text(errors="replace"))
+        if external:
+            # the generated C would call a function living in another library: loading it
+            # fails at call time with an unresolved symbol, which kills the process
+            raise CompileError(
+                f"cannot compile '{name}': it calls the already compiled Function(s) "
+                f"{', '.join(external)}; compile the uncompiled expression instead (e.g. "
+                "hybrid_step(..., compile=False))", compiler=compiler, function=name)
         key = _source_key(source.read_bytes(), compiler, flags)
         lib = _lib_for(folder, name, key)
         with _locked(folder / f".{lib.name}.lock"):
@@ -287,6 +296,16 @@ def compile_function(func: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS,
                                      function=name, command=exc.command,
                                      returncode=exc.returncode, stderr=exc.stderr) from None
             return _load_verified(lib, key, name, signature)
+
+
+_DECLARED = re.compile(r"^void (\w+)_incref\(void\);$", re.MULTILINE)
+
+
+def _external_calls(source: str) -> list[str]:
+    """Functions the generated source declares but does not define (compiled ``External``
+    Functions called from the graph)."""
+    return sorted(n for n in set(_DECLARED.findall(source))
+                  if f"void {n}_incref(void) {{" not in source)
 
 
 # -- cache folder ------------------------------------------------------------------------------
