@@ -50,15 +50,13 @@ def _pitch_feedback_net(airframe, gain: float, hidden: int = 4) -> CorrectionNet
 
 
 def _trims(airframe, net):
-    point = trim(airframe)
-    speeds = [point.airspeed]
     from uavdyn.flightdata import Sortie
 
+    point = trim(airframe)
     x = np.tile(point.x, (50, 1))
     x[:, 0] += np.linspace(-1, 1, 50) if airframe.kind == "fixed_wing" else 0.0
     sortie = Sortie("trims", airframe.kind, np.arange(50) * DT, x, np.tile(point.u, (50, 1)),
                     "survey")
-    del speeds
     return envelope_trims(airframe, [sortie], net.layout(structure_of(airframe)))
 
 

@@ -18,15 +18,43 @@ import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.integrate.tableau import RK4, ButcherTableau, explicit_rk_step
-from uavdyn.model import CASADI_OPS, ModelStructure, build_model, make_rhs, structure_of
+from uavdyn.model import (
+    CASADI_OPS,
+    NUMPY_OPS,
+    ModelStructure,
+    build_model,
+    make_rhs,
+    structure_of,
+)
 
 STEP_INPUTS = ["x", "u", "p", "dt"]
 TAU_FLOOR = 1e-300  # s; a time constant of 0 is an instant jump, never 0/0 at a stage time 0
 
 
-def _rows(z, start: int, stop: int, ops):
+def _rows(z, start: int, stop: int):
     """Feature rows ``start:stop`` of a feature-first array (an empty list if none)."""
     return [z[i] for i in range(start, stop)]
+
+
+def _shift_buffers(structure: ModelStructure, buffers: list, u) -> tuple[list, list]:
+    """The command each control acts on this call (the oldest buffered one, or ``u`` itself
+    without a delay) and the buffers after the call (``u`` in front, the oldest dropped)."""
+    delayed, new_buffers, offset = [], [], 0
+    for c, d in enumerate(structure.delay_samples):
+        if d:
+            delayed.append(buffers[offset + d - 1])
+            new_buffers += [u[c], *buffers[offset:offset + d - 1]]
+            offset += d
+        else:
+            delayed.append(u[c])
+    return delayed, new_buffers
+
+
+def _lagged(structure: ModelStructure, a0: list, delayed: list, p, s, ops) -> list:
+    """Each actuator ``s`` seconds into the call, following its (delayed) command exactly; a
+    time constant at 0 (a lag about to be fitted) jumps: ``exp(-s/0+) = 0``."""
+    return [delayed[c] + (a - delayed[c]) * ops.exp(-s / ops.fmax(p[i], TAU_FLOOR))
+            for a, c, i in zip(a0, structure.lag_indices, structure.tau_indices)]
 
 
 def augmented_rk_step(structure: ModelStructure, body_rhs: Callable, z, u, p, dt,
@@ -39,25 +67,13 @@ def augmented_rk_step(structure: ModelStructure, body_rhs: Callable, z, u, p, dt
     ``body_rhs(x, u_effective, p)`` is the rigid body's right-hand side (e.g. the physics plus a
     learned residual)."""
     nb = 6 if with_position else 4
-    nu = structure.nu
-    delays = structure.delay_samples
     buffer_start = nb + structure.n_actuator
-    delayed, new_buffer, offset = [], [], buffer_start
-    for c in range(nu):
-        d = delays[c]
-        if d:
-            delayed.append(z[offset + d - 1])
-            new_buffer += [u[c]] + _rows(z, offset, offset + d - 1, ops)
-            offset += d
-        else:
-            delayed.append(u[c])
-    a0 = _rows(z, nb, buffer_start, ops)
-    taus = [p[i] for i in structure.tau_indices]
-    targets = [delayed[c] for c in structure.lag_indices]
+    delayed, new_buffer = _shift_buffers(
+        structure, _rows(z, buffer_start, buffer_start + structure.n_buffer), u)
+    a0 = _rows(z, nb, buffer_start)
 
-    def actuator(s):  # a time constant at 0 (a lag about to be fitted) jumps: exp(-s/0+) = 0
-        return [t + (a - t) * ops.exp(-s / ops.fmax(tau, TAU_FLOOR))
-                for a, t, tau in zip(a0, targets, taus)]
+    def actuator(s):
+        return _lagged(structure, a0, delayed, p, s, ops)
 
     def effective(values):
         out = list(delayed)
@@ -65,7 +81,7 @@ def augmented_rk_step(structure: ModelStructure, body_rhs: Callable, z, u, p, dt
             out[c] = v
         return ops.stack(*out)
 
-    x = _rows(z, 0, nb, ops)
+    x = _rows(z, 0, nb)
     if not structure.n_actuator:
         u_eff = effective([])
         x_next = ops.stack(*x)
@@ -78,12 +94,12 @@ def augmented_rk_step(structure: ModelStructure, body_rhs: Callable, z, u, p, dt
     one = x[0] * 0.0 + 1.0
 
     def rhs(yy):
-        rates = body_rhs(ops.stack(*_rows(yy, 0, nb, ops)), effective(actuator(yy[nb])), p)
+        rates = body_rhs(ops.stack(*_rows(yy, 0, nb)), effective(actuator(yy[nb])), p)
         return ops.concat(rates, ops.stack(one))
 
     for _ in range(substeps):
         y = explicit_rk_step(tableau, rhs, y, h)
-    blocks = [ops.stack(*_rows(y, 0, nb, ops)), ops.stack(*actuator(dt))]
+    blocks = [ops.stack(*_rows(y, 0, nb)), ops.stack(*actuator(dt))]
     if new_buffer:
         blocks.append(ops.stack(*new_buffer))
     return ops.concat(*blocks)
@@ -136,22 +152,12 @@ def actuator_rest(structure: ModelStructure, u) -> np.ndarray:
 def advance_actuators(structure: ModelStructure, states, u, p, dt: float) -> np.ndarray:
     """The actuator and delay-buffer states one call of the step later, the command ``u``
     given over it (NumPy; what the step does to them: they do not depend on the body)."""
-    states = np.asarray(states, float).ravel()
+    states = list(np.asarray(states, float).ravel())
     u = np.asarray(u, float).ravel()
     n_act = structure.n_actuator
-    a, buffers = states[:n_act], states[n_act:]
-    delayed, new_buffers, offset = [], [], 0
-    for c, d in enumerate(structure.delay_samples):
-        if d:
-            delayed.append(buffers[offset + d - 1])
-            new_buffers += [u[c], *buffers[offset:offset + d - 1]]
-            offset += d
-        else:
-            delayed.append(u[c])
-    target = np.array([delayed[c] for c in structure.lag_indices])
-    taus = np.array([p[i] for i in structure.tau_indices])
-    a_next = target + (a - target) * np.exp(-dt / np.maximum(taus, TAU_FLOOR))
-    return np.concatenate([a_next, np.array(new_buffers, dtype=float)])
+    delayed, new_buffers = _shift_buffers(structure, states[n_act:], u)
+    a_next = _lagged(structure, states[:n_act], delayed, p, dt, NUMPY_OPS)
+    return np.array([*a_next, *new_buffers], dtype=float)
 
 
 def actuator_history(structure: ModelStructure, controls, p, sample_dt: float) -> np.ndarray:

@@ -10,7 +10,6 @@ library) refuses a use outside them.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from functools import partial
 from importlib import resources
@@ -21,9 +20,9 @@ import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.integrate import STEP_INPUTS, augment_states, compile_function
-from uavdyn.learned.formulations import CorrectionLayout
+from uavdyn.learned.formulations import CorrectionLayout, memory_update
 from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights
-from uavdyn.model import CASADI_OPS, ModelStructure, make_rhs, structure_of
+from uavdyn.model import CASADI_OPS, NUMPY_OPS, ModelStructure, make_rhs, structure_of
 from uavdyn.model.equations import as_structure
 
 SHIPPED = "uavdyn.learned.shipped"
@@ -50,14 +49,11 @@ def command_memory(controls, taus: tuple[float, ...], sample_dt: float) -> np.nd
     k held over sample k; at rest on the first command): row k is the memory at sample k,
     laid out ``[tau0: u1 u2, tau1: u1 u2, ...]`` like the step's memory states."""
     controls = np.atleast_2d(np.asarray(controls, float))
-    n, nu = controls.shape
-    out = np.empty((n, nu * len(taus)))
-    for j, tau in enumerate(taus):
-        decay = math.exp(-sample_dt / tau)
-        m = controls[0].copy()
-        for k in range(n):
-            out[k, j * nu:(j + 1) * nu] = m
-            m = controls[k] + (m - controls[k]) * decay
+    out = np.empty((controls.shape[0], controls.shape[1] * len(taus)))
+    memory = list(np.tile(controls[0], len(taus)))
+    for k, u in enumerate(controls):
+        out[k] = memory
+        memory = memory_update(memory, u, taus, sample_dt, NUMPY_OPS)
     return out
 
 
@@ -168,13 +164,12 @@ def hybrid_step(net: CorrectionNet | str | Path, airframe: Airframe | None = Non
         One Function ``(x, u, p, dt[, t]) -> x_next``.
     """
     net = _resolve(net, airframe)
-    step = hybrid_expression(net, relu_smoothing, name,
-                             structure=correction_structure(airframe, net.kind, net.formulation))
+    structure = correction_structure(airframe, net.kind, net.formulation)
+    step = hybrid_expression(net, relu_smoothing, name, structure=structure)
     if compile:
         step = compile_function(step)
     # delay buffers count calls of the step: such a step is tied to the step size it was
     # trained at (the data's sample period), like a formulation that is dt-bound
-    structure = correction_structure(airframe, net.kind, net.formulation)
     tied = net.form.dt_bound or structure.n_buffer > 0
     start = None
     if net.formulation == "improved" and net.n_state != 4:

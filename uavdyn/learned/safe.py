@@ -90,13 +90,6 @@ class SafeResult:
     stability: StabilityReport | None = None
 
 
-def hybrid_states(airframe: Airframe, layout: CorrectionLayout, sortie: Sortie, p: np.ndarray,
-                  sample_dt: float) -> np.ndarray:
-    """The hybrid step's state at every recorded sample of ``sortie``
-    (:func:`uavdyn.learned.hybrid.layout_states`)."""
-    return layout_states(layout, sortie.states, sortie.controls, p, sample_dt)
-
-
 @dataclass
 class _Windows:
     z0: np.ndarray      # (W, nz)
@@ -104,14 +97,16 @@ class _Windows:
     y: np.ndarray       # (W, H, 4) recorded body states after each sample
     p: np.ndarray       # (W, np)
     physics: np.ndarray  # (W, H, 4) physics-only prediction
+    inputs: np.ndarray   # (N, nz + nu) the network's inputs at every recorded sample
 
 
 def _windows(airframe: Airframe, layout: CorrectionLayout, sorties: list[Sortie],
              H: int, stride: int, sample_dt: float, physics_sim) -> _Windows:
-    z0, us, ys, ps = [], [], [], []
+    z0, us, ys, ps, inputs = [], [], [], [], []
     for s in sorties:
         p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
-        z = hybrid_states(airframe, layout, s, p, sample_dt)
+        z = layout_states(layout, s.states, s.controls, p, sample_dt)
+        inputs.append(np.hstack([z, s.controls]))
         for k in range(0, len(s.time) - H, stride):
             z0.append(z[k])
             us.append(s.controls[k:k + H])
@@ -119,7 +114,8 @@ def _windows(airframe: Airframe, layout: CorrectionLayout, sorties: list[Sortie]
             ps.append(p)
     if not z0:
         raise SafeTrainingError(f"no sortie is longer than the {H}-sample rollout window")
-    w = _Windows(np.array(z0), np.array(us), np.array(ys), np.array(ps), np.empty(0))
+    w = _Windows(np.array(z0), np.array(us), np.array(ys), np.array(ps), np.empty(0),
+                 np.vstack(inputs))
     W = len(w.z0)
     pred = np.array(physics_sim.map(W)(w.z0[:, :layout.n_physics].T,
                                        w.u.reshape(W * H, -1).T, w.p.T, sample_dt))
@@ -186,9 +182,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     tr = _windows(airframe, layout0, train_sorties, H, stride, sample_dt, physics_sim)
     va = _windows(airframe, layout0, val_sorties, H, stride, sample_dt, physics_sim)
     # normalisation, envelope and bound from the training inputs and residuals
-    rows = np.vstack([np.hstack([hybrid_states(airframe, layout0, s, sortie_params(
-        airframe, s.meta.get("manifest_entry", {}).get("altitude_m")), sample_dt),
-        s.controls]) for s in train_sorties])
+    rows = tr.inputs
     in_mean = rows.mean(axis=0)
     in_scale = rows.std(axis=0)
     in_scale = np.where(in_scale > 1e-9 * (1 + np.abs(in_mean)), in_scale, 1.0)

@@ -25,6 +25,7 @@ in closed form; the factor does not depend on V). The moment then gets
 
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 from uavdyn.airframes import CONTROL_RANGES, param_names
@@ -50,7 +51,6 @@ def as_structure(kind: str | ModelStructure, alpha_dot: bool | None = None) -> M
     if isinstance(kind, ModelStructure):
         if alpha_dot is None or alpha_dot == kind.alpha_dot:
             return kind
-        from dataclasses import replace
         return replace(kind, alpha_dot=bool(alpha_dot) and kind.kind == "fixed_wing")
     param_names(kind)  # validates the kind
     return ModelStructure(kind, alpha_dot=kind == "fixed_wing" and alpha_dot is not False)
