@@ -1,22 +1,21 @@
-"""Benchmark of the hybrid step: cost per compiled step inside a ``mapaccum`` rollout against the
-plain RK4 step, and the free-run pitch accuracy each network reaches, for every width,
-activation and formulation considered. Prints JSON (and writes it with ``--out``).
+"""Benchmark of the safe correction (issue 12) on the emulated datasets of the shipped recipes:
+identify the physics on the train split, train the safe correction on top of it (train and
+validation splits), then on the TEST split, calm and turbulent separately: 1 s-horizon and
+free-run pitch RMSE of identified physics vs corrected (against the noise-free states), the
+ratio per sortie with every sortie where the correction is worse flagged, divergences, the
+stability check at trims over the training envelope, and the cost of the compiled hybrid step
+against the compiled physics step on the same state (one interleaved timing harness).
 
-Accuracy: free-run pitch RMSE (rad) at dt = 0.005 s against calm flight data — the test split of
-``--dataset`` (calm sorties only) or, without it, perturbed-model stand-in sorties
-(:func:`uavdyn.learned.data.synthetic_sorties`, seeds disjoint from training). The default
-network is the shipped weight file; the other variants are trained here (torch) with
-``--train-seconds`` each, on the same data source, and cached in ``--cache``
-(``--retrain`` to redo).
-
-Timings are medians of ``--repeats`` runs on a shared 2-core machine: expect up to 60 % noise.
-Usage: ``python analysis/bench_hybrid.py [--airframe aerosonde] [--dataset DIR] [--out F]``.
+Usage: ``python analysis/bench_hybrid.py [--airframes fixed_wing quadrotor] [--out F]
+[--epochs N] [--weights-dir DIR]``. Prints JSON; ``--out`` writes it too.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import math
 import platform
 import statistics
 import sys
@@ -26,179 +25,188 @@ from pathlib import Path
 import numpy as np
 
 from uavdyn.airframes import load_airframe
-from uavdyn.evaluation import sortie_free_run
-from uavdyn.integrate import compile_function, rk4_step, rollout
-from uavdyn.learned import hybrid_step, load_weights, shipped_weights
-from uavdyn.model import build_model
+from uavdyn.evaluation import Solver, evaluate_trajectory
+from uavdyn.experiments.common import IDENTIFY_PARAMS, identification_sorties
+from uavdyn.experiments.reproduce import ReproduceConfig, dataset_for
+from uavdyn.identify import identify
+from uavdyn.identify.report import airframe_toml
+from uavdyn.integrate import compile_function, physics_step, rollout
+from uavdyn.learned import hybrid_step, load_weights, save_weights
+from uavdyn.learned.safe import SafeConfig, SafeResult, train_safe, write_safe_history
+from uavdyn.model import sortie_params, structure_of
 
-DT = 0.005
-N_TIMING = 4000
-VARIANTS = [("improved", "relu", 8), ("improved", "relu", 16), ("improved", "relu", 32),
-            ("improved", "tanh", 8), ("improved", "tanh", 16),
-            ("paper", "relu", 16), ("hypersolver", "relu", 16)]
+PRESET = {"fixed_wing": "aerosonde", "quadrotor": "f450"}
+N_TIMING = 2000
 
 
-def median_us_per_step(fn, args, repeats: int) -> float:
-    fn(*args)
-    times = []
+def _rmse(err: np.ndarray) -> float:
+    with np.errstate(over="ignore", invalid="ignore"):
+        value = float(np.sqrt(np.mean(err**2)))
+    return value if math.isfinite(value) and value < 1e3 else math.inf
+
+
+def score(solver: Solver, airframe, sorties) -> list[dict]:
+    rows = []
+    for s in sorties:
+        p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
+        res = evaluate_trajectory(solver, s.time, s.true_states if s.true_states is not None
+                                  else s.states, s.controls, p)
+        row = {"sortie": s.name, "condition": s.meta.get("condition", "") or "unknown"}
+        for mode in ("horizon_1s", "free_run"):
+            if mode in res:
+                pred, targ = res[mode]
+                row[mode] = _rmse(pred[..., 3] - targ[..., 3])
+            else:
+                row[mode] = None
+                row.setdefault("refused", {})[mode] = res.get("refused", {}).get(mode)
+        rows.append(row)
+    return rows
+
+
+def cost_ratio(step, physics, z0, u, p, dt: float, repeats: int = 7) -> dict:
+    """Median µs per step of both compiled steps inside a mapaccum rollout, interleaved."""
+    runs = {}
+    for name, st, x0 in (("physics", physics, z0[:physics.size1_in(0)]), ("hybrid", step, z0)):
+        f = compile_function(rollout(st, N_TIMING))
+        args = [x0, np.tile(u[:, None], (1, N_TIMING)), p, dt]
+        f(*args)
+        runs[name] = (f, args)
+    times = {k: [] for k in runs}
     for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn(*args)
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times) / N_TIMING * 1e6
+        for name, (f, args) in runs.items():
+            t0 = time.perf_counter()
+            f(*args)
+            times[name].append(time.perf_counter() - t0)
+    us = {k: statistics.median(v) / N_TIMING * 1e6 for k, v in times.items()}
+    return {"physics_us_per_step": us["physics"], "hybrid_us_per_step": us["hybrid"],
+            "ratio": us["hybrid"] / us["physics"], "repeats": repeats, "steps": N_TIMING}
 
 
-def pitch_errors(step, sorties, p, dt: float = DT) -> dict:
-    """Pooled free-run pitch RMSE against measured and (if logged) true states."""
-    meas, true = [], []
-    for s in sorties:
-        theta = sortie_free_run(step, s, p, dt)[:, 3]
-        meas.append(theta - s.states[:, 3])
-        if getattr(s, "true_states", None) is not None:
-            true.append(theta - s.true_states[:, 3])
-    out = {"vs_data": float(np.sqrt(np.mean(np.concatenate(meas) ** 2)))}
-    if true:
-        out["vs_true_states"] = float(np.sqrt(np.mean(np.concatenate(true) ** 2)))
+def run_airframe(name: str, args) -> dict:
+    nominal = load_airframe(PRESET[name])
+    ds = dataset_for(name, ReproduceConfig(cache=args.cache, progress=False))
+    t0 = time.perf_counter()
+    fit_on, _ = identification_sorties(ds.train)
+    ident = identify(nominal, fit_on, ds.validation, list(IDENTIFY_PARAMS[nominal.kind]),
+                     progress=False)
+    t_ident = time.perf_counter() - t0
+    fitted = ident.airframe
+    cfg = SafeConfig(epochs=args.epochs, progress=not args.quiet, max_seconds=args.max_seconds)
+    t0 = time.perf_counter()
+    saved = Path(args.weights_dir or ".") / f"{nominal.name}_safe.npz"
+    if args.reuse and saved.exists():  # the weights of an earlier run on the same data
+        doc = json.loads(saved.with_name(saved.stem + "_history.json").read_text())
+        net = load_weights(saved, fitted)
+        result = SafeResult(net, True, doc["reason"], doc["history"], cfg, doc["best_epoch"],
+                            doc["seconds"], doc["validation"])
+        stability = doc["stability"]
+    else:
+        result = train_safe(ds.train, ds.validation, fitted, cfg)
+        stability = result.stability.to_dict() if result.stability else None
+    t_train = time.perf_counter() - t0
+    out: dict = {"airframe": nominal.name, "dataset": str(ds.path),
+                 "identified": {e.name: e.value for e in ident.estimates},
+                 "identify_seconds": t_ident, "train_seconds": t_train,
+                 "kept": result.kept, "reason": result.reason,
+                 "validation": result.validation,
+                 "stability": stability}
+    if args.weights_dir and not (args.reuse and saved.exists()):
+        folder = Path(args.weights_dir)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / f"{nominal.name}_identified.toml").write_text(airframe_toml(
+            fitted, [f"{nominal.name} identified by analysis/bench_hybrid.py on {ds.path.name}"]))
+        write_safe_history(result, folder / f"{nominal.name}_safe_history.json")
+        if result.net is not None:
+            save_weights(result.net, folder / f"{nominal.name}_safe.npz")
+    sample_dt = float(np.median(np.diff(ds.test[0].time)))
+    physics = physics_step(fitted)
+    rows_p = score(Solver("identified physics", physics, sample_dt, structure_of(fitted)),
+                   fitted, ds.test)
+    per_sortie = []
+    if result.net is not None:
+        step = hybrid_step(result.net, fitted, compile=False)
+        rows_h = score(Solver("corrected", step, sample_dt, structure_of(fitted)), fitted,
+                       ds.test)
+        for rp, rh in zip(rows_p, rows_h):
+            row = {"sortie": rp["sortie"], "condition": rp["condition"]}
+            for mode in ("horizon_1s", "free_run"):
+                a, b = rp[mode], rh[mode]
+                row[f"{mode}_physics"], row[f"{mode}_corrected"] = a, b
+                row[f"{mode}_ratio"] = (b / a if a and b is not None and math.isfinite(a)
+                                        and a > 0 else None)
+            row["worse_at_1s"] = bool(row["horizon_1s_ratio"] is not None
+                                      and row["horizon_1s_ratio"] > 1.0)
+            row["diverged_where_physics_did_not"] = bool(
+                rh["free_run"] is not None and not math.isfinite(rh["free_run"])
+                and rp["free_run"] is not None and math.isfinite(rp["free_run"]))
+            per_sortie.append(row)
+        z0 = np.concatenate([ds.test[0].states[0], np.tile(ds.test[0].controls[0],
+                                                           len(result.net.memory_tau))])
+        if physics.size1_in(0) != 4:
+            z0 = step.start_states(ds.test[0].states[:1], ds.test[0].controls[:1], fitted.p,
+                                   sample_dt)[0]
+        out["cost"] = cost_ratio(step, physics, z0, ds.test[0].controls[0], fitted.p,
+                                 sample_dt)
+        bare = dataclasses.replace(result.net, envelope=None, out_bound=None)
+        out["cost_without_gate_and_bound"] = cost_ratio(
+            hybrid_step(bare, fitted, compile=False), physics, z0, ds.test[0].controls[0],
+            fitted.p, sample_dt)
+    else:
+        per_sortie = [{"sortie": r["sortie"], "condition": r["condition"],
+                       "horizon_1s_physics": r["horizon_1s"],
+                       "free_run_physics": r["free_run"]} for r in rows_p]
+    groups: dict = {}
+    for row in per_sortie:
+        groups.setdefault(row["condition"], []).append(row)
+    pooled = {}
+    for cond, rows in groups.items():
+        entry = {"sorties": len(rows)}
+        for mode in ("horizon_1s", "free_run"):
+            for which in ("physics", "corrected"):
+                vals = [r.get(f"{mode}_{which}") for r in rows]
+                if any(v is None for v in vals):
+                    continue
+                entry[f"{mode}_{which}"] = (math.sqrt(float(np.mean(np.square(vals))))
+                                            if all(math.isfinite(v) for v in vals)
+                                            else math.inf)
+            ratios = [r.get(f"{mode}_ratio") for r in rows if r.get(f"{mode}_ratio")]
+            if ratios:
+                entry[f"{mode}_ratio_min_median_max"] = [float(np.min(ratios)),
+                                                          float(np.median(ratios)),
+                                                          float(np.max(ratios))]
+        entry["worse_at_1s"] = sum(bool(r.get("worse_at_1s")) for r in rows)
+        entry["worse_by_more_than_10pct_at_1s"] = sum(
+            1 for r in rows if (r.get("horizon_1s_ratio") or 0) > 1.1)
+        entry["diverged_where_physics_did_not"] = sum(
+            bool(r.get("diverged_where_physics_did_not")) for r in rows)
+        pooled[cond] = entry
+    out["pooled"] = pooled
+    out["per_sortie"] = per_sortie
     return out
-
-
-def load_sorties(args, airframe):
-    if args.dataset:
-        from uavdyn.flightdata import load_dataset
-
-        ds = load_dataset(args.dataset)
-        calm = [s for s in ds.test if s.meta.get("condition", "calm") == "calm"]
-        if not calm:
-            raise SystemExit(f"{args.dataset}: no calm sorties in the test split")
-        return ds.train, ds.validation, calm, f"dataset {args.dataset} (calm test sorties)"
-    from uavdyn.learned.data import split_sorties, synthetic_sorties
-
-    train_val = synthetic_sorties(airframe, 20, seed=0, duration=20.0)
-    tr, va, _ = split_sorties(train_val, seed=0)
-    test = synthetic_sorties(airframe, 8, seed=1000, duration=20.0)
-    return tr, va, test, "perturbed-model stand-in sorties (uavdyn.learned.data.synthetic_sorties)"
-
-
-def windows(sorties, seconds: float | None):
-    """Cut sorties into consecutive free-run windows of ``seconds`` (None: whole sorties).
-    Needed for the multirotor, whose open-loop replay of closed-loop flights diverges."""
-    if not seconds:
-        return sorties
-    from dataclasses import replace
-
-    out = []
-    for s in sorties:
-        m = int(round(seconds / s.dt))
-        for k in range(0, len(s.time) - m, m):
-            sl = slice(k, k + m + 1)
-            true = None if s.true_states is None else s.true_states[sl]
-            out.append(replace(s, name=f"{s.name}@{k}", time=s.time[sl],
-                               states=s.states[sl], controls=s.controls[sl], true_states=true))
-    return out
-
-
-def variant_net(args, airframe, formulation, activation, width, tr, va):
-    cache = Path(args.cache) / f"{airframe.name}_{formulation}_{activation}{width}.npz"
-    if cache.exists() and not args.retrain:
-        return load_weights(cache, airframe), "cached"
-    from uavdyn.learned import save_weights
-    from uavdyn.learned.train import TrainConfig, train
-
-    cfg = TrainConfig(formulation=formulation, activation=activation, hidden=width, dt=DT,
-                      max_seconds=args.train_seconds, progress=False)
-    result = train(tr, va, airframe, cfg)
-    save_weights(result.net, cache)
-    return result.net, "trained"
 
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--airframe", default="aerosonde")
-    parser.add_argument("--dataset", default=None, help="dataset folder (default: stand-in)")
-    parser.add_argument("--weights", default=None,
-                        help="default network (default: the shipped weights of the airframe)")
-    parser.add_argument("--repeats", type=int, default=9)
-    parser.add_argument("--train-seconds", type=float, default=60.0,
-                        help="training budget per variant (default 60 s)")
-    parser.add_argument("--cache", default="results/bench_hybrid")
-    parser.add_argument("--retrain", action="store_true")
-    parser.add_argument("--no-variants", action="store_true",
-                        help="time and score the default network only")
-    parser.add_argument("--window-s", type=float, default=None,
-                        help="free-run windows of this many seconds (default: whole sorties)")
+    parser.add_argument("--airframes", nargs="+", default=["fixed_wing", "quadrotor"],
+                        choices=sorted(PRESET))
+    parser.add_argument("--epochs", type=int, default=40)
+    parser.add_argument("--max-seconds", type=float, default=600.0)
+    parser.add_argument("--cache", default=None, help="dataset cache folder")
+    parser.add_argument("--weights-dir", default=None, help="keep weights and histories here")
     parser.add_argument("--out", default=None)
-    args = parser.parse_args(argv)
-
-    af = load_airframe(args.airframe)
-    tr, va, test, source = load_sorties(args, af)
-    test = windows(test, args.window_s)
-    rk4 = rk4_step(build_model(af).f)
-    u_timing = np.repeat(test[0].controls[:N_TIMING // 2], 2, axis=0)[:N_TIMING]
-    if len(u_timing) < N_TIMING:
-        u_timing = np.vstack([u_timing, np.tile(u_timing[-1], (N_TIMING - len(u_timing), 1))])
-    x0 = test[0].states[0]
-    rk4_sim = compile_function(rollout(rk4, N_TIMING))
-    rk4_us = median_us_per_step(rk4_sim, [x0, u_timing.T, af.p, DT], args.repeats)
-
-    def cost(step, formulation):
-        sim = compile_function(rollout(step, N_TIMING))
-        extra = [0.0] if formulation == "paper" else []
-        return median_us_per_step(sim, [x0, u_timing.T, af.p, DT, *extra], args.repeats)
-
-    physics = pitch_errors(rk4, test, af.p)
-    physics_2dt = pitch_errors(rk4, test, af.p, 2 * DT)
-    weights = Path(args.weights) if args.weights else shipped_weights(af.name)
-    net = load_weights(weights, af)
-    step = hybrid_step(net, af, compile=False)
-    hybrid_us = cost(step, net.formulation)
-    hybrid = pitch_errors(step, test, af.p)
-    report = {
-        "airframe": af.name, "dt": DT, "accuracy_data": source, "n_test_sorties": len(test),
-        "free_run": f"windows of {args.window_s:g} s" if args.window_s else "whole sorties",
-        "timing": f"median of {args.repeats} runs of a compiled {N_TIMING}-step mapaccum "
-                  "rollout; shared 2-core machine: up to 60 % run-to-run noise",
-        "default_network": net.describe(), "default_weights": str(weights),
-        "default_trained_on": net.info.get("data_source", net.info.get("train_sorties_source")),
-        "rk4_us_per_step": rk4_us, "hybrid_us_per_step": hybrid_us,
-        "cost_ratio": hybrid_us / rk4_us,
-        "pitch_rmse_physics_rad": physics["vs_data"], "pitch_rmse_hybrid_rad": hybrid["vs_data"],
-        "rmse_reduction": physics["vs_data"] / hybrid["vs_data"],
-        "targets": {"cost_ratio_max": 3.0, "rmse_reduction_min": 5.0},
-        "pitch_rmse_physics_at_2dt_rad": physics_2dt["vs_data"],
-    }
-    if "vs_true_states" in physics:
-        report["pitch_rmse_physics_vs_true_rad"] = physics["vs_true_states"]
-        report["pitch_rmse_hybrid_vs_true_rad"] = hybrid["vs_true_states"]
-
-    variants = []
-    if not args.no_variants:
-        for formulation, activation, width in VARIANTS:
-            vnet, how = variant_net(args, af, formulation, activation, width, tr, va)
-            vstep = hybrid_step(vnet, af, compile=False)
-            us = cost(vstep, formulation)
-            err = pitch_errors(vstep, test, af.p)
-            # step-size transfer: the same network run at twice its training step
-            err2 = pitch_errors(vstep, test, af.p, 2 * DT)
-            variants.append({
-                "formulation": formulation, "activation": activation, "width": width,
-                "weights": how, "us_per_step": us, "cost_ratio": us / rk4_us,
-                "pitch_rmse_rad": err["vs_data"],
-                "rmse_reduction": physics["vs_data"] / err["vs_data"],
-                "pitch_rmse_at_2dt_rad": err2["vs_data"],
-                "best_val_loss": vnet.info.get("best_val_total"),
-                "initial_val_loss": vnet.info.get("initial_val_total"),
-                "epochs": vnet.info.get("epochs_run"),
-                **({"pitch_rmse_vs_true_rad": err["vs_true_states"]}
-                   if "vs_true_states" in err else {})})
-            print(json.dumps(variants[-1]), file=sys.stderr)
-    report["variants"] = variants
-    report["machine"] = {"python": platform.python_version(), "machine": platform.machine()}
-    text = json.dumps(report, indent=2)
-    print(text)
+    parser.add_argument("--reuse", action="store_true",
+                        help="use the weights already in --weights-dir (no training)")
+    parser.add_argument("--quiet", action="store_true")
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    result = {"command": "python analysis/bench_hybrid.py " + " ".join(
+        sys.argv[1:] if argv is None else argv), "machine": platform.processor() or
+        platform.machine(), "airframes": [run_airframe(a, args) for a in args.airframes]}
+    text = json.dumps(result, indent=2, default=str)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(text + "\n")
-    return report
+    print(text)
+    return result
 
 
 if __name__ == "__main__":

@@ -16,12 +16,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavdyn.model.ops import NUMPY_OPS
+from uavdyn.model.ops import NUMPY_OPS, ramp
 
 
 def smoothstep(t, ops=NUMPY_OPS):
-    """``3c^2 - 2c^3`` of ``t`` clamped to [0, 1]: 0 below 0, 1 above 1, C1 in between."""
-    c = ops.fmin(ops.fmax(t, 0.0), 1.0)
+    """``3c^2 - 2c^3`` of ``t`` clamped to [0, 1]: exactly 0 below 0 and 1 above 1, C1 in
+    between (the clamp written with :func:`uavdyn.model.ops.ramp`, exact at both ends)."""
+    c = 1.0 - ramp(1.0 - ramp(t, ops), ops)
     return c * c * (3.0 - 2.0 * c)
 
 
@@ -73,12 +74,18 @@ class Envelope:
         return len(self.low)
 
     def gate(self, inp, ops=NUMPY_OPS):
-        """The gate of a feature-first block ``inp`` (``(n_in,)`` or ``(n_in, batch)``)."""
+        """The gate of a feature-first block ``inp`` (``(n_in,)`` or ``(n_in, batch)``).
+
+        Per input, ``g_i = 1 - s(d_i)`` with ``d_i`` the distance outside ``[low, high]`` in
+        fade widths (negative inside): the same function as the two-sided product in the module
+        docstring (``s(1 - t) = 1 - s(t)``), with one smoothstep and no division per input,
+        because the gate runs in every hybrid step."""
         out = 1.0
         for i in range(self.n_in):
-            lo, hi, w = float(self.low[i]), float(self.high[i]), float(self.fade[i])
-            out = out * smoothstep((inp[i] - lo + w) / w, ops) * smoothstep((hi + w - inp[i]) / w,
-                                                                            ops)
+            lo, hi, r = float(self.low[i]), float(self.high[i]), 1.0 / float(self.fade[i])
+            below, above = (lo - inp[i]) * r, (inp[i] - hi) * r
+            d = above + ramp(below - above, ops)  # max(below, above)
+            out = out * (1.0 - smoothstep(d, ops))
         return out
 
     def fraction_outside(self, inputs: np.ndarray) -> float:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from uavdyn.model.ops import ramp
+
 ACTIVATIONS = ("relu", "tanh")
 
 
@@ -18,8 +20,8 @@ def activation(name: str, z, ops, relu_smoothing: float | None = None):
     if name == "relu":
         if relu_smoothing:
             k = relu_smoothing
-            return ops.fmax(z, 0.0) + ops.log1p(ops.exp(-k * ops.fabs(z))) / k
-        return ops.fmax(z, 0.0)
+            return ramp(z, ops) + ops.log1p(ops.exp(-k * ops.fabs(z))) / k
+        return ramp(z, ops)
     if name == "tanh":
         return ops.tanh(z)
     raise ValueError(f"unknown activation '{name}'; expected one of {ACTIVATIONS}")

@@ -17,6 +17,13 @@ import casadi as ca
 import numpy as np
 
 
+
+def ramp(x, ops):
+    """``max(x, 0)`` as ``(x + |x|) / 2``: exact in floating point (``x + |x|`` is ``2x`` or
+    ``0``), and ``fabs`` compiles to one instruction where C's ``fmax`` is a library call --
+    this runs in every hybrid step (ReLU, the envelope gate)."""
+    return 0.5 * (x + ops.fabs(x))
+
 def _ca_col(v):
     return v if isinstance(v, (ca.SX, ca.MX, ca.DM)) else ca.DM(np.asarray(v, float))
 
