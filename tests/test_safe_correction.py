@@ -205,3 +205,86 @@ def test_wrong_state_size_is_refused(tmp_path):
 
     with pytest.raises(WeightFileError, match="n_state"):
         net.layout(structure_of(lagged))
+
+
+def test_gate_is_the_two_sided_smoothstep_product_and_ramp_is_exact():
+    """The fast gate (one smoothstep per input) equals the docstring's two-sided product of
+    ``3c^2 - 2c^3`` written out independently here; ``ramp`` is max(x, 0) bit for bit."""
+    rng = np.random.default_rng(3)
+    low, high = rng.normal(0, 1, 5), None
+    high = low + rng.uniform(0.1, 2.0, 5)
+    fade = rng.uniform(0.05, 1.0, 5)
+    env = Envelope(low, high, fade)
+    x = rng.uniform(-4, 4, (5, 2000))
+
+    def s(t):
+        c = np.clip(t, 0.0, 1.0)
+        return 3 * c**2 - 2 * c**3
+
+    expected = np.prod([s((x[i] - low[i] + fade[i]) / fade[i])
+                        * s((high[i] + fade[i] - x[i]) / fade[i]) for i in range(5)], axis=0)
+    np.testing.assert_allclose(env.gate(x), expected, rtol=0, atol=1e-12)
+    from uavdyn.model.ops import NUMPY_OPS, ramp
+
+    z = np.concatenate([rng.normal(0, 1e3, 1000), [0.0, -0.0, 5e-324, -5e-324]])
+    np.testing.assert_array_equal(ramp(z, NUMPY_OPS), np.maximum(z, 0.0))
+
+
+@pytest.mark.parametrize("name", ["aerosonde", "f450"])
+def test_envelope_sweep_passes_a_damping_net_and_names_the_trim_a_feedback_net_breaks(name):
+    """``envelope_check`` (what ``uavdyn modes --hybrid`` prints) trims over the airspeeds the
+    weights' envelope spans and applies the rule: extra pitch damping passes, pitch-rate
+    positive feedback is reported at a named trim."""
+    import dataclasses
+
+    from uavdyn.learned.stability import envelope_check, envelope_speeds
+
+    airframe = load_airframe(name)
+    point = trim(airframe)
+    n_in = structure_of(airframe).nx() + 2 * len(MEMORY) + 2
+    lo = np.full(n_in, -1.0)
+    hi = np.full(n_in, 1.0)
+    if airframe.kind == "fixed_wing":
+        lo[0], hi[0] = point.x[0] - 4.0, point.x[0] + 4.0
+    else:
+        lo[0], hi[0] = -1.0, 4.0
+    env = Envelope(lo, hi, np.full(n_in, 0.5))
+    v_lo, v_hi = envelope_speeds(env)
+    assert v_hi >= hi[0] and v_lo <= max(lo[0], 0.0) + 1e-12
+    good = dataclasses.replace(_pitch_feedback_net(airframe, -1.0), envelope=env)
+    bad = dataclasses.replace(_pitch_feedback_net(airframe, 60.0), envelope=env)
+    report = envelope_check(good, airframe)
+    assert report.findings and report.ok, report.describe()
+    assert "| trim |" in report.table() and "ok" in report.table()
+    broken = envelope_check(bad, airframe)
+    assert not broken.ok and "DESTABILISED" in broken.table()
+    assert "trim at" in broken.describe()
+
+
+def test_safe_training_keeps_a_correction_only_under_its_rules():
+    """A short run on data whose physics has a pitch-moment error the nominal model lacks:
+    kept only with every validation sortie no worse than the physics at 1 s, the output scale
+    one of those tried, the stability rule passed; otherwise refused with a reason."""
+    from uavdyn.learned.data import synthetic_sorties
+    from uavdyn.learned.safe import SafeConfig, train_safe
+
+    airframe = load_airframe("aerosonde")
+    truth = airframe.replace(C_m_0=airframe.params.C_m_0 + 0.01,
+                             C_m_q=airframe.params.C_m_q * 0.8)
+    sorties = synthetic_sorties(airframe, 6, seed=11, duration=6.0, truth=truth)
+    cfg = SafeConfig(epochs=3, batches_per_epoch=3, batch_windows=8, horizon_s=1.0,
+                     progress=False, memory_tau=(0.1,))
+    result = train_safe(sorties[:4], sorties[4:], airframe, cfg)
+    assert result.reason and result.stability is not None
+    v = result.validation
+    assert set(v["sortie_ratios"]) == {s.name for s in sorties[4:]}
+    assert v["output_scale"] in cfg.shrink and v["shrink_tried"]
+    if result.kept:
+        assert result.net is not None and result.stability.ok
+        assert v["sortie_ratio_worst"] <= cfg.worst_sortie_ratio
+        assert all(r <= cfg.worst_sortie_ratio for r in v["sortie_ratios"].values())
+        assert v["corrected_theta_rmse"] < v["physics_theta_rmse"]
+        assert result.net.info["output_scale"] == v["output_scale"]
+    else:
+        assert result.net is None
+        assert "physics is kept" in result.reason or "destabilises" in result.reason

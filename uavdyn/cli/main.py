@@ -52,7 +52,8 @@ from uavdyn.integrate import (
     takes_time,
 )
 from uavdyn.integrate.inputs import control_sequence
-from uavdyn.learned import hybrid_step, shipped_weights
+from uavdyn.learned import WeightFileError, hybrid_step, load_weights, shipped_correction
+from uavdyn.learned.stability import envelope_check
 from uavdyn.linear import (
     TrimError,
     discrete_map_modes,
@@ -135,31 +136,57 @@ def cmd_modes(args: argparse.Namespace) -> int:
     return 0
 
 
-def _hybrid_modes(args: argparse.Namespace, airframe, point) -> int:
-    """Modes of the hybrid discrete map beside the physics model and exp(A dt)."""
+def _correction(args: argparse.Namespace, airframe):
+    """The weights of a ``--hybrid``/``--model hybrid`` command and the airframe they run on:
+    ``--weights`` on ``--airframe``, or for a preset the shipped safe correction on the
+    identified airframe it was trained on."""
+    if args.weights:
+        weights = Path(args.weights)
+        if not weights.is_file():
+            raise CliError(f"no weight file {weights}; give --weights FILE")
+        return weights, airframe
+    if args.airframe not in list_presets():
+        raise CliError(f"no shipped correction for the airframe file {args.airframe}; give "
+                       "--weights FILE (trained on this airframe with uavdyn train)")
+    try:
+        weights, identified = shipped_correction(airframe.name)
+    except WeightFileError as exc:
+        raise CliError(str(exc)) from None
+    print(f"(shipped correction {weights.name} on {identified.name}, the identified airframe "
+          "it was trained on)", file=sys.stderr)
+    return weights, identified
 
-    if not (args.dt > 0 and math.isfinite(args.dt)):
-        raise CliError(f"--dt must be a positive number of seconds, got {args.dt}")
-    weights = Path(args.weights) if args.weights else shipped_weights(airframe.name)
-    if not weights.exists():
-        raise CliError(f"no weight file {weights}; give --weights FILE")
-    step = hybrid_step(weights, airframe, compile=False)
+
+def _hybrid_modes(args: argparse.Namespace, airframe, point) -> int:
+    """Modes of the hybrid discrete map beside the physics model and exp(A dt) at the trim
+    point, then the stability rule at trims over the weights' training envelope."""
+
+    weights, airframe = _correction(args, airframe)
+    net = load_weights(weights, airframe)
+    dt = args.dt if args.dt is not None else net.dt
+    if not (dt > 0 and math.isfinite(dt)):
+        raise CliError(f"--dt must be a positive number of seconds, got {dt}")
+    step = hybrid_step(net, airframe, compile=False)
     if takes_time(step):
         raise CliError(f"{weights.name}: this correction takes time t as an input, so its map "
                        "changes along the flight and has no modes at a trim point; use weights "
                        "of the 'improved' formulation")
-    check_use(step, args.dt)
-    comp = discrete_map_modes(step, airframe, point, args.dt)
+    check_use(step, dt)
+    point = trim(airframe, args.airspeed, math.radians(args.gamma_deg))
+    comp = discrete_map_modes(step, airframe, point, dt)
+    sweep = envelope_check(net, airframe, dt) if net.envelope is not None else None
     if args.json:
         print(json.dumps({
-            "trim": point.as_dict(), "dt": args.dt, "weights": str(weights),
+            "trim": point.as_dict(), "dt": dt, "weights": str(weights),
+            "airframe": airframe.name,
             "map_eigenvalues": [[z.real, z.imag] for z in comp.map_eigenvalues],
             "exp_A_dt_eigenvalues": [[z.real, z.imag] for z in comp.exact_eigenvalues],
             "hybrid_modes": [m.as_dict() for m in comp.map_modes],
             "physics_modes": [m.as_dict() for m in comp.physics_modes],
-            "unstable": comp.unstable, "made_unstable": comp.made_unstable}, indent=2))
+            "unstable": comp.unstable, "made_unstable": comp.made_unstable,
+            "envelope_sweep": sweep.to_dict() if sweep is not None else None}, indent=2))
         return 0
-    print(f"{airframe.name} trimmed at {point.airspeed:g} m/s; hybrid map at dt {args.dt:g} s "
+    print(f"{airframe.name} trimmed at {point.airspeed:g} m/s; hybrid map at dt {dt:g} s "
           f"({weights.name})\n")
     print("Physics model:\n\n" + mode_table(comp.physics_modes))
     print("\nHybrid map (continuous equivalents log(lambda)/dt):\n\n"
@@ -167,6 +194,10 @@ def _hybrid_modes(args: argparse.Namespace, airframe, point) -> int:
     print("\nHybrid map eigenvalues beside exp(A dt):\n\n" + comp.table())
     if comp.made_unstable:
         print(f"\nWARNING: the correction made map eigenvalue(s) {comp.made_unstable} unstable")
+    if sweep is not None:
+        print(f"\nStability rule over the training envelope (largest growth rate of the body "
+              f"block, margin {sweep.margin:g}):\n\n{sweep.table()}\n")
+        print(sweep.describe() if sweep.ok else f"WARNING: {sweep.describe()}")
     return 0
 
 
@@ -228,9 +259,8 @@ def cmd_export_c(args: argparse.Namespace) -> int:
     airframe, point = _trim(args)
     if args.model == "hybrid":
 
-        weights = Path(args.weights) if args.weights else shipped_weights(airframe.name)
-        if not weights.exists():
-            raise CliError(f"no weight file {weights}; give --weights FILE")
+        weights, airframe = _correction(args, airframe)
+        point = trim(airframe, args.airspeed, math.radians(args.gamma_deg))
         step = hybrid_step(weights, airframe, compile=False)
     else:
         step = physics_step(airframe)
@@ -450,8 +480,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also linearise the hybrid discrete map (eigenvalues, log(lambda)/dt, "
                         "exp(A dt))")
     p.add_argument("--weights", default=None,
-                   help="weight file for --hybrid (default: the shipped weights)")
-    p.add_argument("--dt", type=float, default=0.005, help="map step for --hybrid (0.005)")
+                   help="weight file for --hybrid (default: the shipped safe correction, on "
+                        "the identified airframe it was trained on)")
+    p.add_argument("--dt", type=float, default=None,
+                   help="map step for --hybrid (default: the step the weights were trained at)")
     p.set_defaults(func=cmd_modes)
 
     p = sub.add_parser("simulate", help="simulate an input profile from trim, write a CSV")

@@ -8,12 +8,15 @@ from uavdyn.learned.hybrid import (
            hybrid_expression,
            hybrid_jacobian,
            hybrid_step,
+           shipped_correction,
+           shipped_corrections,
            shipped_weights,
 )
 from uavdyn.learned.mlp import ACTIVATIONS, mlp_forward
 from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights, save_weights
 
 __all__ = ["DEFAULT_FORMULATION", "FORMULATIONS", "Formulation", "formulation", "HybridStep",
-           "hybrid_expression", "hybrid_jacobian", "hybrid_step", "shipped_weights",
+           "hybrid_expression", "hybrid_jacobian", "hybrid_step", "shipped_correction",
+           "shipped_corrections", "shipped_weights",
            "ACTIVATIONS", "mlp_forward", "CorrectionNet", "WeightFileError", "load_weights",
            "save_weights"]

@@ -18,7 +18,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from uavdyn.airframes import Airframe
+from uavdyn.airframes import Airframe, load_airframe
 from uavdyn.integrate import STEP_INPUTS, augment_states, compile_function
 from uavdyn.learned.formulations import CorrectionLayout, memory_update
 from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights
@@ -86,6 +86,32 @@ def shipped_weights(airframe_name: str, formulation: str = "improved",
         raise WeightFileError(f"{name}: no shipped weights for airframe '{airframe_name}', "
                               f"formulation '{formulation}', target '{target}'")
     return path
+
+
+def shipped_correction(airframe_name: str) -> tuple[Path, Airframe]:
+    """The default correction shipped for a preset: the safe weight file and the identified
+    airframe it was trained on (the weights are tied to that airframe's parameter hash, so the
+    pair is what ``--hybrid`` commands use when no ``--weights`` is given).
+
+    Raises
+    ------
+    WeightFileError
+        If the package ships no safe correction for ``airframe_name``.
+    """
+    base = resources.files(SHIPPED)
+    weights = Path(str(base.joinpath(f"{airframe_name}_safe.npz")))
+    toml = Path(str(base.joinpath(f"{airframe_name}_identified.toml")))
+    if not (weights.is_file() and toml.is_file()):
+        raise WeightFileError(f"no shipped safe correction for airframe '{airframe_name}' "
+                              f"(shipped: {', '.join(shipped_corrections()) or 'none'}); give "
+                              "--weights FILE")
+    return weights, load_airframe(toml)
+
+
+def shipped_corrections() -> list[str]:
+    """Names of the presets with a shipped safe correction."""
+    return sorted(str(f.name)[:-len("_safe.npz")] for f in resources.files(SHIPPED).iterdir()
+                  if str(f.name).endswith("_safe.npz"))
 
 
 def _resolve(net: CorrectionNet | str | Path, airframe: Airframe | None) -> CorrectionNet:

@@ -74,7 +74,8 @@ class SafeConfig:
     worst_sortie_ratio: float = 1.0  # every validation sortie: corrected/physics at 1 s <= this
     seed: int = 0
     threads: int = 1
-    max_seconds: float = 600.0
+    max_seconds: float = 3600.0       # a safety net: epochs and patience end a run, so
+                                      # the result does not depend on the machine's speed
     progress: bool = True
 
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
+from uavdyn.learned.envelope import Envelope
 from uavdyn.learned.formulations import CorrectionLayout
 from uavdyn.linear import TrimError, point_params, trim, trim_state
 
@@ -60,10 +61,29 @@ def hybrid_trim_state(airframe: Airframe, point, layout: CorrectionLayout) -> np
 def envelope_trims(airframe: Airframe, sorties: list[Sortie], layout: CorrectionLayout,
                    n_speeds: int = 4) -> tuple[list[TrimSample], list[str]]:
     """Trim points over the flown envelope: airspeeds between the 5th and 95th percentile of
-    the sorties' airspeed, level and +-3 deg climb for a fixed wing; hover and forward flight
-    for a multirotor. Returns the points and why others could not be trimmed."""
+    the sorties' airspeed (:func:`trims_between`). Returns the points and why others could not
+    be trimmed."""
     speeds = np.concatenate([np.hypot(s.states[:, 0], s.states[:, 1]) for s in sorties])
     lo, hi = np.percentile(speeds, [5, 95])
+    return trims_between(airframe, float(lo), float(hi), layout, n_speeds)
+
+
+def envelope_speeds(envelope: Envelope) -> tuple[float, float]:
+    """The airspeed range a weight file's envelope spans (its body-velocity inputs ``u``, ``w``
+    are the first two): from the smallest to the largest ``hypot(u, w)`` over the box, so the
+    sweep of ``uavdyn modes --hybrid`` covers what the network was trained on."""
+    u = (float(envelope.low[0]), float(envelope.high[0]))
+    w = (float(envelope.low[1]), float(envelope.high[1]))
+    w_min = 0.0 if w[0] <= 0.0 <= w[1] else min(abs(w[0]), abs(w[1]))
+    u_min = 0.0 if u[0] <= 0.0 <= u[1] else min(abs(u[0]), abs(u[1]))
+    return math.hypot(u_min, w_min), math.hypot(max(map(abs, u)), max(map(abs, w)))
+
+
+def trims_between(airframe: Airframe, lo: float, hi: float, layout: CorrectionLayout,
+                  n_speeds: int = 4) -> tuple[list[TrimSample], list[str]]:
+    """Trim points at ``n_speeds`` airspeeds in ``[lo, hi]``: level and +-3 deg climb for a
+    fixed wing; hover and forward flight for a multirotor. Returns the points and why others
+    could not be trimmed."""
     if airframe.kind == "fixed_wing":
         grid = [(v, g) for v in np.linspace(lo, hi, n_speeds)
                 for g in (0.0, math.radians(-3), math.radians(3))]
@@ -143,6 +163,17 @@ class StabilityReport:
                 f"1/s and at most {worst.allowed:+.4g} 1/s is allowed ({len(self.failures)} of "
                 f"{len(self.findings)} trim points fail)")
 
+    def table(self) -> str:
+        """Markdown table: per trim point the largest growth rate of the physics and of the
+        hybrid map (log|lambda|/dt, 1/s), the allowed rate, and the verdict."""
+        rows = ["| trim | physics (1/s) | hybrid (1/s) | allowed (1/s) | verdict |",
+                "|---|---|---|---|---|"]
+        rows += [f"| {f.trim} | {f.sigma_physics:+.4g} | {f.sigma_hybrid:+.4g} | "
+                 f"{f.allowed:+.4g} | {'ok' if f.ok else 'DESTABILISED'} |"
+                 for f in self.findings]
+        rows += [f"| {why} | - | - | - | not trimmed |" for why in self.skipped]
+        return "\n".join(rows)
+
     def to_dict(self) -> dict:
         return {"dt": self.dt, "margin": self.margin, "ok": self.ok, "skipped": self.skipped,
                 "points": [{"trim": f.trim, "sigma_physics": f.sigma_physics,
@@ -209,3 +240,38 @@ def stability_penalty(model, trims: list[TrimSample], targets, dt: float):
         if torch.isfinite(excess):
             total = total + excess**2
     return total
+
+
+def envelope_check(net, airframe: Airframe, dt: float | None = None,
+                   margin: float = DEFAULT_MARGIN, n_speeds: int = 4) -> StabilityReport:
+    """The stability rule of a trained correction at trims over its own training envelope.
+
+    Parameters
+    ----------
+    net : CorrectionNet
+        Weights of the ``improved`` formulation with a stored envelope.
+    airframe : Airframe
+        The airframe the weights were trained on (hash-checked).
+    dt : float, optional
+        Map step (default: the step the network was trained at).
+    margin : float
+        See the module docstring.
+
+    Raises
+    ------
+    ValueError
+        For weights without an envelope (formats 1-2: no training envelope is stored).
+    """
+    from uavdyn.integrate import physics_step
+    from uavdyn.learned.hybrid import correction_structure, hybrid_step
+
+    if net.envelope is None or net.formulation != "improved":
+        raise ValueError("these weights store no training envelope (weight format 3, "
+                         "'improved' formulation, has one): no envelope sweep")
+    structure = correction_structure(airframe, net.kind, net.formulation)
+    layout = net.layout(structure)
+    lo, hi = envelope_speeds(net.envelope)
+    trims, skipped = trims_between(airframe, lo, hi, layout, n_speeds)
+    step = hybrid_step(net, airframe, compile=False)
+    return check_map_stability(step, physics_step(structure), trims, dt or net.dt, margin,
+                               skipped)
