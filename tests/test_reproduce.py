@@ -184,3 +184,24 @@ def test_train_and_evaluate_on_a_hand_written_dataset(tmp_path, capsys):
     assert "Per sortie" in out.with_suffix(".md").read_text()
     assert metrics["table4"] and all(finite(r["max_error_rad"]) for r in metrics["table4"]
                                      if r["sorties"])
+
+
+def test_evaluate_refuses_a_dataset_without_test_split_unless_asked(tmp_path, capsys):
+    """No silent fallback: without test sorties ``evaluate`` says so in one line; with
+    ``--all-sorties`` it scores every sortie and the result says that it did."""
+    folder = write_hand_dataset(tmp_path / "hand", n_sorties=2, duration=4.0)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    for entry in manifest["sorties"]:
+        entry["split"] = "train"
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    out = tmp_path / "m.json"
+    assert main(["evaluate", "--airframe", "aerosonde", "--dataset", str(folder),
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "no 'test' sorties" in err and "--all-sorties" in err
+    assert not out.exists()
+    assert main(["evaluate", "--airframe", "aerosonde", "--dataset", str(folder),
+                 "--all-sorties", "--out", str(out)]) == 0
+    metrics = json.loads(out.read_text())
+    assert metrics["split"].startswith("all sorties") and len(metrics["sorties"]) == 2
+    assert "all sorties" in out.with_suffix(".md").read_text()

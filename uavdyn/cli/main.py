@@ -432,7 +432,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                            "choose another --out or give --force")
     identified = load_airframe(args.identified) if args.identified else None
     result = evaluate_dataset(airframe, args.dataset, args.weights or [],
-                              identified=identified)
+                              identified=identified, all_sorties=args.all_sorties)
     result["command"] = "evaluate"
     write_text_atomic(out, json.dumps(result, indent=2, default=_json) + "\n")
     write_text_atomic(md, evaluation_markdown(result))
@@ -611,6 +611,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="airframe file fitted by 'uavdyn identify': adds the identified-physics "
                         "rung (weights trained on it are run on it)")
     p.add_argument("--weights", nargs="*", default=None, help="weight file(s) of the hybrid")
+    p.add_argument("--all-sorties", action="store_true",
+                   help="score every sortie of a dataset without a test split (the result "
+                        "says so; they may include sorties a model was fitted on)")
     p.add_argument("--out", default="results/metrics.json", help="JSON output (Markdown beside)")
     p.set_defaults(func=cmd_evaluate)
 

@@ -320,8 +320,9 @@ def pooled_stats(pairs: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]
 def error_growth(time: np.ndarray, predicted: np.ndarray, target: np.ndarray,
                  divergence_rad: float = 0.5) -> dict[str, float | bool]:
     """Pitch-error growth of a free run: slope of a straight-line fit of |error| against time
-    (rad/s) up to divergence, maximum error over the finite part, and a divergence flag with its
-    time (error above ``divergence_rad`` or a non-finite state)."""
+    (rad/s) up to divergence, maximum error before divergence (after it the error says nothing:
+    a diverged run is reported as diverged, with its time), and a divergence flag with its time
+    (error above ``divergence_rad`` or a non-finite state)."""
     with np.errstate(over="ignore", invalid="ignore"):
         err = np.abs(predicted[:, 3] - target[:, 3])
     bad = ~np.isfinite(err) | (err > divergence_rad)
@@ -332,6 +333,6 @@ def error_growth(time: np.ndarray, predicted: np.ndarray, target: np.ndarray,
     t, e = (time - time[0])[upto][ok], err[upto][ok]
     slope = float(np.polyfit(t, e, 1)[0]) if len(t) > 1 else 0.0
     return {"slope_rad_per_s": slope,
-            "max_error_rad": float(err[finite].max()) if finite.any() else float("nan"),
+            "max_error_rad": float(e.max()) if len(e) else float("nan"),
             "diverged": bool(bad.any()),
             "time_to_divergence_s": float(time[k_div] - time[0]) if bad.any() else None}

@@ -182,11 +182,13 @@ def _table3(af: dict) -> list[str]:
 
 
 def _table4(af: dict) -> list[str]:
-    lines = ["| scenario | solver | sorties | pitch-error growth (rad/s) | max error (rad) | "
-             "diverged (error > 0.5 rad) | first divergence (s) |", "|---|---|---|---|---|---|---|"]
+    lines = ["| scenario | solver | sorties | pitch-error growth (rad/s) | max error before "
+             "divergence (rad) | diverged (error > 0.5 rad) | first divergence (s) |",
+             "|---|---|---|---|---|---|---|"]
     for r in af["table4"]:
         if not r.get("sorties"):
-            lines.append(f"| {r['scenario']} | {r['solver']} | 0 | | | | |")
+            lines.append(f"| {r['scenario']} | {r['solver']} | 0 | missing: "
+                         f"{r.get('missing', 'no sortie')} | | | |")
             continue
         if "missing" in r:
             lines.append(f"| {r['scenario']} | {r['solver']} | {r['sorties']} | missing: "

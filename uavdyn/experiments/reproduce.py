@@ -534,20 +534,24 @@ def robustness_table(airframe: Airframe, ds: Dataset, nets: dict, config: Reprod
     suffix = " on identified physics" if base is not airframe else ""
     solvers += [(Solver(name, step, dt), base)
                 for name, step in hybrid_steps(base, nets, "data", suffix).items()]
-    test = [s for s in ds.test if condition(s) != "turbulent"] or ds.test
-    scenarios = {"nominal (calm test sorties)": test}
-    high = [s for s in ds.sorties if s.mission == "high_alpha" and s.split == "test"]
-    if airframe.kind == "fixed_wing":
-        high = high or [s for s in ds.sorties if s.mission == "high_alpha"]
-        scenarios["alpha > 20 deg (high-alpha sorties)"] = high
-    scenarios["+15 % stability derivatives and mass"] = perturbed_sorties(
-        airframe, [s.mission for s in test][:4 if not config.quick else 2],
-        test[0].duration if test else 20.0)
+    # only test sorties are scored; a group with none is reported missing, never filled with
+    # training or validation sorties
+    test = [s for s in ds.test if condition(s) != "turbulent"]
+    scenarios = {"nominal (calm test sorties)": (test, "no calm test sortie in the dataset")}
+    if airframe.kind == "fixed_wing":  # alpha is meaningless for a hovering multirotor
+        high = [s for s in ds.test if s.mission == "high_alpha"]
+        scenarios["alpha > 20 deg (high-alpha test sorties)"] = (
+            high, "no high-alpha test sortie in the dataset")
+    missions = [s.mission for s in (test or ds.test)][:4 if not config.quick else 2]
+    scenarios["+15 % stability derivatives and mass"] = (perturbed_sorties(
+        airframe, missions, (test or ds.test)[0].duration if ds.test else 20.0),
+        "no test sortie to take the missions from")
     rows = []
-    for scenario, sorties in scenarios.items():
+    for scenario, (sorties, why) in scenarios.items():
         for solver, solver_airframe in solvers:
             if not sorties:
-                rows.append({"scenario": scenario, "solver": solver.name, "sorties": 0})
+                rows.append({"scenario": scenario, "solver": solver.name, "sorties": 0,
+                             "missing": why})
                 continue
             growth, refused = [], None
             for s in sorties:
@@ -694,17 +698,25 @@ def _json(value):
 
 def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str | Path],
                      dts=(0.005, 0.01, 0.02), split: str = "test",
-                     identified: Airframe | None = None) -> dict:
+                     identified: Airframe | None = None, all_sorties: bool = False) -> dict:
     """Table 1 and Table 4 figures on any dataset folder in the interchange format (its
     ``split`` sorties, or all if it has no split): the ladder of nominal physics, identified
     physics (``identified``, an airframe fitted by ``uavdyn identify``) and each hybrid weight
-    file, run on the airframe its weights were trained on (checked by hash)."""
+    file, run on the airframe its weights were trained on (checked by hash).
+
+    A dataset without ``split`` sorties is an error (its sorties may be the ones a model was
+    fitted on) unless ``all_sorties``: then every sortie is scored and the result says so."""
 
     ds = load_dataset(dataset)
     if ds.kind != airframe.kind:
         raise ValueError(f"dataset {dataset} is of kind '{ds.kind}' but airframe "
                          f"'{airframe.name}' is '{airframe.kind}'")
-    sorties = ds.split(split) or ds.sorties
+    sorties = ds.split(split)
+    if not sorties:
+        if not all_sorties:
+            raise ValueError(f"{dataset}: no '{split}' sorties (manifest split column); give "
+                             "--all-sorties to score every sortie (the result then says so)")
+        sorties = ds.sorties
     rungs = [(NOMINAL_PHYSICS, airframe, "nominal")]
     if identified is not None:
         if identified.kind != airframe.kind:
@@ -734,9 +746,10 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
     alpha_max = {s.name: float(np.degrees(np.max(np.arctan2(target_states(s)[:, 1],
                                                             target_states(s)[:, 0]))))
                  for s in sorties}
-    groups = {"nominal (all evaluated sorties)": sorties,
-              "alpha > 20 deg (sorties that reach it)": [s for s in sorties
-                                                         if alpha_max[s.name] > 20.0]}
+    groups = {"nominal (all evaluated sorties)": sorties}
+    if airframe.kind == "fixed_wing":  # alpha is meaningless for a hovering multirotor
+        groups["alpha > 20 deg (sorties that reach it)"] = [s for s in sorties
+                                                            if alpha_max[s.name] > 20.0]
     table4 = []
     for scenario, members in groups.items():
         for cand in solvers:
@@ -762,7 +775,9 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
                 "diverged": int(sum(g["diverged"] for g in growth)),
             })
     return {"airframe": airframe.name, "kind": airframe.kind, "dataset": str(dataset),
-            "sorties": [s.name for s in sorties], "split": split if ds.split(split) else "all",
+            "sorties": [s.name for s in sorties],
+            "split": split if ds.split(split) else f"all sorties (the dataset has no '{split}' "
+                                                    "split: they may include fitted ones)",
             "identified": identified.origin if identified is not None else None,
             "weights": [str(w) for w in weights], "table1": table1, "table4": table4,
             "per_sortie": safety}

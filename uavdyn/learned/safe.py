@@ -261,7 +261,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                                       for v in ratios]}
 
     def rank(sel: dict) -> tuple:
-        """Epochs where no validation sortie got worse come first, then the geometric mean."""
+        """Epochs where no validation sortie got worse come first, then the geometric mean
+        (epoch 0, the untrained network, is the physics itself and never a candidate)."""
         return (sel["val_ratio_worst"] > cfg.worst_sortie_ratio, sel["val_ratio_geomean"])
 
     physics_val = _theta_rmse(va.physics, va.y, H_sel)
@@ -271,7 +272,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     sel0 = selection(V)
     history = [{"epoch": 0, **sel0, "physics_val_theta_rmse": physics_val,
                 "seconds": time.perf_counter() - start}]
-    best = (rank(sel0), 0, {k: v.clone() for k, v in model.state_dict().items()}, sel0)
+    best = ((True, math.inf), 0, {k: v.clone() for k, v in model.state_dict().items()}, sel0)
     bar = tqdm(range(1, cfg.epochs + 1), desc=f"train {airframe.name} (safe)", unit="epoch",
                disable=not cfg.progress)
     n_w = len(tr.z0)

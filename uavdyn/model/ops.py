@@ -17,7 +17,6 @@ import casadi as ca
 import numpy as np
 
 
-
 def ramp(x, ops):
     """``max(x, 0)`` as ``(x + |x|) / 2``: exact in floating point (``x + |x|`` is ``2x`` or
     ``0``), and ``fabs`` compiles to one instruction where C's ``fmax`` is a library call --

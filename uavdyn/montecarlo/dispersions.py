@@ -142,19 +142,6 @@ class Distribution:
 
 
 @dataclass(frozen=True)
-class Limits:
-    """Thresholds of the exceedance statistics (None: not evaluated)."""
-
-    pitch_deg: float | None = 30.0
-    alpha_deg: float | None = None
-    airspeed_min_mps: float | None = None
-    load_factor_max: float | None = 2.5
-
-    def as_dict(self) -> dict:
-        return {k: getattr(self, k) for k in LIMIT_KEYS}
-
-
-@dataclass(frozen=True)
 class Dispersions:
     """A parsed dispersion file (see the module docstring for the schema).
 
@@ -166,10 +153,9 @@ class Dispersions:
         Dryden intensity (fixed, or the distribution of its value).
     gust_scales : dict of str to float
         Overrides of :func:`uavdyn.emulation.dryden_gusts` scales.
-    limits : Limits
-        Exceedance thresholds as given (None where the file leaves the default to the
-        airframe, see :func:`uavdyn.montecarlo.study.resolve_limits`; False-disabled limits are
-        listed in ``disabled``).
+    limits : dict of str to float or None
+        Exceedance thresholds the file sets (None: switched off with ``false``); the others
+        take the airframe's defaults (:func:`uavdyn.montecarlo.resolve_limits`).
     seed : int or None
         The file's seed.
     origin : str

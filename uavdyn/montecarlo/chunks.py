@@ -1,0 +1,269 @@
+"""One chunk of Monte-Carlo runs: draw each run from ``(seed, run)``, trim it, fly the chunk in
+one call of the compiled batch Function, and store it as a compressed ``.npz`` written
+atomically and verified (content digest) before a resumed study reuses it.
+
+:func:`evaluate_chunk` is a pure function of the spec and the chunk index: the same numbers
+whether it runs in this process, on another thread count, or as a Dask task on another worker.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import time
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from uavdyn.airframes import AirframeError
+from uavdyn.emulation import dryden_gusts
+from uavdyn.learned.hybrid import layout_states
+from uavdyn.linear import TrimError, point_params, trim, trim_state
+from uavdyn.montecarlo.batch import N_GUST, SIGNALS, STAT_NAMES, batch_function, run_function
+from uavdyn.montecarlo.dispersions import STATE_KEYS
+from uavdyn.montecarlo.spec import MonteCarloError, StudySpec
+from uavdyn.outputs import atomic_file
+from uavdyn.safefiles import UnreadableFile, read_regular
+
+CHUNK_FORMAT = 1
+GUST_SPEED_FLOOR = 5.0  # m/s: frozen-turbulence convection speed of a hovering airframe
+RESULT_COLUMNS = ("run", "trim_ok", "diverged", "t_diverged_s", "max_abs_pitch_deg",
+                  "max_alpha_deg", "min_airspeed_mps", "max_load_factor", "min_load_factor",
+                  "time_pitch_over_s", "time_alpha_over_s", "time_airspeed_under_s",
+                  "time_load_over_s", "trim_airspeed_mps")
+_STAT_INDEX = {name: i for i, name in enumerate(STAT_NAMES)}
+_COMPILED: dict[tuple, ca.Function] = {}  # per-process cache of built batch Functions
+
+
+def table_columns(spec: StudySpec) -> tuple[str, ...]:
+    """Columns of the per-run table: outcomes, then every drawn quantity."""
+    return RESULT_COLUMNS + tuple(spec.dispersions.column_names())
+
+
+@dataclass(frozen=True)
+class ChunkResult:
+    """The runs ``run_start..run_stop-1`` of a study.
+
+    Attributes
+    ----------
+    index : int
+        Chunk number.
+    run_start, run_stop : int
+        Run range.
+    table : numpy.ndarray
+        ``n x len(table_columns(spec))`` per-run rows (float64).
+    history : numpy.ndarray
+        ``n x len(SIGNALS) x len(spec.history_time)`` envelope samples (float32, SI units;
+        NaN for a run that did not trim and from its divergence on).
+    seconds : float
+        Wall time spent computing it.
+    """
+
+    index: int
+    run_start: int
+    run_stop: int
+    table: np.ndarray
+    history: np.ndarray
+    seconds: float = 0.0
+
+
+def compiled_batch(spec: StudySpec, n_runs: int, threads: int) -> ca.Function:
+    """The compiled batch Function for ``n_runs`` runs on ``threads`` threads (built once per
+    process and study model; the compiled library is cached on disk)."""
+    key = (spec.model_key, n_runs, threads)
+    if key not in _COMPILED:
+        run = run_function(spec.step(), spec.airframe, spec.structure, spec.n_steps,
+                           spec.stride, spec.gusts, name=f"mc_{spec.model_key[:10]}")
+        _COMPILED[key] = batch_function(run, n_runs, threads)
+    return _COMPILED[key]
+
+
+def _initial(spec: StudySpec, airframe, point, p: np.ndarray, offsets: dict) -> np.ndarray:
+    """The step's state at the start of a run: trim plus the initial-state offsets, with the
+    actuator, delay and command-memory states at rest on the trim command."""
+    body = np.asarray(point.x, float).copy()
+    for name, dist in spec.dispersions.initial.items():
+        i = STATE_KEYS.index(name)
+        body[i] = dist.apply(body[i], offsets[f"initial.{name}"])
+    if spec.net is not None and spec.net.formulation == "improved":
+        layout = spec.net.layout(spec.structure)
+        return layout_states(layout, body[None, :], np.asarray(point.u)[None, :], p,
+                             spec.dt)[0]
+    x = trim_state(airframe, point, fitting=spec.fitting)
+    x[:4] = body
+    return x
+
+
+def evaluate_chunk(spec: StudySpec, index: int, threads: int = 1) -> ChunkResult:
+    """Fly the runs of chunk ``index`` (see the module docstring).
+
+    Parameters
+    ----------
+    spec : StudySpec
+        The study.
+    index : int
+        Chunk number.
+    threads : int
+        Threads of the batch call.
+
+    Returns
+    -------
+    ChunkResult
+
+    Raises
+    ------
+    MonteCarloError
+        If a run draws a physically impossible airframe (an unbounded normal dispersion).
+    """
+    start_time = time.perf_counter()
+    start, stop = spec.chunk_runs(index)
+    n = stop - start
+    if n < 1:
+        raise MonteCarloError(f"chunk {index} holds no runs of a {spec.runs}-run study")
+    nominal = spec.airframe
+    nom_point = trim(nominal, spec.airspeed)
+    nom_p = point_params(nominal, nom_point)
+    x0 = np.tile(_initial(spec, nominal, nom_point, nom_p, _zero_offsets(spec))[:, None],
+                 (1, n))
+    u0 = np.tile(np.asarray(nom_point.u, float)[:, None], (1, n))
+    P = np.tile(nom_p[:, None], (1, n))
+    G = np.zeros((N_GUST, spec.n_steps * n)) if spec.gusts else None
+    columns = table_columns(spec)
+    table = np.full((n, len(columns)), np.nan)
+    draw_columns = spec.dispersions.column_names()
+    trimmed = np.zeros(n, bool)
+    for j, run in enumerate(range(start, stop)):
+        draw = spec.dispersions.sample(spec.seed, run)
+        try:
+            airframe = nominal.replace(**draw.params(spec.dispersions, nominal)) \
+                if spec.dispersions.params else nominal
+        except AirframeError as exc:
+            raise MonteCarloError(f"run {run} drew an impossible airframe ({exc}); bound that "
+                                  "dispersion (uniform or truncnormal)") from None
+        values = dict(draw.offsets)  # parameters are shown by their dispersed value
+        drawn_p = dict(zip(airframe.param_names, airframe.p))
+        values.update({f"params.{name}": float(drawn_p[name]) for name in spec.dispersions.params})
+        speed = spec.airspeed
+        if "airspeed" in spec.dispersions.trim:
+            speed = spec.dispersions.trim["airspeed"].apply(speed, draw.offsets["trim.airspeed"])
+        table[j, columns.index("run")] = run
+        table[j, columns.index("trim_airspeed_mps")] = speed
+        table[j, [columns.index(c) for c in draw_columns]] = [values[c] for c in draw_columns]
+        try:
+            point = trim(airframe, speed)
+        except TrimError:
+            table[j, columns.index("trim_ok")] = 0.0
+            continue
+        trimmed[j] = True
+        table[j, columns.index("trim_ok")] = 1.0
+        p = point_params(airframe, point)
+        x0[:, j] = _initial(spec, airframe, point, p, draw.offsets)
+        u0[:, j] = point.u
+        P[:, j] = p
+        if spec.gusts and draw.gust_intensity > 0:
+            rng = np.random.default_rng([spec.seed, run, 1])
+            gusts = dryden_gusts(rng, spec.n_steps, spec.dt, max(speed, GUST_SPEED_FLOOR),
+                                 draw.gust_intensity, **spec.dispersions.gust_scales)
+            G[:, j * spec.n_steps:(j + 1) * spec.n_steps] = gusts.T
+    batch = compiled_batch(spec, n, threads)
+    args = [x0, u0, P, spec.deviations.T] + ([G] if spec.gusts else []) + \
+        [spec.dt, np.asarray(spec.limits, float)]
+    with np.errstate(all="ignore"):
+        stats, hist = (np.asarray(a) for a in batch(*args))
+    n_hist = len(spec.history_time)
+    history = hist.reshape(len(SIGNALS), n, n_hist, order="F").transpose(1, 0, 2).copy()
+    t_div = stats[_STAT_INDEX["t_diverged"]]
+    diverged = trimmed & (t_div >= 0)
+    out = {"diverged": diverged.astype(float),
+           "t_diverged_s": np.where(diverged, t_div, np.nan),
+           "max_abs_pitch_deg": np.degrees(stats[_STAT_INDEX["max_abs_pitch"]]),
+           "max_alpha_deg": np.degrees(stats[_STAT_INDEX["max_alpha"]]),
+           "min_airspeed_mps": stats[_STAT_INDEX["min_airspeed"]],
+           "max_load_factor": stats[_STAT_INDEX["max_load_factor"]],
+           "min_load_factor": stats[_STAT_INDEX["min_load_factor"]],
+           "time_pitch_over_s": stats[_STAT_INDEX["time_pitch_over"]],
+           "time_alpha_over_s": stats[_STAT_INDEX["time_alpha_over"]],
+           "time_airspeed_under_s": stats[_STAT_INDEX["time_airspeed_under"]],
+           "time_load_over_s": stats[_STAT_INDEX["time_load_over"]]}
+    for name, values in out.items():
+        table[:, columns.index(name)] = np.where(trimmed, values, np.nan)
+    table[~trimmed, columns.index("diverged")] = 0.0
+    history[~trimmed] = np.nan
+    times = spec.history_time
+    for j in np.flatnonzero(diverged):
+        history[j, :, times >= t_div[j] - 1e-9 * spec.dt] = np.nan
+    return ChunkResult(index, start, stop, table, history.astype(np.float32),
+                       time.perf_counter() - start_time)
+
+
+def _zero_offsets(spec: StudySpec) -> dict:
+    return {c: 0.0 for c in spec.dispersions.column_names()}
+
+
+# ----------------------------------------------------------------------------- chunk files
+
+
+def chunk_path(folder: str | Path, index: int) -> Path:
+    """``<folder>/chunks/chunk_<index>.npz``."""
+    return Path(folder) / "chunks" / f"chunk_{index:06d}.npz"
+
+
+def _content_digest(key: str, columns: tuple[str, ...], run_start: int, run_stop: int,
+                    table: np.ndarray, history: np.ndarray) -> str:
+    h = hashlib.sha256()
+    h.update(f"{CHUNK_FORMAT}|{key}|{','.join(columns)}|{run_start}|{run_stop}|".encode())
+    h.update(np.ascontiguousarray(table, dtype="<f8").tobytes())
+    h.update(np.ascontiguousarray(history, dtype="<f4").tobytes())
+    return h.hexdigest()
+
+
+def write_chunk(folder: str | Path, spec: StudySpec, result: ChunkResult) -> Path:
+    """Write a chunk file atomically (temporary sibling, flushed to disk, then renamed)."""
+    path = chunk_path(folder, result.index)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    columns = table_columns(spec)
+    digest = _content_digest(spec.key, columns, result.run_start, result.run_stop,
+                             result.table, result.history)
+    with atomic_file(path) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(
+            fh, format=np.array([CHUNK_FORMAT]), key=np.array(spec.key),
+            index=np.array([result.index]), runs=np.array([result.run_start, result.run_stop]),
+            columns=np.array(columns), table=result.table.astype("<f8"),
+            history=result.history.astype("<f4"), digest=np.array(digest),
+            seconds=np.array([result.seconds]))
+        fh.flush()
+        os.fsync(fh.fileno())
+    return path
+
+
+def read_chunk(folder: str | Path, spec: StudySpec, index: int) -> ChunkResult | None:
+    """The chunk ``index`` of ``spec`` from ``folder`` if its file exists and verifies (study
+    key, run range, columns, shapes and content digest), else None."""
+    path = chunk_path(folder, index)
+    start, stop = spec.chunk_runs(index)
+    n, columns = stop - start, table_columns(spec)
+    n_hist = len(spec.history_time)
+    limit = 4096 + n * (len(columns) * 8 + len(SIGNALS) * n_hist * 4) * 2 + 2**20
+    try:
+        raw = read_regular(path, limit, "a chunk file", follow_symlinks=False)
+        with np.load(io.BytesIO(raw), allow_pickle=False) as z:
+            content = {k: z[k] for k in ("format", "key", "index", "runs", "columns", "table",
+                                         "history", "digest", "seconds")}
+    except (UnreadableFile, OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+    table, history = content["table"], content["history"]
+    if (content["format"].tolist() != [CHUNK_FORMAT] or str(content["key"]) != spec.key
+            or content["index"].tolist() != [index] or content["runs"].tolist() != [start, stop]
+            or tuple(content["columns"].tolist()) != columns
+            or table.dtype != np.float64 or table.shape != (n, len(columns))
+            or history.dtype != np.float32 or history.shape != (n, len(SIGNALS), n_hist)):
+        return None
+    if str(content["digest"]) != _content_digest(spec.key, columns, start, stop, table,
+                                                 history):
+        return None
+    seconds = float(content["seconds"][0]) if content["seconds"].shape == (1,) else 0.0
+    return ChunkResult(index, start, stop, table, history, seconds)

@@ -1,0 +1,367 @@
+"""What a Monte-Carlo study is: airframe, step (physics or hybrid), dispersions, command input,
+grid and seed gathered in one picklable :class:`StudySpec` with a content key, plus the command
+deviations of a mission, an input profile or a recorded control CSV.
+
+The key hashes everything that decides a run's numbers (but not the number of runs, so a study
+can be extended); chunk files carry it, and a resumed study reuses only chunks made with it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from uavdyn import __version__
+from uavdyn.airframes import Airframe
+from uavdyn.emulation import MISSIONS, Emulator, plan_mission
+from uavdyn.flightdata import read_csv
+from uavdyn.integrate import check_use, physics_step, takes_time
+from uavdyn.integrate.inputs import PROFILES, control_sequence
+from uavdyn.learned import CorrectionNet, hybrid_step, load_weights, shipped_weights
+from uavdyn.learned.hybrid import correction_structure
+from uavdyn.linear import TrimError, stall_speed, trim
+from uavdyn.model import CONTROL_NAMES, ModelStructure, structure_of
+from uavdyn.montecarlo.batch import gust_step
+from uavdyn.montecarlo.dispersions import LIMIT_KEYS, Dispersions
+from uavdyn.safefiles import UnreadableFile, read_regular
+
+SPEC_FORMAT = 1
+MISSION_LOG_RATE_HZ = 100.0   # the emulator flies a mission at this log rate
+DEFAULT_HISTORY_DT = 0.1      # s between two envelope samples
+MAX_STEPS = 10_000_000        # per run
+DEFAULT_PITCH_LIMIT_DEG = 30.0
+DEFAULT_LOAD_LIMIT = {"fixed_wing": 2.5, "multirotor": 2.0}
+# input profiles (uavdyn.integrate.inputs): the channel and amplitude they act on
+PROFILE_INPUT = {"fixed_wing": (0, math.radians(2.0)), "multirotor": (1, 0.05)}
+
+
+class MonteCarloError(ValueError):
+    """A Monte-Carlo study cannot be set up or run as asked; the message says why."""
+
+
+@dataclass(frozen=True, eq=False)
+class StudySpec:
+    """Everything a chunk of runs needs (picklable: it is sent to Dask workers).
+
+    Attributes
+    ----------
+    airframe : Airframe
+        Nominal airframe.
+    dispersions : Dispersions
+        Parsed dispersion file.
+    net : CorrectionNet or None
+        The correction of a hybrid study (None: physics).
+    model : str
+        ``physics`` or a description of the hybrid weights.
+    runs : int
+        Number of runs.
+    dt : float
+        Step size (s).
+    n_steps : int
+        Steps per run (duration / dt).
+    stride : int
+        Steps between two envelope samples.
+    seed : int
+        Study seed.
+    chunk_size : int
+        Runs per chunk (the unit of work, of resume and of a Dask task).
+    airspeed : float
+        Nominal trim airspeed (m/s) before dispersion.
+    input_name : str
+        Mission, profile or CSV the command deviations come from.
+    deviations : numpy.ndarray
+        ``n_steps x nu`` command deviations added to each run's trim command.
+    limits : tuple of float
+        Resolved thresholds ``(pitch rad, alpha rad, airspeed m/s, load factor)``; inf where a
+        limit is off.
+    weights_digest : str
+        SHA-256 of the weight file ('' for physics).
+    """
+
+    airframe: Airframe
+    dispersions: Dispersions
+    net: CorrectionNet | None
+    model: str
+    runs: int
+    dt: float
+    n_steps: int
+    stride: int
+    seed: int
+    chunk_size: int
+    airspeed: float
+    input_name: str
+    deviations: np.ndarray
+    limits: tuple[float, float, float, float]
+    weights_digest: str = ""
+    key: str = field(default="", init=False)
+    model_key: str = field(default="", init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "key", _digest(self.key_content()))
+        object.__setattr__(self, "model_key", _digest({
+            "airframe": self.airframe.param_hash(), "kind": self.airframe.kind,
+            "structure": repr(self.structure), "weights": self.weights_digest,
+            "n_steps": self.n_steps, "stride": self.stride, "gusts": self.gusts,
+            "bounds": self.airframe.control_bounds(), "casadi": ca.__version__}))
+
+    @property
+    def duration(self) -> float:
+        return self.n_steps * self.dt
+
+    @property
+    def gusts(self) -> bool:
+        return self.dispersions.has_gusts
+
+    @property
+    def fitting(self) -> tuple[str, ...]:
+        """Dispersed parameters: their terms stay in the graph even at a nominal value of 0."""
+        return tuple(sorted(self.dispersions.params))
+
+    @property
+    def structure(self) -> ModelStructure:
+        """The physics structure the runs are integrated with."""
+        if self.net is None:
+            return structure_of(self.airframe, self.fitting)
+        return correction_structure(self.airframe, self.net.kind, self.net.formulation)
+
+    @property
+    def history_time(self) -> np.ndarray:
+        """Times (s) of the envelope samples."""
+        stride = min(self.stride, self.n_steps)
+        return np.arange(self.n_steps // stride + 1) * stride * self.dt
+
+    @property
+    def n_chunks(self) -> int:
+        return -(-self.runs // self.chunk_size)
+
+    def chunk_runs(self, index: int) -> tuple[int, int]:
+        """``(start, stop)`` run indices of chunk ``index``."""
+        start = index * self.chunk_size
+        return start, min(start + self.chunk_size, self.runs)
+
+    def step(self) -> ca.Function:
+        """The (uncompiled) step the runs use: ``(x, u, p, dt)``, ``u`` with gusts appended
+        when the study has turbulence."""
+        structure = self.structure
+        if self.net is None:
+            return gust_step(structure) if self.gusts else physics_step(structure)
+        if self.gusts:
+            return gust_step(structure, self.net, "hybrid_gust_step")
+        return hybrid_step(self.net, self.airframe, compile=False)
+
+    def key_content(self) -> dict:
+        """What the study key hashes (everything but the number of runs)."""
+        return {
+            "format": SPEC_FORMAT, "uavdyn": __version__, "casadi": ca.__version__,
+            "airframe": {"name": self.airframe.name, "kind": self.airframe.kind,
+                         "param_hash": self.airframe.param_hash()},
+            "model": self.model, "weights_sha256": self.weights_digest,
+            "dispersions": self.dispersions.to_dict(), "seed": self.seed, "dt": self.dt,
+            "n_steps": self.n_steps, "stride": self.stride, "chunk_size": self.chunk_size,
+            "airspeed": self.airspeed, "input": self.input_name,
+            "deviations_sha256": hashlib.sha256(
+                np.ascontiguousarray(self.deviations, dtype="<f8").tobytes()).hexdigest(),
+            "limits": [repr(float(v)) for v in self.limits],
+        }
+
+    def describe(self) -> dict:
+        """JSON-friendly description (``study.json``)."""
+        return {"key": self.key, "runs": self.runs, "duration_s": self.duration,
+                "dispersion_file": self.dispersions.origin,
+                "dispersions": self.dispersions.describe(),
+                "limits": dict(zip(("pitch_deg", "alpha_deg", "airspeed_min_mps",
+                                    "load_factor_max"), _limits_shown(self.limits))),
+                **{k: v for k, v in self.key_content().items() if k != "limits"}}
+
+
+def _limits_shown(limits) -> list:
+    pitch, alpha, speed, load = limits
+    return [None if math.isinf(pitch) else math.degrees(pitch),
+            None if math.isinf(alpha) else math.degrees(alpha),
+            None if speed == -math.inf else speed, None if math.isinf(load) else load]
+
+
+def _digest(doc: dict) -> str:
+    return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def resolve_limits(dispersions: Dispersions, airframe: Airframe
+                   ) -> tuple[float, float, float, float]:
+    """The thresholds in SI units: the file's ``[limits]`` where set (None: off), else the
+    defaults (pitch 30 deg; fixed wing: alpha at the nominal stall angle, airspeed at the
+    nominal stall speed, load factor 2.5; multirotor: no alpha and airspeed limits, load factor
+    2.0). Off is +inf (-inf for the airspeed minimum)."""
+    given = dispersions.limits
+    defaults: dict[str, float | None] = {
+        "pitch_deg": DEFAULT_PITCH_LIMIT_DEG, "alpha_deg": None, "airspeed_min_mps": None,
+        "load_factor_max": DEFAULT_LOAD_LIMIT[airframe.kind]}
+    if airframe.kind == "fixed_wing" and not ("alpha_deg" in given
+                                              and "airspeed_min_mps" in given):
+        v_stall, alpha_stall, _ = stall_speed(airframe)
+        defaults.update(alpha_deg=math.degrees(alpha_stall), airspeed_min_mps=v_stall)
+    values = {k: given[k] if k in given else defaults[k] for k in LIMIT_KEYS}
+    return (math.radians(values["pitch_deg"]) if values["pitch_deg"] is not None else math.inf,
+            math.radians(values["alpha_deg"]) if values["alpha_deg"] is not None else math.inf,
+            float(values["airspeed_min_mps"]) if values["airspeed_min_mps"] is not None
+            else -math.inf,
+            float(values["load_factor_max"]) if values["load_factor_max"] is not None
+            else math.inf)
+
+
+def input_names(kind: str) -> list[str]:
+    """Names ``--mission`` accepts for an airframe kind (a CSV path is accepted too)."""
+    return list(PROFILES) + [n for n, (_, kinds) in MISSIONS.items() if kind in kinds]
+
+
+def command_deviations(source: str, airframe: Airframe, n_steps: int, dt: float,
+                       seed: int = 0) -> np.ndarray:
+    """``n_steps x nu`` command deviations, zero-order held over each step, that every run adds
+    to its own trim command.
+
+    Parameters
+    ----------
+    source : str
+        An input profile (``step``, ``doublet``, ``3211``, ``chirp``, ``none``: 2 deg of
+        elevator, or 0.05 of pitch command for a multirotor, from 1 s), an emulator mission
+        (:data:`uavdyn.emulation.MISSIONS`: the commands its autopilot gave flying it once in
+        calm air with the nominal airframe, seeded with ``seed``, at 100 Hz), or the path of a
+        recorded interchange CSV (its controls). Missions and CSVs count from their first
+        command.
+    airframe : Airframe
+        The nominal airframe.
+    n_steps, dt : int, float
+        The run grid.
+    seed : int
+        Seed of the mission draw.
+
+    Raises
+    ------
+    MonteCarloError
+        For an unknown name or an input shorter than the runs.
+    """
+    t = np.arange(n_steps) * dt
+    nu = len(CONTROL_NAMES[airframe.kind])
+    if source in PROFILES:
+        channel, amplitude = PROFILE_INPUT[airframe.kind]
+        return control_sequence(source, t, np.zeros(nu), amplitude, channel=channel)
+    if source in MISSIONS:
+        plan = plan_mission(source, airframe, n_steps * dt, MISSION_LOG_RATE_HZ,
+                            np.random.default_rng(seed))
+        emulator = Emulator(airframe, sample_rate_hz=MISSION_LOG_RATE_HZ)
+        flight = emulator.fly(emulator.initial_state(plan.x0, plan.u0, plan.altitude),
+                              plan.references)
+        return _resample(flight.time, flight.controls, t, source)
+    path = Path(source)
+    if path.suffix.lower() == ".csv" or path.exists():
+        sortie = read_csv(path, kind=airframe.kind)
+        return _resample(sortie.time - sortie.time[0], sortie.controls, t, str(path))
+    raise MonteCarloError(f"unknown input '{source}': expected a mission or profile "
+                          f"({', '.join(input_names(airframe.kind))}) or a control CSV path")
+
+
+def _resample(time: np.ndarray, controls: np.ndarray, t: np.ndarray, what: str) -> np.ndarray:
+    """Zero-order hold of ``controls`` (row i from ``time[i]``) at the times ``t``, minus the
+    first command."""
+    interval = float(np.median(np.diff(time))) if len(time) > 1 else 0.0
+    if len(time) < 2 or time[-1] + interval < t[-1] - 1e-9:
+        raise MonteCarloError(f"{what}: its commands cover {time[-1] + interval:.3f} s, less "
+                              f"than the {t[-1]:.3f} s the runs need")
+    idx = np.clip(np.searchsorted(time, t + 1e-9, side="right") - 1, 0, len(time) - 1)
+    return controls[idx] - controls[0]
+
+
+def _weights(weights: str | Path | None, airframe: Airframe
+             ) -> tuple[CorrectionNet | None, str, str]:
+    if weights is None:
+        return None, "physics", ""
+    path = shipped_weights(airframe.name) if str(weights) == "shipped" else Path(weights)
+    net = load_weights(path, airframe)
+    try:
+        digest = hashlib.sha256(read_regular(path, 64 * 2**20, "a weight file")).hexdigest()
+    except UnreadableFile as exc:  # pragma: no cover - load_weights read it just now
+        raise MonteCarloError(f"{path}: {exc.reason}") from None
+    return net, f"hybrid ({Path(path).name}: {net.describe()})", digest
+
+
+def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration: float,
+               dt: float = 0.01, mission: str = "doublet", weights: str | Path | None = None,
+               seed: int | None = None, chunk_size: int = 200,
+               history_dt: float = DEFAULT_HISTORY_DT, airspeed: float | None = None
+               ) -> StudySpec:
+    """Check a study's settings and gather them in a :class:`StudySpec`.
+
+    Parameters
+    ----------
+    airframe : Airframe
+        Nominal airframe.
+    dispersions : Dispersions
+        From :func:`uavdyn.montecarlo.load_dispersions`.
+    runs : int
+        Number of runs (>= 1).
+    duration, dt : float
+        Seconds per run and step size (s).
+    mission : str
+        Command input (see :func:`command_deviations`).
+    weights : path, "shipped" or None
+        Weight file of a hybrid study (None: the physics step).
+    seed : int, optional
+        Study seed (default: the dispersion file's, else 0).
+    chunk_size : int
+        Runs per chunk.
+    history_dt : float
+        Interval of the envelope samples (s, rounded to whole steps).
+    airspeed : float, optional
+        Nominal trim airspeed (default: the airframe's).
+
+    Raises
+    ------
+    MonteCarloError
+        For settings out of range, a nominal airframe that does not trim, or a hybrid step
+        that cannot be used for the study.
+    """
+    for name, value in (("duration", duration), ("dt", dt), ("history_dt", history_dt)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise MonteCarloError(f"{name} must be a positive number of seconds, got {value}")
+    if not (isinstance(runs, int) and runs >= 1):
+        raise MonteCarloError(f"runs must be an integer >= 1, got {runs}")
+    if not (isinstance(chunk_size, int) and chunk_size >= 1):
+        raise MonteCarloError(f"chunk size must be an integer >= 1, got {chunk_size}")
+    n_steps = int(round(duration / dt))
+    if n_steps < 1 or n_steps > MAX_STEPS:
+        raise MonteCarloError(f"duration {duration:g} s at dt {dt:g} s is {n_steps} steps; "
+                              f"between 1 and {MAX_STEPS} are allowed")
+    seed = dispersions.seed if seed is None and dispersions.seed is not None else (seed or 0)
+    if not (isinstance(seed, int) and 0 <= seed < 2**63):
+        raise MonteCarloError(f"seed must be an integer >= 0, got {seed}")
+    speed = airframe.nominal_airspeed if airspeed is None else float(airspeed)
+    try:
+        trim(airframe, speed)
+    except TrimError as exc:
+        raise MonteCarloError(f"the nominal airframe does not trim: {exc}") from None
+    net, model, digest = _weights(weights, airframe)
+    if net is not None:
+        step = hybrid_step(net, airframe, compile=False)
+        if takes_time(step):
+            raise MonteCarloError(f"{model}: this correction takes time t as an input; use "
+                                  "weights of the 'improved' formulation")
+        check_use(step, dt, 0.0, n_steps * dt)
+        structure = correction_structure(airframe, net.kind, net.formulation)
+        needed = structure_of(airframe, tuple(sorted(dispersions.params)))
+        if needed != structure:
+            raise MonteCarloError(
+                f"dispersing {', '.join(sorted(dispersions.params))} adds model terms (alpha-"
+                "dot, actuator lag) the hybrid step's physics does not carry at the nominal "
+                "values; disperse them with the physics step")
+    deviations = command_deviations(mission, airframe, n_steps, dt, seed)
+    stride = max(1, int(round(history_dt / dt)))
+    return StudySpec(airframe=airframe, dispersions=dispersions, net=net, model=model,
+                     runs=runs, dt=float(dt), n_steps=n_steps, stride=min(stride, n_steps),
+                     seed=int(seed), chunk_size=chunk_size, airspeed=speed,
+                     input_name=mission, deviations=np.ascontiguousarray(deviations, float),
+                     limits=resolve_limits(dispersions, airframe), weights_digest=digest)

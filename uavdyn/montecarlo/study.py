@@ -1,0 +1,308 @@
+"""Running a Monte-Carlo study: chunks of runs in this process (CasADi threads) or as Dask
+tasks, each chunk file written atomically as it finishes, a re-run into the same folder
+resuming from the chunks that verify, and the assembled :class:`MonteCarloResult`.
+
+Output folder (``out``)::
+
+    .uavdyn-output.json    marker: a 'uavdyn montecarlo' output (see uavdyn.outputs)
+    study.json             settings and the study key
+    chunks/chunk_*.npz     one per chunk (compressed; key, run range and content digest)
+    summary.csv, envelopes.csv, results.json, summary.md, figures/*.png
+
+A folder holding another study (another key) is refused unless ``force``, which first removes
+that study's chunks and outputs; a folder that is not a montecarlo output is refused unless
+``force`` (uavdyn's rule for every command). One study at a time writes into a folder (a lock
+file), and temporary files of a killed writer are removed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from uavdyn.montecarlo.chunks import (
+    ChunkResult,
+    chunk_path,
+    compiled_batch,
+    evaluate_chunk,
+    read_chunk,
+    table_columns,
+    write_chunk,
+)
+from uavdyn.montecarlo.report import OUTPUT_FILES, json_text, write_outputs
+from uavdyn.montecarlo.spec import MonteCarloError, StudySpec
+from uavdyn.montecarlo.statistics import (
+    Envelopes,
+    Exceedance,
+    RunTable,
+    envelopes,
+    exceedances,
+)
+from uavdyn.outputs import MARKER, check_output_folder, write_text_atomic
+
+try:  # POSIX; elsewhere two studies in one folder are not prevented
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
+
+COMMAND = "montecarlo"
+LOCK_NAME = ".montecarlo.lock"
+_TEMP = re.compile(r"^\..+\.(tmp|partial|old)-(\d+)-\d+-[0-9a-f]{8}$")
+
+
+@dataclass
+class MonteCarloResult:
+    """The outcome of a study, usable from Python.
+
+    Attributes
+    ----------
+    spec : StudySpec
+        The study.
+    table : RunTable
+        One row per run (``table["max_abs_pitch_deg"]`` etc.).
+    history : numpy.ndarray
+        ``runs x len(SIGNALS) x len(spec.history_time)`` envelope samples (float32, SI).
+    envelopes : Envelopes
+        Percentile envelopes (5/50/95 %).
+    exceedance : list of Exceedance
+        Probabilities with Wilson intervals.
+    wall_s : float
+        Wall time of this call (s).
+    computed, reused : tuple of int
+        Chunks computed now and taken from an earlier run.
+    folder : Path or None
+        Where the files are (None: in memory only).
+    files : dict of str to str
+        Written files by name.
+    workers, threads : int
+        Dask workers (1: this process) and CasADi threads per chunk.
+    scheduler : str or None
+        Scheduler address of a remote cluster.
+    """
+
+    spec: StudySpec
+    table: RunTable
+    history: np.ndarray
+    envelopes: Envelopes
+    exceedance: list[Exceedance]
+    wall_s: float
+    computed: tuple[int, ...]
+    reused: tuple[int, ...]
+    folder: Path | None = None
+    files: dict[str, str] = field(default_factory=dict)
+    workers: int = 1
+    threads: int = 1
+    scheduler: str | None = None
+
+    @property
+    def runs_computed(self) -> int:
+        """Runs flown by this call (not taken from reused chunks)."""
+        return sum(np.subtract(*reversed(self.spec.chunk_runs(c))) for c in self.computed)
+
+    @property
+    def runs_per_s(self) -> float:
+        """Computed runs per second of wall time."""
+        return self.runs_computed / self.wall_s if self.wall_s > 0 else float("nan")
+
+    def exceedance_of(self, event_start: str) -> Exceedance:
+        """The first exceedance whose event text starts with ``event_start``."""
+        for e in self.exceedance:
+            if e.event.startswith(event_start):
+                return e
+        raise KeyError(f"no exceedance '{event_start}'; have "
+                       f"{', '.join(e.event for e in self.exceedance)}")
+
+
+@contextlib.contextmanager
+def _locked(folder: Path) -> Iterator[None]:
+    if fcntl is None:  # pragma: no cover - Windows
+        yield
+        return
+    with open(folder / LOCK_NAME, "a") as fh:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise MonteCarloError(f"{folder}: another uavdyn montecarlo is writing into this "
+                                  "folder") from None
+        try:
+            yield
+        finally:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
+def _remove_dead_temporaries(folder: Path) -> None:
+    """Temporary files left by a killed writer (their process is gone)."""
+    for sub in (folder, folder / "chunks", folder / "figures"):
+        if not sub.is_dir():
+            continue
+        for path in sub.iterdir():
+            m = _TEMP.match(path.name)
+            if not m or not path.is_file():
+                continue
+            try:
+                os.kill(int(m.group(2)), 0)
+            except ProcessLookupError:
+                path.unlink(missing_ok=True)
+            except (PermissionError, OverflowError):
+                continue
+
+
+def _write_marker(folder: Path, files: list[str]) -> None:
+    write_text_atomic(folder / MARKER, json.dumps({"command": COMMAND, "files": files},
+                                                  indent=1))
+
+
+def _prepare(folder: Path, spec: StudySpec, force: bool) -> None:
+    """Check and set up the output folder (see the module docstring)."""
+    check_output_folder(folder, COMMAND, force)
+    study_file = folder / "study.json"
+    if study_file.is_file():
+        try:
+            key = json.loads(study_file.read_text()).get("key")
+        except (OSError, ValueError, AttributeError):
+            key = None
+        if key != spec.key:
+            if not force:
+                raise MonteCarloError(
+                    f"{folder}: holds another Monte-Carlo study (different airframe, model, "
+                    "dispersions, input, grid, seed or chunk size); choose another folder, or "
+                    "give --force to discard its chunks")
+            for path in (folder / "chunks").glob("chunk_*.npz"):
+                path.unlink()
+            for name in OUTPUT_FILES:
+                (folder / name).unlink(missing_ok=True)
+    (folder / "chunks").mkdir(parents=True, exist_ok=True)
+    if not (folder / MARKER).is_file() or force:
+        _write_marker(folder, ["study.json"])
+    write_text_atomic(study_file, json_text(spec.describe()))
+
+
+def run_study(spec: StudySpec, out: str | Path | None = None, workers: int = 1,
+              threads: int = 1, scheduler: str | None = None, progress: bool = True,
+              force: bool = False, on_chunk: Callable[[ChunkResult], None] | None = None
+              ) -> MonteCarloResult:
+    """Run (or resume) a study.
+
+    Parameters
+    ----------
+    spec : StudySpec
+        From :func:`uavdyn.montecarlo.build_spec`.
+    out : path, optional
+        Output folder (chunk files, table, envelopes, figures, summary); None keeps
+        everything in memory (no resume).
+    workers : int
+        1: chunks run in this process; more: a Dask ``LocalCluster`` of that many worker
+        processes (needs ``dask[distributed]``).
+    threads : int
+        CasADi threads per chunk (the batch Function's ``thread`` map).
+    scheduler : str, optional
+        Address of a running Dask scheduler (instead of a LocalCluster).
+    progress : bool
+        Show a progress bar over runs.
+    force : bool
+        Write into a folder holding something else (see the module docstring).
+    on_chunk : callable, optional
+        Called with each :class:`ChunkResult` once it is stored.
+
+    Returns
+    -------
+    MonteCarloResult
+
+    Raises
+    ------
+    MonteCarloError
+        Bad settings, a folder that may not be written, Dask missing or unreachable, or an
+        impossible draw.
+    """
+    if not (isinstance(workers, int) and workers >= 1):
+        raise MonteCarloError(f"workers must be an integer >= 1, got {workers}")
+    if not (isinstance(threads, int) and threads >= 1):
+        raise MonteCarloError(f"threads must be an integer >= 1, got {threads}")
+    started = time.perf_counter()
+    folder = Path(out) if out is not None else None
+    if folder is None:
+        return _run(spec, None, workers, threads, scheduler, progress, on_chunk, started)
+    check_output_folder(folder, COMMAND, force)
+    folder.mkdir(parents=True, exist_ok=True)
+    with _locked(folder):
+        _remove_dead_temporaries(folder)
+        _prepare(folder, spec, force)
+        return _run(spec, folder, workers, threads, scheduler, progress, on_chunk, started)
+
+
+def _run(spec: StudySpec, folder: Path | None, workers: int, threads: int,
+         scheduler: str | None, progress: bool, on_chunk, started: float) -> MonteCarloResult:
+    memory: dict[int, ChunkResult] = {}
+    reused = []
+    if folder is not None:
+        for index in range(spec.n_chunks):
+            found = read_chunk(folder, spec, index)
+            if found is not None:
+                reused.append(index)
+    todo = [c for c in range(spec.n_chunks) if c not in set(reused)]
+    done_runs = sum(np.subtract(*reversed(spec.chunk_runs(c))) for c in reused)
+    bar = tqdm(total=spec.runs, initial=int(done_runs), unit="run", disable=not progress,
+               desc=f"montecarlo {spec.airframe.name}", dynamic_ncols=True)
+
+    def store(result: ChunkResult) -> None:
+        if folder is not None:
+            write_chunk(folder, spec, result)
+        else:
+            memory[result.index] = result
+        bar.update(result.run_stop - result.run_start)
+        if on_chunk is not None:
+            on_chunk(result)
+
+    try:
+        if todo:
+            _warm(spec, todo, threads)
+            if workers > 1 or scheduler is not None:
+                from uavdyn.montecarlo.scaleout import dask_client, run_on_dask
+
+                with dask_client(workers, scheduler) as client:
+                    run_on_dask(client, spec, todo, threads, store)
+            else:
+                for index in todo:
+                    store(evaluate_chunk(spec, index, threads))
+    finally:
+        bar.close()
+    chunks = []
+    for index in range(spec.n_chunks):
+        result = memory.get(index) if folder is None else read_chunk(folder, spec, index)
+        if result is None:
+            raise MonteCarloError(f"chunk {index} of {chunk_path(folder or '.', index)} did "
+                                  "not verify after it was written")
+        chunks.append(result)
+    table = RunTable(table_columns(spec), np.vstack([c.table for c in chunks]))
+    history = np.concatenate([c.history for c in chunks])
+    keep = (table["trim_ok"] == 1) & (table["diverged"] == 0)
+    result = MonteCarloResult(
+        spec=spec, table=table, history=history,
+        envelopes=envelopes(history, spec.history_time, keep),
+        exceedance=exceedances(table, spec.limits), wall_s=0.0, computed=tuple(todo),
+        reused=tuple(reused), folder=folder, workers=workers, threads=threads,
+        scheduler=scheduler)
+    result.wall_s = time.perf_counter() - started
+    if folder is not None:
+        result.files = write_outputs(result, folder)
+        result.wall_s = time.perf_counter() - started
+        _write_marker(folder, ["study.json", *OUTPUT_FILES,
+                               *(str(chunk_path(".", c).relative_to(".")) for c in
+                                 range(spec.n_chunks))])
+    return result
+
+
+def _warm(spec: StudySpec, todo: list[int], threads: int) -> None:
+    """Build (compile, or load from the disk cache) the batch Functions the chunks need, once
+    here, so that worker processes only load the cached library."""
+    for n in sorted({np.subtract(*reversed(spec.chunk_runs(c))) for c in todo}):
+        compiled_batch(spec, int(n), threads)
