@@ -93,7 +93,25 @@ def test_figures_are_valid_pngs(quick_run):
 
 def test_metrics_recomputed_from_saved_trajectories(quick_run):
     out, results = quick_run
-    metrics = json.loads((out / "metrics.json").read_text())
+    text = (out / "metrics.json").read_text()
+    metrics = json.loads(text)
+    import uavdyn
+
+    assert metrics["provenance"]["uavdyn"] == uavdyn.__version__
+    assert "casadi" in metrics["provenance"] and "commit" in metrics["provenance"]
+
+    def strings(obj):
+        if isinstance(obj, dict):
+            for v in obj.values():
+                yield from strings(v)
+        elif isinstance(obj, list):
+            for v in obj:
+                yield from strings(v)
+        elif isinstance(obj, str):
+            yield obj
+
+    absolute = [s for s in strings(metrics) if s.startswith(("/", str(out)))]
+    assert not absolute, absolute[:3]  # paths relative to the output, cache or package
     checked = 0
     for af in metrics["airframes"]:
         for label, table in af["table1"].items():

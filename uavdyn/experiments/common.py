@@ -44,3 +44,33 @@ def identification_sorties(sorties: list[Sortie], minimum: int = 3) -> tuple[lis
     that fitted coefficients would absorb (identification manoeuvres are flown in calm air)."""
     calm = [s for s in sorties if condition(s) == "calm"]
     return (calm, "calm train") if len(calm) >= minimum else (list(sorties), "train")
+
+
+def provenance() -> dict:
+    """What produced a result: package version, git commit of the source tree when it is a
+    checkout (None for a wheel install), and the versions of the numerical stack."""
+    import platform
+    import subprocess
+    from pathlib import Path
+
+    import casadi
+
+    import uavdyn
+
+    commit = None
+    source = Path(uavdyn.__file__).resolve().parent.parent
+    if (source / ".git").exists():
+        try:
+            done = subprocess.run(["git", "-C", str(source), "rev-parse", "HEAD"],
+                                  capture_output=True, text=True, timeout=5, check=False)
+            commit = done.stdout.strip() or None
+            dirty = subprocess.run(["git", "-C", str(source), "status", "--porcelain",
+                                    "--untracked-files=no"], capture_output=True, text=True,
+                                   timeout=5, check=False).stdout.strip()
+            if commit and dirty:
+                commit += " (with uncommitted changes)"
+        except (OSError, subprocess.SubprocessError):
+            commit = None
+    return {"uavdyn": uavdyn.__version__, "commit": commit,
+            "python": platform.python_version(), "numpy": np.__version__,
+            "casadi": casadi.__version__, "machine": platform.machine()}

@@ -42,6 +42,7 @@ from uavdyn.experiments.common import (
     condition,
     hybrid_steps,
     identification_sorties,
+    provenance,
     target_states,
 )
 from uavdyn.experiments.report import _table1, _table4, write_report
@@ -663,7 +664,17 @@ def run(config: ReproduceConfig) -> dict:
         results = {"config": asdict(config), "paper": PAPER,
                    "airframes": [run_airframe(a, work, log) for a in config.airframes]}
         results["wall_s"] = time.perf_counter() - t0
-        relative = _relocate(results, str(tmp) + os.sep, "")  # metrics.json: relative paths
+        results["provenance"] = provenance()
+        # metrics.json: paths relative to the output folder, the dataset cache and the package
+        # (no absolute path of the machine that ran it)
+        relative = _relocate(results, str(tmp) + os.sep, "")
+        relative = _relocate(relative, str(out).rstrip(os.sep) + os.sep, "")
+        for folder, label in ((config.cache, "<dataset cache>/"), (cache_dir(), "<uavdyn cache>/")):
+            if folder:
+                relative = _relocate(relative, str(folder).rstrip(os.sep) + os.sep, label)
+                relative = _relocate(relative, str(Path(folder).resolve()) + os.sep, label)
+        relative = _relocate(relative, str(Path(__file__).resolve().parents[1]) + os.sep,
+                             "<uavdyn package>/")
         (tmp / "metrics.json").write_text(json.dumps(relative, indent=2, default=_json) + "\n")
         write_report(results, tmp / "report.md")
     results = _relocate(results, str(tmp) + os.sep, str(out) + os.sep)
@@ -680,6 +691,8 @@ def _relocate(obj, old: str, new: str):
         return [_relocate(v, old, new) for v in obj]
     if isinstance(obj, str) and obj.startswith(old):
         return new + obj[len(old):]
+    if isinstance(obj, str) and obj == old.rstrip(os.sep):  # the folder itself
+        return new.rstrip("/") or "."
     return obj
 
 

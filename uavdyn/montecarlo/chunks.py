@@ -175,7 +175,7 @@ def evaluate_chunk(spec: StudySpec, index: int, threads: int = 1) -> ChunkResult
     with np.errstate(all="ignore"):
         stats, hist = (np.asarray(a) for a in batch(*args))
     n_hist = len(spec.history_time)
-    history = hist.reshape(len(SIGNALS), n, n_hist, order="F").transpose(1, 0, 2).copy()
+    history = hist.reshape(len(SIGNALS), n, n_hist).transpose(1, 0, 2).copy()
     t_div = stats[_STAT_INDEX["t_diverged"]]
     diverged = trimmed & (t_div >= 0)
     out = {"diverged": diverged.astype(float),

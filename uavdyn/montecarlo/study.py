@@ -162,8 +162,7 @@ def _write_marker(folder: Path, files: list[str]) -> None:
 
 
 def _prepare(folder: Path, spec: StudySpec, force: bool) -> None:
-    """Check and set up the output folder (see the module docstring)."""
-    check_output_folder(folder, COMMAND, force)
+    """Set up the output folder (checked by the caller; see the module docstring)."""
     study_file = folder / "study.json"
     if study_file.is_file():
         try:

@@ -1,0 +1,387 @@
+"""Monte-Carlo studies (issue 15): the same numbers on 1 worker, 2 threads and a 2-worker Dask
+LocalCluster; resume after a killed run recomputes only the missing chunks; exceedance
+probabilities with a known analytic answer inside their Wilson intervals; bad dispersion files
+refused with one line naming the file and key; divergence flagged with its time.
+
+Results are compared bitwise (``numpy.array_equal``): every run is the same compiled code on the
+same inputs, whatever the thread, process or chunk it runs in.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+from scipy.special import ndtr
+from scipy.stats import truncnorm
+
+from uavdyn.airframes import load_airframe
+from uavdyn.cli.montecarlo import add_parser
+from uavdyn.integrate import free_run, physics_step
+from uavdyn.learned import shipped_weights
+from uavdyn.linear import trim
+from uavdyn.model import build_model, structure_of
+from uavdyn.montecarlo import (
+    DispersionError,
+    Distribution,
+    MonteCarloError,
+    build_spec,
+    load_dispersions,
+    parse_dispersions,
+    run_function,
+    run_study,
+    wilson_interval,
+)
+from uavdyn.montecarlo.chunks import chunk_path
+
+DISPERSIONS = Path(__file__).resolve().parents[1] / "data" / "dispersions"
+GUSTY = """
+seed = 3
+[params.mass]
+dist = "truncnormal"
+sd = 0.05
+low = -0.15
+high = 0.15
+[params.C_m_alpha]
+dist = "uniform"
+low = -0.15
+high = 0.15
+[initial]
+theta = { dist = "normal", sd = 0.02 }
+[trim]
+airspeed = { dist = "uniform", low = -2.0, high = 2.0 }
+[gust]
+intensity = { dist = "uniform", low = 0.0, high = 1.5 }
+"""
+
+
+@pytest.fixture(scope="module")
+def aerosonde():
+    return load_airframe("aerosonde")
+
+
+def _dispersions(tmp_path, text, airframe, name="d.toml"):
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(text))
+    return load_dispersions(path, airframe)
+
+
+def _same(a, b):
+    return (np.array_equal(a.table.data, b.table.data, equal_nan=True)
+            and np.array_equal(a.history, b.history, equal_nan=True))
+
+
+# ----------------------------------------------------------------------------- engines
+
+
+def test_identical_on_one_worker_two_threads_and_dask(tmp_path, aerosonde):
+    pytest.importorskip("distributed")
+    disp = _dispersions(tmp_path, GUSTY, aerosonde)
+    spec = build_spec(aerosonde, disp, runs=45, duration=3.0, dt=0.01, chunk_size=15)
+    one = run_study(spec, progress=False)
+    threads = run_study(spec, threads=2, progress=False)
+    dask = run_study(spec, workers=2, progress=False)
+    assert one.table.data.shape == (45, len(one.table.columns))
+    assert np.all(one.table["trim_ok"] == 1) and not np.any(one.table["diverged"] == 1)
+    assert np.all(np.isfinite(one.history))
+    assert _same(one, threads) and _same(one, dask)  # bitwise
+    # every run depends on (seed, run) only: another chunking gives the same rows
+    rechunked = run_study(build_spec(aerosonde, disp, runs=45, duration=3.0, dt=0.01,
+                                     chunk_size=7), progress=False)
+    assert _same(one, rechunked)
+    # and the gusts, parameters and initial states really vary from run to run
+    assert np.unique(one.table["params.mass"]).size == 45
+    assert np.ptp(one.table["max_abs_pitch_deg"]) > 0.1
+
+
+def test_without_dask_a_clear_error(tmp_path, aerosonde, monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed -> ImportError
+    spec = build_spec(aerosonde, _dispersions(tmp_path, GUSTY, aerosonde), runs=4,
+                      duration=0.1, chunk_size=2)
+    with pytest.raises(MonteCarloError, match=r"needs Dask: pip install"):
+        run_study(spec, workers=2, progress=False)
+
+
+def test_runs_match_the_library_rollout(tmp_path, aerosonde):
+    """Each run is the library's own compiled rollout of the dispersed airframe from its trim
+    (uavdyn.integrate.free_run), and its statistics are those of that trajectory."""
+    disp = load_dispersions(DISPERSIONS / "aerosonde_pm15.toml", aerosonde)
+    spec = build_spec(aerosonde, disp, runs=4, duration=4.0, dt=0.01, mission="3211",
+                      chunk_size=4, history_dt=0.5)
+    result = run_study(spec, progress=False)
+    forces = build_model(aerosonde).forces
+    for k in range(4):
+        drawn = {n: result.table[f"params.{n}"][k] for n in disp.params}
+        airframe = aerosonde.replace(**drawn)
+        point = trim(airframe, 25.0)
+        controls = point.u + spec.deviations
+        traj = free_run(physics_step(airframe), point.x, controls, airframe.p, 0.01)
+        np.testing.assert_allclose(result.history[k, 0], traj[::50, 3], rtol=1e-6)  # float32
+        assert result.table["max_abs_pitch_deg"][k] == pytest.approx(
+            np.degrees(np.abs(traj[:, 3]).max()), abs=1e-10)
+        Z = np.array([float(forces(x, u, airframe.p)[1])
+                      for x, u in zip(traj, np.vstack([controls[:1], controls]))])
+        n = -Z / (airframe.params.mass * airframe.params.gravity)
+        assert result.table["max_load_factor"][k] == pytest.approx(n.max(), abs=1e-10)
+
+
+# ----------------------------------------------------------------------------- resume
+
+
+KILL_SCRIPT = """
+import os, signal, sys
+from uavdyn.airframes import load_airframe
+from uavdyn.montecarlo import build_spec, load_dispersions, run_study
+af = load_airframe("aerosonde")
+spec = build_spec(af, load_dispersions(sys.argv[1], af), runs=50, duration=1.0, dt=0.01,
+                  chunk_size=10)
+stored = []
+def killed_after_two(result):
+    stored.append(result.index)
+    if len(stored) == 2:
+        os.kill(os.getpid(), signal.SIGKILL)  # a hard kill, no clean-up of any kind
+run_study(spec, out=sys.argv[2], progress=False, on_chunk=killed_after_two)
+"""
+
+
+def test_resume_after_kill_recomputes_only_missing_chunks(tmp_path, aerosonde):
+    dispersion_file = tmp_path / "d.toml"
+    dispersion_file.write_text(GUSTY)
+    out = tmp_path / "study"
+    script = tmp_path / "kill.py"
+    script.write_text(KILL_SCRIPT)
+    proc = subprocess.run([sys.executable, str(script), str(dispersion_file), str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == -9, proc.stderr[-2000:]
+    written = sorted(p.name for p in (out / "chunks").glob("chunk_*.npz"))
+    assert written == ["chunk_000000.npz", "chunk_000001.npz"]
+    # what a writer killed mid-file leaves behind: a temporary sibling of a dead process
+    stale = out / "chunks" / ".chunk_000002.npz.tmp-999999999-1-0123abcd"
+    stale.write_bytes(b"half a zip")
+    spec = build_spec(aerosonde, load_dispersions(dispersion_file, aerosonde), runs=50,
+                      duration=1.0, dt=0.01, chunk_size=10)
+    seen = []
+    resumed = run_study(spec, out=out, progress=False, on_chunk=lambda r: seen.append(r.index))
+    assert resumed.reused == (0, 1) and resumed.computed == (2, 3, 4) and seen == [2, 3, 4]
+    assert not stale.exists()
+    assert _same(resumed, run_study(spec, progress=False))  # as if never interrupted
+    # a corrupted chunk does not verify and is recomputed, alone
+    path = chunk_path(out, 3)
+    path.write_bytes(path.read_bytes()[:-100])
+    again = run_study(spec, out=out, progress=False)
+    assert again.computed == (3,) and _same(again, resumed)
+    # raising --runs extends the study: only the new chunk is computed
+    more = build_spec(aerosonde, load_dispersions(dispersion_file, aerosonde), runs=55,
+                      duration=1.0, dt=0.01, chunk_size=10)
+    extended = run_study(more, out=out, progress=False)
+    assert extended.computed == (5,)
+    assert np.array_equal(extended.table.data[:50], resumed.table.data, equal_nan=True)
+    for name in ("summary.csv", "envelopes.csv", "results.json", "summary.md",
+                 "figures/envelopes.png", "figures/distributions.png"):
+        assert (out / name).is_file()
+    assert len((out / "summary.csv").read_text().splitlines()) == 56
+    # another study into the same folder is refused
+    other = build_spec(aerosonde, load_dispersions(dispersion_file, aerosonde), runs=50,
+                       duration=1.0, dt=0.01, chunk_size=10, seed=4)
+    with pytest.raises(MonteCarloError, match="holds another Monte-Carlo study"):
+        run_study(other, out=out, progress=False)
+
+
+# ----------------------------------------------------------------------------- statistics
+
+
+def test_wilson_interval_known_values():
+    # textbook values (Wilson 1927; e.g. Newcombe 1998, Table I) at 95 %
+    np.testing.assert_allclose(wilson_interval(0, 10), (0.0, 0.27753), atol=5e-5)
+    np.testing.assert_allclose(wilson_interval(5, 10), (0.23659, 0.76341), atol=5e-5)
+    np.testing.assert_allclose(wilson_interval(81, 263), (0.25530, 0.36621), atol=5e-5)
+    assert wilson_interval(10, 10)[1] == 1.0
+    with pytest.raises(ValueError):
+        wilson_interval(3, 2)
+
+
+def test_exceedance_with_known_probability_inside_interval(tmp_path, aerosonde):
+    """Initial pitch offsets ~ N(0, 0.05 rad) and trim speeds ~ U(22, 28) m/s over one 1 ms
+    step (in which the airspeed moves by < 5e-3 m/s and the pitch by ~1e-9 rad, shifting either
+    probability by < 1e-3, far inside the interval): P(|theta| > 0.1 rad) and
+    P(airspeed < 24 m/s) = 1/3 follow from the distributions alone."""
+    disp = _dispersions(tmp_path, """
+        seed = 11
+        [initial]
+        theta = { dist = "normal", sd = 0.05 }
+        [trim]
+        airspeed = { dist = "uniform", low = -3.0, high = 3.0 }
+        [limits]
+        pitch_deg = 5.729577951308232
+        airspeed_min_mps = 24.0
+        alpha_deg = false
+        load_factor_max = false
+        """, aerosonde)
+    spec = build_spec(aerosonde, disp, runs=1500, duration=0.001, dt=0.001, mission="none",
+                      chunk_size=500)
+    result = run_study(spec, progress=False)
+    assert np.all(result.table["trim_ok"] == 1)
+    # the trim pitch depends (weakly) on the drawn speed: average the analytic answer over
+    # the drawn speeds' trims
+    theta_trim = np.array([trim(aerosonde, v).x[3] for v in np.linspace(22.0, 28.0, 61)])
+    p_pitch = float(np.mean(ndtr((-0.1 - theta_trim) / 0.05) + 1 - ndtr((0.1 - theta_trim)
+                                                                        / 0.05)))
+    pitch = result.exceedance_of("|pitch|")
+    assert pitch.low <= p_pitch <= pitch.high, (p_pitch, pitch)
+    speed = result.exceedance_of("airspeed")
+    assert speed.low <= 1 / 3 <= speed.high, speed
+    assert 0.1 < p_pitch < 0.3 and speed.runs == 1500  # a case far from 0 and 1
+    # the columns the events are read from are the drawn quantities themselves
+    np.testing.assert_allclose(result.table["min_airspeed_mps"],
+                               result.table["trim_airspeed_mps"], atol=5e-3)
+
+
+def test_divergence_is_flagged_with_its_time(aerosonde):
+    """A step that doubles the pitch angle (forces do not depend on it) takes it from 0.01 rad
+    past the 1e6 bound at step 27 (0.01 * 2**27 > 1e6): the run reports t = 0.27 s and its
+    statistics stop at step 26."""
+    x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 2)
+    p, dt = ca.SX.sym("p", len(aerosonde.p)), ca.SX.sym("dt")
+    doubling = ca.Function("doubling", [x, u, p, dt], [ca.vertcat(x[:3], 2 * x[3])])
+    point = trim(aerosonde)
+    run = run_function(doubling, aerosonde, structure_of(aerosonde), 40, 10, False)
+    x0 = np.array([*point.x[:3], 0.01])
+    stats, hist = run(x0, point.u, aerosonde.p, np.zeros((2, 40)), 0.01,
+                      [np.inf, np.inf, -np.inf, np.inf])
+    stats, hist = np.asarray(stats).ravel(), np.asarray(hist)
+    assert stats[-1] == pytest.approx(0.27, abs=1e-12)
+    assert stats[0] == 0.01 * 2**26  # max |theta| before the divergence, exactly
+    assert hist.shape == (5, 5) and hist[0, 2] == 0.01 * 2**20
+
+
+# ----------------------------------------------------------------------------- sampling
+
+
+def test_draws_reproducible_from_seed_and_run(tmp_path, aerosonde):
+    disp = _dispersions(tmp_path, GUSTY, aerosonde)
+    a, b = disp.sample(3, 17), disp.sample(3, 17)
+    assert a == b and a != disp.sample(3, 18) and a != disp.sample(4, 17)
+    assert set(a.offsets) == {"params.mass", "params.C_m_alpha", "initial.theta",
+                              "trim.airspeed", "gust.intensity"}
+
+
+def test_truncated_normal_matches_scipy():
+    dist = Distribution("truncnormal", mean=0.1, sd=0.2, low=-0.1, high=0.2)
+    rng = np.random.default_rng(0)
+    draws = np.array([dist.draw(rng) for _ in range(20000)])
+    ref = truncnorm((-0.1 - 0.1) / 0.2, (0.2 - 0.1) / 0.2, loc=0.1, scale=0.2)
+    assert draws.min() >= -0.1 and draws.max() <= 0.2
+    assert abs(draws.mean() - ref.mean()) < 4 * ref.std() / math.sqrt(len(draws))
+    assert abs(draws.std() - ref.std()) < 0.02 * ref.std()
+
+
+# ----------------------------------------------------------------------------- bad files
+
+
+@pytest.mark.parametrize("text, key", [
+    ("[params.mass]\ndist = 'uniform'\nlow = -0.1\n", "params.mass.high"),
+    ("[params.mass]\ndist = 'normal'\nsd = 0\n", "params.mass.sd"),
+    ("[params.mass]\ndist = 'gamma'\nsd = 0.1\n", "params.mass.dist"),
+    ("[params.mass]\ndist = 'uniform'\nlow = 0.2\nhigh = 0.1\n", "params.mass.low"),
+    ("[params.mas]\ndist = 'normal'\nsd = 0.1\n", "params.mas"),
+    ("[params.mass]\ndist = 'normal'\nsd = 0.1\nlow = 0\n", "params.mass.low"),
+    ("[params.mass]\ndist = 'uniform'\nlow = -20\nhigh = 0\nrelative = false\n", "params.mass"),
+    ("[params.C_L_alpha_dot]\ndist = 'normal'\nsd = 0.1\n", "params.C_L_alpha_dot"),
+    ("[params.mass]\ndist = 'uniform'\nlow = -1.5\nhigh = 0\n", "params.mass.low"),
+    ("[initial.h]\ndist = 'normal'\nsd = 0.1\n", "initial.h"),
+    ("[gust]\nintensity = -1\n", "gust.intensity"),
+    ("[gust]\nintensity = { dist = 'normal', sd = 1.0 }\n", "gust.intensity"),
+    ("[limits]\nload_factor_max = 'high'\n", "limits.load_factor_max"),
+    ("[limits]\nbank_deg = 30\n", "limits.bank_deg"),
+    ("seed = -1\n", "seed"),
+    ("sede = 1\n", "sede"),
+    ("[params.mass]\ndist = 'truncnormal'\nsd = 0.01\nlow = 0.5\nhigh = 0.6\n", "params.mass"),
+])
+def test_bad_dispersion_file_names_file_and_key(tmp_path, aerosonde, text, key):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(DispersionError) as info:
+        load_dispersions(path, aerosonde)
+    message = str(info.value)
+    assert str(path) in message and f"'{key}'" in message and "\n" not in message
+
+
+def test_unreadable_dispersion_files(tmp_path, aerosonde):
+    with pytest.raises(DispersionError, match="file not found"):
+        load_dispersions(tmp_path / "missing.toml", aerosonde)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[params.mass\n")
+    with pytest.raises(DispersionError, match="not valid TOML"):
+        load_dispersions(bad, aerosonde)
+    fifo = tmp_path / "fifo.toml"
+    os.mkfifo(fifo)
+    with pytest.raises(DispersionError, match="FIFO"):
+        load_dispersions(fifo, aerosonde)
+    with pytest.raises(DispersionError, match="not a parameter of airframe"):
+        parse_dispersions({"params": {"arm": {"dist": "normal", "sd": 0.1}}}, aerosonde)
+
+
+def test_impossible_draw_stops_the_study(tmp_path, aerosonde):
+    disp = _dispersions(tmp_path, "[params.mass]\ndist = 'normal'\nsd = 3.0\n", aerosonde)
+    spec = build_spec(aerosonde, disp, runs=20, duration=0.05, chunk_size=20)
+    with pytest.raises(MonteCarloError, match=r"run \d+ drew an impossible airframe.*mass"):
+        run_study(spec, progress=False)
+
+
+# ----------------------------------------------------------------------------- models, CLI
+
+
+def test_hybrid_study_runs_the_shipped_correction(tmp_path, aerosonde):
+    disp = _dispersions(tmp_path, GUSTY, aerosonde)
+    physics = run_study(build_spec(aerosonde, disp, runs=6, duration=2.0, chunk_size=6),
+                        progress=False)
+    hybrid = run_study(build_spec(aerosonde, disp, runs=6, duration=2.0, chunk_size=6,
+                                  weights="shipped"), progress=False)
+    assert hybrid.spec.model.startswith("hybrid (aerosonde_improved.npz")
+    assert np.all(np.isfinite(hybrid.history))
+    assert not np.array_equal(physics.history, hybrid.history)  # the correction acts
+    with pytest.raises(MonteCarloError, match="takes time t"):
+        build_spec(aerosonde, disp, runs=2, duration=1.0, dt=0.005,
+                   weights=shipped_weights("aerosonde", "paper"))
+
+
+def test_cli_command_writes_results_and_resumes(tmp_path, capsys):
+    disp = tmp_path / "d.toml"
+    disp.write_text(GUSTY)
+    parser = argparse.ArgumentParser(prog="uavdyn")
+    add_parser(parser.add_subparsers(dest="command"))
+    out = tmp_path / "mc"
+    argv = ["montecarlo", "--airframe", "aerosonde", "--runs", "30", "--duration", "2",
+            "--dispersions", str(disp), "--mission", "sysid_doublet", "--dt", "0.01",
+            "--chunk-size", "10", "--out", str(out), "--no-progress"]
+    args = parser.parse_args(argv)
+    assert args.func(args) == 0
+    text = capsys.readouterr().out
+    assert "30 computed" in text and "P(|pitch| > 30 deg)" in text
+    assert len((out / "summary.csv").read_text().splitlines()) == 31
+    assert "# Monte-Carlo study: aerosonde, 30 runs x 2 s" in (out / "summary.md").read_text()
+    args = parser.parse_args(argv)
+    assert args.func(args) == 0
+    text = capsys.readouterr().out
+    assert "0 computed" in text and "3 chunk(s) reused" in text
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[params.mass]\ndist = 'normal'\n")
+    args = parser.parse_args([*argv[:8], str(bad), *argv[9:]])
+    with pytest.raises(DispersionError, match=r"bad.toml: key 'params.mass.sd' is required"):
+        args.func(args)
+    with pytest.raises(SystemExit):  # --workers and --scheduler exclude each other
+        parser.parse_args([*argv, "--workers", "2", "--scheduler", "tcp://x:1"])
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "mine.txt").write_text("user data")
+    args = parser.parse_args([*argv[:-2], str(foreign), "--no-progress"])
+    with pytest.raises(ValueError, match="not a uavdyn output"):
+        args.func(args)
