@@ -86,14 +86,20 @@ def run_airframe(name: str, args) -> dict:
     nominal = load_airframe(PRESET[name])
     ds = dataset_for(name, ReproduceConfig(cache=args.cache, progress=False))
     t0 = time.perf_counter()
-    fit_on, _ = identification_sorties(ds.train)
-    ident = identify(nominal, fit_on, ds.validation, list(IDENTIFY_PARAMS[nominal.kind]),
-                     progress=False)
+    saved = Path(args.weights_dir or ".") / f"{nominal.name}_safe.npz"
+    toml = saved.with_name(f"{nominal.name}_identified.toml")
+    if args.reuse and toml.exists():  # the airframe the saved weights were trained on
+        fitted = load_airframe(toml)
+        identified = {n: getattr(fitted.params, n) for n in IDENTIFY_PARAMS[nominal.kind]}
+    else:
+        fit_on, _ = identification_sorties(ds.train)
+        ident = identify(nominal, fit_on, ds.validation, list(IDENTIFY_PARAMS[nominal.kind]),
+                         progress=False)
+        fitted = ident.airframe
+        identified = {e.name: e.value for e in ident.estimates}
     t_ident = time.perf_counter() - t0
-    fitted = ident.airframe
     cfg = SafeConfig(epochs=args.epochs, progress=not args.quiet, max_seconds=args.max_seconds)
     t0 = time.perf_counter()
-    saved = Path(args.weights_dir or ".") / f"{nominal.name}_safe.npz"
     if args.reuse and saved.exists():  # the weights of an earlier run on the same data
         doc = json.loads(saved.with_name(saved.stem + "_history.json").read_text())
         net = load_weights(saved, fitted)
@@ -105,7 +111,7 @@ def run_airframe(name: str, args) -> dict:
         stability = result.stability.to_dict() if result.stability else None
     t_train = time.perf_counter() - t0
     out: dict = {"airframe": nominal.name, "dataset": str(ds.path),
-                 "identified": {e.name: e.value for e in ident.estimates},
+                 "identified": identified, "weights": str(saved) if args.reuse else None,
                  "identify_seconds": t_ident, "train_seconds": t_train,
                  "kept": result.kept, "reason": result.reason,
                  "validation": result.validation,
@@ -190,7 +196,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--airframes", nargs="+", default=["fixed_wing", "quadrotor"],
                         choices=sorted(PRESET))
     parser.add_argument("--epochs", type=int, default=40)
-    parser.add_argument("--max-seconds", type=float, default=600.0)
+    parser.add_argument("--max-seconds", type=float, default=3600.0)
     parser.add_argument("--cache", default=None, help="dataset cache folder")
     parser.add_argument("--weights-dir", default=None, help="keep weights and histories here")
     parser.add_argument("--out", default=None)

@@ -46,9 +46,9 @@ def _load() -> list[float]:
 def _study(spec, workers: int, threads: int, tmp: Path, label: str) -> dict:
     load_before = _load()
     out = tmp / label
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     result = run_study(spec, out=out, workers=workers, threads=threads, progress=False)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     table = result.table
     return {
         "workers": workers, "threads": threads,
@@ -56,6 +56,7 @@ def _study(spec, workers: int, threads: int, tmp: Path, label: str) -> dict:
         "wall_s": round(wall, 2), "runs_per_s": round(spec.runs / wall, 1),
         "us_per_run_step": round(wall / (spec.runs * spec.n_steps) * 1e6, 4),
         "chunk_compute_s_sum": round(sum(_chunk_seconds(out, spec)), 2),
+        "cpu_s_this_process": round(cpu, 2),
         "diverged": int(np.sum(table["diverged"] == 1)),
         "trim_failed": int(np.sum(table["trim_ok"] == 0)),
         "max_abs_pitch_deg_p50_p95": [round(float(np.percentile(
@@ -110,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--loop-runs", type=int, default=200,
                         help="runs of the sequential loop, extrapolated to --runs")
     parser.add_argument("--skip-hybrid", action="store_true")
+    parser.add_argument("--no-threads", dest="threads", action="store_false",
+                        help="skip the 1-worker, 2-thread configuration")
     parser.add_argument("--out", default=None, help="also write the JSON here")
     args = parser.parse_args(argv)
     airframe = load_airframe("aerosonde")
@@ -148,17 +151,24 @@ def main(argv: list[str] | None = None) -> int:
                 compiled_batch(spec, n, 1)
             entry["build_and_compile_s"] = round(time.perf_counter() - t0, 2)
             one = _study(spec, 1, 1, tmp, f"{model}_1")
+            threads = _study(spec, 1, 2, tmp, f"{model}_1x2") if args.threads else None
             two = _study(spec, 2, 1, tmp, f"{model}_2")
-            same = (np.array_equal(one["_result"].table.data, two["_result"].table.data,
-                                   equal_nan=True)
-                    and np.array_equal(one["_result"].history, two["_result"].history,
-                                       equal_nan=True))
             reference = one.pop("_result")
-            two.pop("_result")
-            entry.update({"one_worker": one, "two_workers": two,
+            same = True
+            for other in (threads, two):
+                if other is not None:
+                    found = other.pop("_result")
+                    same &= (np.array_equal(reference.table.data, found.table.data,
+                                            equal_nan=True)
+                             and np.array_equal(reference.history, found.history,
+                                                equal_nan=True))
+            entry.update({"one_worker": one, "one_worker_two_threads": threads,
+                          "two_workers": two,
                           "ratio_two_workers_to_one": round(one["wall_s"] / two["wall_s"], 2),
-                          "two_workers_identical_to_one": bool(same),
-                          "best_wall_s": min(one["wall_s"], two["wall_s"])})
+                          "ratio_two_threads_to_one": round(one["wall_s"] / threads["wall_s"], 2)
+                          if threads else None,
+                          "all_configurations_bitwise_identical": bool(same),
+                          "best_wall_s": min(e["wall_s"] for e in (one, threads, two) if e)})
             entry["meets_target"] = entry["best_wall_s"] <= TARGETS_S[model]
             loop_runs = min(args.loop_runs, args.runs)
             step = physics_step(spec.structure) if weights is None else \
