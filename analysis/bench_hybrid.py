@@ -195,7 +195,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--airframes", nargs="+", default=["fixed_wing", "quadrotor"],
                         choices=sorted(PRESET))
-    parser.add_argument("--epochs", type=int, default=40)
+    parser.add_argument("--epochs", type=int, default=SafeConfig.epochs)
     parser.add_argument("--max-seconds", type=float, default=3600.0)
     parser.add_argument("--cache", default=None, help="dataset cache folder")
     parser.add_argument("--weights-dir", default=None, help="keep weights and histories here")

@@ -288,3 +288,24 @@ def test_safe_training_keeps_a_correction_only_under_its_rules():
     else:
         assert result.net is None
         assert "physics is kept" in result.reason or "destabilises" in result.reason
+
+
+@pytest.mark.parametrize("name", ["aerosonde", "f450"])
+def test_map_modes_of_a_memory_step_show_the_filters_exact_poles(name):
+    """The command-memory filters sit at the trim command; their map eigenvalues are exactly
+    ``exp(-dt/tau)`` (block triangular: driven by the command only), listed beside the same
+    exact values, and the body block's modes are still reported."""
+    from uavdyn.linear import discrete_map_modes
+
+    airframe = load_airframe(name)
+    point = trim(airframe)
+    step = hybrid_step(_pitch_feedback_net(airframe, -1.0), airframe, compile=False)
+    comp = discrete_map_modes(step, airframe, point, DT, MEMORY)
+    lam = np.sort_complex(comp.map_eigenvalues)
+    for tau in MEMORY:
+        hits = np.sum(np.abs(lam - math.exp(-DT / tau)) < 1e-12)
+        assert hits == 2, (tau, lam)  # one filter per command
+    assert len(comp.map_eigenvalues) == step.size1_in(0) == len(comp.exact_eigenvalues)
+    assert comp.map_modes and not comp.made_unstable
+    with pytest.raises(ValueError, match="command-memory"):
+        discrete_map_modes(step, airframe, point, DT, MEMORY[:1])

@@ -32,9 +32,11 @@ from uavdyn.experiments.reproduce import (
 PRESETS = {"fixed_wing": "aerosonde", "quadrotor": "f450"}
 
 
-def ship(out: Path, kinds: list[str], progress: bool = True) -> list[Path]:
-    """Identify and train every preset of ``kinds``; returns the files written into ``out``."""
-    config = ReproduceConfig(out=str(out), retrain=True, progress=progress)
+def ship(out: Path, kinds: list[str], progress: bool = True, quick: bool = False
+         ) -> list[Path]:
+    """Identify and train every preset of ``kinds``; returns the files written into ``out``
+    (``quick``: the small datasets and short training of the test pipeline, a smoke run)."""
+    config = ReproduceConfig(out=str(out), retrain=True, progress=progress, quick=quick)
     written = []
     for kind in kinds:
         nominal = load_airframe(PRESETS[kind])
@@ -43,7 +45,7 @@ def ship(out: Path, kinds: list[str], progress: bool = True) -> list[Path]:
         if identified is None:
             raise SystemExit(f"{nominal.name}: {summary['missing']}")
         weights = obtain_weights(identified, ds, "improved", "data", config, print)
-        history = out / "weights" / f"{nominal.name}_improved_history.json"
+        history = out / "weights" / f"{identified.name}_improved_history.json"
         pairs = [(out / "identified" / f"{nominal.name}.toml",
                   out / f"{nominal.name}_identified.toml"),
                  (history, out / f"{nominal.name}_safe_history.json"),
@@ -65,8 +67,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", required=True, help="folder for the shipped files")
     parser.add_argument("--kinds", nargs="+", default=list(PRESETS), choices=list(PRESETS))
     parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run on the small test datasets (not the shipped recipe)")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    for path in ship(Path(args.out), args.kinds, progress=not args.quiet):
+    for path in ship(Path(args.out), args.kinds, progress=not args.quiet, quick=args.quick):
         print(path)
     return 0
 

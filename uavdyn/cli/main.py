@@ -173,7 +173,7 @@ def _hybrid_modes(args: argparse.Namespace, airframe, point) -> int:
                        "of the 'improved' formulation")
     check_use(step, dt)
     point = trim(airframe, args.airspeed, math.radians(args.gamma_deg))
-    comp = discrete_map_modes(step, airframe, point, dt)
+    comp = discrete_map_modes(step, airframe, point, dt, tuple(net.memory_tau))
     sweep = envelope_check(net, airframe, dt) if net.envelope is not None else None
     if args.json:
         print(json.dumps({
@@ -261,10 +261,12 @@ def cmd_export_c(args: argparse.Namespace) -> int:
 
         weights, airframe = _correction(args, airframe)
         point = trim(airframe, args.airspeed, math.radians(args.gamma_deg))
-        step = hybrid_step(weights, airframe, compile=False)
+        net = load_weights(weights, airframe)
+        step = hybrid_step(net, airframe, compile=False)
+        memory = tuple(net.memory_tau)
     else:
-        step = physics_step(airframe)
-    spec = airframe_bundle_spec(args.name, airframe, point, args.dt, real=args.real,
+        step, memory = physics_step(airframe), ()
+    spec = airframe_bundle_spec(args.name, airframe, point, args.dt, memory, real=args.real,
                                 rollout_steps=args.rollout, has_time_input=takes_time(step))
     out = export_bundle(step, spec, args.out, force=args.force)
     what = f"rollout of {args.rollout} steps" if args.rollout else "one step"

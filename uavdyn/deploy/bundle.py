@@ -21,6 +21,7 @@ import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.integrate import generate_c, rollout
+from uavdyn.learned.formulations import memory_state_names
 from uavdyn.linear import TrimPoint, point_params, trim_state
 from uavdyn.model import structure_of
 from uavdyn.outputs import output_folder
@@ -52,19 +53,23 @@ class BundleSpec:
 
 
 def airframe_bundle_spec(name: str, airframe: Airframe, point: TrimPoint, dt: float,
-                         **options) -> BundleSpec:
+                         memory_tau: tuple[float, ...] = (), **options) -> BundleSpec:
     """The :class:`BundleSpec` of an airframe's step at a trim point: its (augmented) state
     names, its control and parameter names, ``p`` at the point's altitude, the trim state
     (:func:`uavdyn.linear.trim_state`) and command, and the example doublet (2 deg of
     elevator for a fixed wing, 0.05 of pitch command for a multirotor) unless ``options``
-    say otherwise (any other :class:`BundleSpec` field)."""
+    say otherwise (any other :class:`BundleSpec` field). A safe correction's step adds its
+    command-memory states (``memory_tau``), started at the trim command."""
     structure = structure_of(airframe)
     fixed_wing = airframe.kind == "fixed_wing"
     options.setdefault("doublet_amplitude", math.radians(2.0) if fixed_wing else 0.05)
     options.setdefault("doublet_channel", 0 if fixed_wing else 1)
-    return BundleSpec(name, structure.state_names(), structure.control_names,
+    u = np.asarray(point.u, float)
+    memory = memory_state_names(structure.control_names, tuple(memory_tau))
+    return BundleSpec(name, structure.state_names() + memory, structure.control_names,
                       airframe.param_names, point_params(airframe, point),
-                      trim_state(airframe, point), np.asarray(point.u, float), dt, **options)
+                      np.concatenate([trim_state(airframe, point), np.tile(u, len(memory_tau))]),
+                      u, dt, **options)
 
 
 def _state_notes(state_names: tuple[str, ...]) -> list[str]:
@@ -76,6 +81,9 @@ def _state_notes(state_names: tuple[str, ...]) -> list[str]:
     if any("_delay_" in n for n in state_names):
         notes.append("'<control>_delay_k': the command given k calls ago (a delay of d "
                      "samples: the command of call n acts from call n + d).")
+    if any("_memory_" in n for n in state_names):
+        notes.append("'<control>_memory_<tau>s': the command low-passed with time constant tau "
+                     "(the learned correction's command memory).")
     if notes:
         notes.append("Start at rest: each actuator at its command, each buffer full of it (as "
                      "the trim state is).")

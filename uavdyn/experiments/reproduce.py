@@ -173,10 +173,14 @@ def obtain_weights(airframe: Airframe, ds: Dataset, formulation: str, target: st
     """Shipped weights, or freshly trained ones with ``retrain`` (needs torch) on the physics of
     ``airframe`` (the identified airframe by default)."""
     path = weights_path(airframe, formulation, target, config)
+    if config.retrain:
+        suffix = "" if target == "data" else "_reference"
+        path = Path(config.out) / "weights" / f"{airframe.name}_{formulation}{suffix}.npz"
+        path.parent.mkdir(parents=True, exist_ok=True)
     if config.retrain and formulation == "improved" and target == "data":
         from uavdyn.learned.safe import SafeConfig, train_safe, write_safe_history
 
-        out = Path(config.out) / "weights" / path.name
+        out = path
         cfg = SafeConfig(progress=config.progress)
         if config.quick:
             cfg.epochs, cfg.max_seconds, cfg.batches_per_epoch = 3, 60.0, 3
@@ -191,7 +195,7 @@ def obtain_weights(airframe: Airframe, ds: Dataset, formulation: str, target: st
     if config.retrain:
         from uavdyn.learned.train import TrainConfig, train, write_history
 
-        out = Path(config.out) / "weights" / path.name
+        out = path
         cfg = TrainConfig(formulation=formulation, target=target, progress=config.progress)
         if config.quick:
             cfg.epochs, cfg.max_seconds = 8, 40.0

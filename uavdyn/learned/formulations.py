@@ -105,11 +105,17 @@ class CorrectionLayout:
         physics = (self.structure.state_names() if self.structure is not None
                    else ("u", "w", "q", "theta"))
         names = self.structure.control_names if self.structure is not None else control_names
-        return physics + tuple(f"{c}_memory_{tau:g}s" for tau in self.memory_tau for c in names)
+        return physics + memory_state_names(names, self.memory_tau)
 
     def input_names(self) -> tuple[str, ...]:
         names = self.structure.control_names if self.structure is not None else ("u1", "u2")
         return self.state_names() + tuple(names)
+
+
+def memory_state_names(control_names: tuple[str, ...], taus: tuple[float, ...]
+                       ) -> tuple[str, ...]:
+    """Names of the command-memory states, in state order (time constant, then command)."""
+    return tuple(f"{c}_memory_{tau:g}s" for tau in taus for c in control_names)
 
 
 def memory_update(memory: list, u, taus: tuple[float, ...], dt, ops) -> list:

@@ -33,9 +33,10 @@ from uavdyn.learned.stability import (
     allowed_abscissa,
     body_abscissa,
     check_map_stability,
-    envelope_trims,
+    envelope_speeds,
     map_jacobian,
     stability_penalty,
+    trims_between,
 )
 from uavdyn.learned.torch_model import DTYPE, TorchCorrection
 from uavdyn.learned.weights import CorrectionNet
@@ -60,10 +61,10 @@ class SafeConfig:
     selection_horizon_s: float = 1.0  # validation metric: pitch RMSE over this horizon
     batch_windows: int = 24
     batches_per_epoch: int = 6
-    epochs: int = 40
+    epochs: int = 25
     lr: float = 3e-3
     lr_final: float = 3e-4
-    patience: int = 10
+    patience: int = 8
     pooled_weight: float = 0.5       # share of the loss on the pooled error (rest: per window)
     stability_weight: float = 10.0
     stability_margin: float = DEFAULT_MARGIN
@@ -211,7 +212,9 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     S, G = _t(state_scale), _t(growth)
     T = {k: _t(getattr(tr, k)) for k in ("z0", "u", "y", "p")}
     V = {k: _t(getattr(va, k)) for k in ("z0", "u", "y", "p")}
-    trims, skipped = envelope_trims(airframe, train_sorties, layout)
+    # trims over the airspeeds the envelope's box spans: where the gate lets the network act,
+    # and what `uavdyn modes --hybrid` sweeps
+    trims, skipped = trims_between(airframe, *envelope_speeds(envelope), layout)
     phys_sigma = []
     jp = map_jacobian(phys)
     for t in trims:

@@ -225,8 +225,8 @@ def _match(reference: np.ndarray, values: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
-def discrete_map_modes(step, airframe: Airframe, point: TrimPoint, dt: float
-                       ) -> DiscreteModeComparison:
+def discrete_map_modes(step, airframe: Airframe, point: TrimPoint, dt: float,
+                       memory_tau: tuple[float, ...] = ()) -> DiscreteModeComparison:
     """Linearise a step map (hybrid or plain RK4) at a trim point: eigenvalues of its Jacobian,
     their continuous equivalents ``log(lambda)/dt``, and the exact ``exp(A dt)`` beside them.
 
@@ -235,6 +235,9 @@ def discrete_map_modes(step, airframe: Airframe, point: TrimPoint, dt: float
     counterparts of an augmented map are the eigenvalues of ``exp(A dt)`` of the continuous
     body + actuator model (:func:`linearise`) and one 0 per delay-buffer state (a shift
     register). The map's continuous-equivalent modes are those of its body + actuator block.
+    A safe correction's step carries command-memory filters after that state (``memory_tau``,
+    one per command each): they sit at the trim command, and their exact eigenvalues are
+    ``exp(-dt/tau)`` (they are driven by the command only, so the map is block triangular).
 
     Raises
     ------
@@ -242,15 +245,21 @@ def discrete_map_modes(step, airframe: Airframe, point: TrimPoint, dt: float
         If the step's state size is neither 4 nor the airframe's augmented state size.
     """
     structure = structure_of(airframe)
-    nz = step.size1_in(0)
+    u_trim = np.asarray(point.u, float)
+    memory = np.tile(u_trim, len(memory_tau))
+    nz = step.size1_in(0) - len(memory)
     if nz == 4:
         augmented, z0 = False, np.asarray(point.x, float)
     elif nz == structure.nx():
         augmented, z0 = True, trim_state(airframe, point)
     else:
-        raise ValueError(f"step '{step.name()}' has {nz} states; airframe '{airframe.name}' has "
-                         f"4 body states or {structure.nx()} augmented ones "
-                         f"{structure.state_names()}")
+        raise ValueError(f"step '{step.name()}' has {nz + len(memory)} states; airframe "
+                         f"'{airframe.name}' has 4 body states or {structure.nx()} augmented "
+                         f"ones {structure.state_names()}"
+                         + (f", plus {len(memory)} command-memory states" if len(memory)
+                            else ""))
+    z0 = np.concatenate([z0, memory])
+    nz = len(z0)
     p = point_params(airframe, point)
     x = ca.SX.sym("x", nz)
     jac = ca.Function("map_jacobian", [x], [ca.jacobian(step(x, point.u, p, dt), x)])
@@ -261,6 +270,8 @@ def discrete_map_modes(step, airframe: Airframe, point: TrimPoint, dt: float
     exact_all = np.linalg.eigvals(scipy.linalg.expm(A * dt))
     if augmented:
         exact_all = np.concatenate([exact_all, np.zeros(structure.n_buffer)])
+    exact_all = np.concatenate([exact_all, np.repeat(np.exp(-dt / np.asarray(memory_tau, float)),
+                                                     len(u_trim))])
     exact = _match(lam, exact_all)
     zero = lam == 0
     cont = np.full(lam.shape, -np.inf + 0j)  # a delay state's 0 maps to -inf

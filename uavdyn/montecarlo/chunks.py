@@ -30,6 +30,7 @@ from uavdyn.outputs import atomic_file
 from uavdyn.safefiles import UnreadableFile, read_regular
 
 CHUNK_FORMAT = 1
+COMPRESS_LEVEL = 1
 GUST_SPEED_FLOOR = 5.0  # m/s: frozen-turbulence convection speed of a hovering airframe
 RESULT_COLUMNS = ("run", "trim_ok", "diverged", "t_diverged_s", "max_abs_pitch_deg",
                   "max_alpha_deg", "min_airspeed_mps", "max_load_factor", "min_load_factor",
@@ -37,6 +38,7 @@ RESULT_COLUMNS = ("run", "trim_ok", "diverged", "t_diverged_s", "max_abs_pitch_d
                   "time_load_over_s", "trim_airspeed_mps")
 _STAT_INDEX = {name: i for i, name in enumerate(STAT_NAMES)}
 _COMPILED: dict[tuple, ca.Function] = {}  # per-process cache of built batch Functions
+_COMPILED_MAX = 8  # oldest dropped beyond this (a notebook may run many studies)
 
 
 def table_columns(spec: StudySpec) -> tuple[str, ...]:
@@ -78,6 +80,8 @@ def compiled_batch(spec: StudySpec, n_runs: int, threads: int) -> ca.Function:
     if key not in _COMPILED:
         run = run_function(spec.step(), spec.airframe, spec.structure, spec.n_steps,
                            spec.stride, spec.gusts, name=f"mc_{spec.model_key[:10]}")
+        while len(_COMPILED) >= _COMPILED_MAX:
+            _COMPILED.pop(next(iter(_COMPILED)))
         _COMPILED[key] = batch_function(run, n_runs, threads)
     return _COMPILED[key]
 
@@ -166,9 +170,12 @@ def evaluate_chunk(spec: StudySpec, index: int, threads: int = 1) -> ChunkResult
         P[:, j] = p
         if spec.gusts and draw.gust_intensity > 0:
             rng = np.random.default_rng([spec.seed, run, 1])
-            gusts = dryden_gusts(rng, spec.n_steps, spec.dt, max(speed, GUST_SPEED_FLOOR),
-                                 draw.gust_intensity, **spec.dispersions.gust_scales)
-            G[:, j * spec.n_steps:(j + 1) * spec.n_steps] = gusts.T
+            m = spec.gust_stride
+            gusts = dryden_gusts(rng, -(-spec.n_steps // m), m * spec.dt,
+                                 max(speed, GUST_SPEED_FLOOR), draw.gust_intensity,
+                                 **spec.dispersions.gust_scales)
+            G[:, j * spec.n_steps:(j + 1) * spec.n_steps] = np.repeat(gusts, m, 0)[
+                :spec.n_steps].T
     batch = compiled_batch(spec, n, threads)
     args = [x0, u0, P, spec.deviations.T] + ([G] if spec.gusts else []) + \
         [spec.dt, np.asarray(spec.limits, float)]
@@ -228,13 +235,20 @@ def write_chunk(folder: str | Path, spec: StudySpec, result: ChunkResult) -> Pat
     columns = table_columns(spec)
     digest = _content_digest(spec.key, columns, result.run_start, result.run_stop,
                              result.table, result.history)
+    arrays = {"format": np.array([CHUNK_FORMAT]), "key": np.array(spec.key),
+              "index": np.array([result.index]),
+              "runs": np.array([result.run_start, result.run_stop]),
+              "columns": np.array(columns), "table": result.table.astype("<f8"),
+              "history": result.history.astype("<f4"), "digest": np.array(digest),
+              "seconds": np.array([result.seconds])}
     with atomic_file(path) as tmp, open(tmp, "wb") as fh:
-        np.savez_compressed(
-            fh, format=np.array([CHUNK_FORMAT]), key=np.array(spec.key),
-            index=np.array([result.index]), runs=np.array([result.run_start, result.run_stop]),
-            columns=np.array(columns), table=result.table.astype("<f8"),
-            history=result.history.astype("<f4"), digest=np.array(digest),
-            seconds=np.array([result.seconds]))
+        # an .npz (numpy.load reads it) deflated at level 1: the float data compresses as well
+        # as at numpy's default level, several times faster
+        with zipfile.ZipFile(fh, "w", compression=zipfile.ZIP_DEFLATED,
+                             compresslevel=COMPRESS_LEVEL) as zf:
+            for name, array in arrays.items():
+                with zf.open(f"{name}.npy", "w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, array, allow_pickle=False)
         fh.flush()
         os.fsync(fh.fileno())
     return path

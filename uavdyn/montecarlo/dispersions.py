@@ -31,6 +31,8 @@ File schema (unknown keys are errors, so a typo never passes silently)::
     sigma_w = 0.7                    # intensity 1 (defaults: Beard & McLain, low altitude)
     L_u = 200.0
     L_w = 50.0
+    sample_dt = 0.05                 # optional (s): gusts drawn this often and held (default:
+                                     # every step; coarser is faster to draw, see the docs)
 
     [limits]                         # thresholds of the exceedance statistics; false = off
     pitch_deg = 30.0                 # |theta| above
@@ -153,6 +155,8 @@ class Dispersions:
         Dryden intensity (fixed, or the distribution of its value).
     gust_scales : dict of str to float
         Overrides of :func:`uavdyn.emulation.dryden_gusts` scales.
+    gust_sample_dt : float or None
+        Interval at which gusts are drawn and then held (None: every step).
     limits : dict of str to float or None
         Exceedance thresholds the file sets (None: switched off with ``false``); the others
         take the airframe's defaults (:func:`uavdyn.montecarlo.resolve_limits`).
@@ -167,6 +171,7 @@ class Dispersions:
     trim: dict[str, Distribution] = field(default_factory=dict)
     gust_intensity: float | Distribution = 0.0
     gust_scales: dict[str, float] = field(default_factory=dict)
+    gust_sample_dt: float | None = None
     limits: dict[str, float | None] = field(default_factory=dict)
     seed: int | None = None
     description: str = ""
@@ -217,6 +222,7 @@ class Dispersions:
             "initial": {k: v.as_dict() for k, v in sorted(self.initial.items())},
             "trim": {k: v.as_dict() for k, v in sorted(self.trim.items())},
             "gust": {"intensity": g.as_dict() if isinstance(g, Distribution) else g,
+                     "sample_dt": self.gust_sample_dt,
                      **dict(sorted(self.gust_scales.items()))},
             "limits": dict(sorted(self.limits.items())),
         }
@@ -374,9 +380,9 @@ def parse_dispersions(data: dict, airframe: Airframe, origin: str = "<in memory>
                                                   relative_default=False)
     gust = _table(data.get("gust", {}), origin, "gust")
     for k in gust:
-        if k not in ("intensity",) + GUST_SCALE_KEYS:
+        if k not in ("intensity", "sample_dt") + GUST_SCALE_KEYS:
             raise _fail(origin, f"gust.{k}", f"is not a gust key; expected intensity, "
-                                             f"{', '.join(GUST_SCALE_KEYS)}")
+                                             f"sample_dt, {', '.join(GUST_SCALE_KEYS)}")
     intensity: float | Distribution = 0.0
     if "intensity" in gust:
         raw = gust["intensity"]
@@ -397,6 +403,11 @@ def parse_dispersions(data: dict, airframe: Airframe, origin: str = "<in memory>
             scales[k] = _number(gust[k], origin, f"gust.{k}")
             if not scales[k] > 0:
                 raise _fail(origin, f"gust.{k}", f"must be > 0, got {scales[k]:g}")
+    sample_dt = None
+    if "sample_dt" in gust:
+        sample_dt = _number(gust["sample_dt"], origin, "gust.sample_dt")
+        if not sample_dt > 0:
+            raise _fail(origin, "gust.sample_dt", f"must be > 0 s, got {sample_dt:g}")
     limits: dict[str, float | None] = {}
     for k, raw in _table(data.get("limits", {}), origin, "limits").items():
         if k not in LIMIT_KEYS:
@@ -410,7 +421,8 @@ def parse_dispersions(data: dict, airframe: Airframe, origin: str = "<in memory>
             raise _fail(origin, f"limits.{k}", f"must be > 0 (or false to switch it off), got "
                                                f"{limits[k]:g}")
     return Dispersions(params=params, initial=states["initial"], trim=states["trim"],
-                       gust_intensity=intensity, gust_scales=scales, limits=limits, seed=seed,
+                       gust_intensity=intensity, gust_scales=scales, gust_sample_dt=sample_dt,
+                       limits=limits, seed=seed,
                        description=description, origin=origin)
 
 

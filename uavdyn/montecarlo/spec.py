@@ -119,6 +119,12 @@ class StudySpec:
         return self.dispersions.has_gusts
 
     @property
+    def gust_stride(self) -> int:
+        """Steps over which one gust sample is held (``[gust] sample_dt / dt``, at least 1)."""
+        sample_dt = self.dispersions.gust_sample_dt
+        return 1 if sample_dt is None else max(1, int(round(sample_dt / self.dt)))
+
+    @property
     def fitting(self) -> tuple[str, ...]:
         """Dispersed parameters: their terms stay in the graph even at a nominal value of 0."""
         return tuple(sorted(self.dispersions.params))
@@ -358,10 +364,17 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
                 f"dispersing {', '.join(sorted(dispersions.params))} adds model terms (alpha-"
                 "dot, actuator lag) the hybrid step's physics does not carry at the nominal "
                 "values; disperse them with the physics step")
+    sample_dt = dispersions.gust_sample_dt
+    if sample_dt is not None and abs(sample_dt / dt - round(sample_dt / dt)) > 1e-6 * (
+            sample_dt / dt) or (sample_dt is not None and sample_dt < dt * (1 - 1e-9)):
+        raise MonteCarloError(f"{dispersions.origin}: key 'gust.sample_dt' = {sample_dt:g} s "
+                              f"must be a whole multiple of the step {dt:g} s")
     deviations = command_deviations(mission, airframe, n_steps, dt, seed)
     stride = max(1, int(round(history_dt / dt)))
+    # a CSV is known by its name (its content is in the key through the deviations)
+    name = mission if mission in PROFILES or mission in MISSIONS else f"csv:{Path(mission).name}"
     return StudySpec(airframe=airframe, dispersions=dispersions, net=net, model=model,
                      runs=runs, dt=float(dt), n_steps=n_steps, stride=min(stride, n_steps),
                      seed=int(seed), chunk_size=chunk_size, airspeed=speed,
-                     input_name=mission, deviations=np.ascontiguousarray(deviations, float),
+                     input_name=name, deviations=np.ascontiguousarray(deviations, float),
                      limits=resolve_limits(dispersions, airframe), weights_digest=digest)

@@ -141,15 +141,14 @@ def envelopes(history: np.ndarray, time: np.ndarray, keep: np.ndarray,
               percentiles: tuple[float, ...] = ENVELOPE_PERCENTILES) -> Envelopes:
     """Percentiles over runs of ``history`` (``runs x signals x time``, SI units) for the runs
     in the boolean mask ``keep``; NaN where no run is kept."""
-    chosen = history[keep].astype(float)
-    scale = np.array([180 / math.pi if s in _DEGREES else 1.0 for s in SIGNALS])
-    if chosen.shape[0] == 0:
-        values = np.full((len(SIGNALS), len(percentiles), len(time)), np.nan)
-    else:
-        values = np.percentile(chosen * scale[None, :, None], percentiles, axis=0)
-        values = np.moveaxis(values, 0, 1)
-    return Envelopes(np.asarray(time, float), SIGNALS, tuple(percentiles), values,
-                     int(chosen.shape[0]))
+    rows = np.flatnonzero(keep)
+    values = np.full((len(SIGNALS), len(percentiles), len(time)), np.nan)
+    if len(rows):
+        for i, signal in enumerate(SIGNALS):  # one signal at a time: bounded memory
+            scale = 180 / math.pi if signal in _DEGREES else 1.0
+            values[i] = np.percentile(history[rows, i, :].astype(float) * scale, percentiles,
+                                      axis=0)
+    return Envelopes(np.asarray(time, float), SIGNALS, tuple(percentiles), values, len(rows))
 
 
 @dataclass(frozen=True)
