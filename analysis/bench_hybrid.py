@@ -203,6 +203,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--reuse", action="store_true",
                         help="use the weights already in --weights-dir (no training)")
     parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--markdown", default=None, help="also write the README table here")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     result = {"command": "python analysis/bench_hybrid.py " + " ".join(
         sys.argv[1:] if argv is None else argv), "machine": platform.processor() or
@@ -212,7 +213,39 @@ def main(argv: list[str] | None = None) -> dict:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(text + "\n")
     print(text)
+    if args.markdown:
+        Path(args.markdown).write_text(markdown(result))
     return result
+
+
+def markdown(result: dict) -> str:
+    """The README's table of a benchmark result (``--markdown FILE``): per airframe and test
+    group, the ladder identified physics -> corrected at 1 s and free run, the sorties where
+    the correction is worse, and the cost of the step."""
+    rows = ["| airframe | test group | 1 s: identified physics -> corrected (ratio) | sorties "
+            "worse at 1 s (by > 10 %) | free run: identified -> corrected | diverged where "
+            "physics did not | step cost vs physics |", "|---|---|---|---|---|---|---|"]
+
+    def g(v):
+        return "n/a" if v is None else ("diverged" if not math.isfinite(v) else f"{v:.3g}")
+
+    for af in result["airframes"]:
+        cost = af.get("cost")
+        first = True
+        for cond, e in af.get("pooled", {}).items():
+            p1, c1 = e.get("horizon_1s_physics"), e.get("horizon_1s_corrected")
+            ratio = f" ({c1 / p1:.2f})" if p1 and c1 is not None and math.isfinite(c1) else ""
+            cost_text = (f"{cost['ratio']:.2f}x ({cost['hybrid_us_per_step']:.2f} vs "
+                         f"{cost['physics_us_per_step']:.2f} us)" if cost and first else "")
+            rows.append(f"| {af['airframe']} | {cond} ({e['sorties']}) | {g(p1)} -> {g(c1)}"
+                        f"{ratio} | {e.get('worse_at_1s', 'n/a')} "
+                        f"({e.get('worse_by_more_than_10pct_at_1s', 'n/a')}) of {e['sorties']} | "
+                        f"{g(e.get('free_run_physics'))} -> {g(e.get('free_run_corrected'))} | "
+                        f"{e.get('diverged_where_physics_did_not', 'n/a')} | {cost_text} |")
+            first = False
+        if not af.get("kept"):
+            rows.append(f"| {af['airframe']} | - | correction not kept: {af['reason']} | | | | |")
+    return "\n".join(rows) + "\n"
 
 
 if __name__ == "__main__":

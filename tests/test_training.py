@@ -70,12 +70,20 @@ def test_cli_train_writes_weights_history_and_plot(tmp_path, monkeypatch):
 def test_cli_defaults_match_train_config():
     from uavdyn.cli import build_parser
 
+    from uavdyn.learned.safe import SafeConfig
+
     args = build_parser().parse_args(["train"])
     d = asdict(TrainConfig())
-    for key in ("formulation", "target", "activation", "hidden", "dt", "epochs",
-                "rollout_horizon", "rollout_weight", "lr", "patience", "max_seconds", "seed",
-                "threads"):
+    for key in ("formulation", "target", "activation", "hidden", "dt", "rollout_horizon",
+                "rollout_weight", "lr", "seed", "threads"):
         assert getattr(args, key) == d[key], key
+    # options whose default differs between the trainers are left to each trainer's config
+    safe = asdict(SafeConfig())
+    for key in ("epochs", "patience", "max_seconds", "stability_weight"):
+        assert getattr(args, key) is None, key
+    for key in ("hidden", "lr", "seed", "threads", "stability_margin"):
+        assert getattr(args, key) == safe[key], key
+    assert args.horizon == safe["horizon_s"]
 
 
 def test_dataset_building(small_data, aerosonde, f450):

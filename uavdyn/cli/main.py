@@ -646,19 +646,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, default=0.005,
                    help="hybrid step in s (default 0.005; the improved correction on flight "
                         "data steps once per log sample)")
-    p.add_argument("--epochs", type=int, default=60, help="maximum epochs (default 60)")
+    p.add_argument("--epochs", type=int, default=None,
+                   help="maximum epochs (default 25 for the safe correction, 60 otherwise)")
     p.add_argument("--rollout-horizon", type=int, default=25,
                    help="rollout-loss window in samples (default 25)")
     p.add_argument("--rollout-weight", type=float, default=1.0,
                    help="weight of the rollout loss (default 1, 0 = one-step loss only)")
     p.add_argument("--lr", type=float, default=3e-3, help="initial Adam learning rate")
-    p.add_argument("--patience", type=int, default=12,
-                   help="early stopping: epochs without validation improvement (default 12)")
-    p.add_argument("--max-seconds", type=float, default=270.0,
-                   help="wall-clock budget in s (default 270)")
+    p.add_argument("--patience", type=int, default=None,
+                   help="early stopping: epochs without validation improvement (default 8 for "
+                        "the safe correction, 12 otherwise)")
+    p.add_argument("--max-seconds", type=float, default=None,
+                   help="wall-clock budget in s (default 3600 for the safe correction, a safety "
+                        "net only; 270 otherwise)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    p.add_argument("--stability-weight", type=float, default=10.0,
+    p.add_argument("--stability-weight", type=float, default=None,
                    help="improved/data: weight of the stability penalty at trims over the "
                         "training envelope (default 10)")
     p.add_argument("--stability-margin", type=float, default=0.5,

@@ -218,7 +218,7 @@ def check_map_stability(hybrid: ca.Function, physics: ca.Function, trims: list[T
 
 
 def stability_penalty(model, trims: list[TrimSample], targets, dt: float):
-    """Differentiable penalty (torch): ``sum relu(sigma_hybrid - target)^2`` over the trim
+    """Differentiable penalty (torch): ``sum relu(sigma_hybrid - target)`` over the trim
     points, ``sigma`` from the eigenvalues of the body block of the torch hybrid step's
     Jacobian; ``targets`` are the allowed abscissas minus a safety buffer."""
     import torch
@@ -238,7 +238,8 @@ def stability_penalty(model, trims: list[TrimSample], targets, dt: float):
         sigma = torch.log(torch.abs(lam).max()) / dt
         excess = torch.relu(sigma - float(target))
         if torch.isfinite(excess):
-            total = total + excess**2
+            total = total + excess  # linear (exact-penalty) hinge: a squared one lets small
+            # violations through at any weight, which a neutral physics mode cannot afford
     return total
 
 

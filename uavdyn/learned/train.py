@@ -352,8 +352,13 @@ def _check_replaceable(weights: Path, history: Path, force: bool) -> None:
 def run(args: argparse.Namespace) -> dict:
     """Train from parsed options; write weights, history JSON and PNG; return a summary."""
     airframe = load_airframe(args.airframe)
-    if args.hidden < 1 or args.epochs < 1:
+    if args.hidden < 1 or (args.epochs is not None and args.epochs < 1):
         raise ValueError("--hidden and --epochs must be >= 1")
+    safe = args.formulation == "improved" and args.target == "data"
+    if not safe:  # the legacy trainer's own defaults where an option was not given
+        args = argparse.Namespace(**{**vars(args), **{
+            k: (TrainConfig.__dataclass_fields__[k].default if getattr(args, k) is None
+                else getattr(args, k)) for k in ("epochs", "patience", "max_seconds")}})
     cfg = TrainConfig(formulation=args.formulation, target=args.target,
                       rollout_batch=getattr(args, "rollout_batch", TrainConfig.rollout_batch),
                       activation=args.activation, hidden=args.hidden, dt=args.dt,
@@ -389,13 +394,13 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
     """``uavdyn train`` of the safe correction (improved formulation on flight data)."""
     from uavdyn.learned.safe import SafeConfig, train_safe, write_safe_history
 
-    cfg = SafeConfig(hidden=args.hidden, activation=args.activation, epochs=args.epochs,
-                     lr=args.lr, patience=args.patience, max_seconds=args.max_seconds,
+    given = {k: getattr(args, k) for k in ("epochs", "patience", "max_seconds",
+                                           "stability_weight") if getattr(args, k) is not None}
+    cfg = SafeConfig(hidden=args.hidden, activation=args.activation, lr=args.lr,
                      seed=args.seed, threads=args.threads, progress=not args.quiet,
-                     stability_weight=args.stability_weight,
                      stability_margin=args.stability_margin, horizon_s=args.horizon,
                      memory_tau=(tuple(args.memory_tau) if args.memory_tau is not None
-                                 else None))
+                                 else None), **given)
     result = train_safe(tr, va, airframe, cfg)
     write_safe_history(result, hist)
     if not result.kept:

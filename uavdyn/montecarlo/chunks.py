@@ -63,6 +63,8 @@ class ChunkResult:
         NaN for a run that did not trim and from its divergence on).
     seconds : float
         Wall time spent computing it.
+    cpu_seconds : float
+        CPU time of the process computing it (all its threads).
     """
 
     index: int
@@ -71,6 +73,7 @@ class ChunkResult:
     table: np.ndarray
     history: np.ndarray
     seconds: float = 0.0
+    cpu_seconds: float = 0.0
 
 
 def compiled_batch(spec: StudySpec, n_runs: int, threads: int) -> ca.Function:
@@ -123,7 +126,7 @@ def evaluate_chunk(spec: StudySpec, index: int, threads: int = 1) -> ChunkResult
     MonteCarloError
         If a run draws a physically impossible airframe (an unbounded normal dispersion).
     """
-    start_time = time.perf_counter()
+    start_time, start_cpu = time.perf_counter(), time.process_time()
     start, stop = spec.chunk_runs(index)
     n = stop - start
     if n < 1:
@@ -204,7 +207,7 @@ def evaluate_chunk(spec: StudySpec, index: int, threads: int = 1) -> ChunkResult
     for j in np.flatnonzero(diverged):
         history[j, :, times >= t_div[j] - 1e-9 * spec.dt] = np.nan
     return ChunkResult(index, start, stop, table, history.astype(np.float32),
-                       time.perf_counter() - start_time)
+                       time.perf_counter() - start_time, time.process_time() - start_cpu)
 
 
 def _zero_offsets(spec: StudySpec) -> dict:
@@ -240,7 +243,7 @@ def write_chunk(folder: str | Path, spec: StudySpec, result: ChunkResult) -> Pat
               "runs": np.array([result.run_start, result.run_stop]),
               "columns": np.array(columns), "table": result.table.astype("<f8"),
               "history": result.history.astype("<f4"), "digest": np.array(digest),
-              "seconds": np.array([result.seconds])}
+              "seconds": np.array([result.seconds, result.cpu_seconds])}
     with atomic_file(path) as tmp, open(tmp, "wb") as fh:
         # an .npz (numpy.load reads it) deflated at level 1: the float data compresses as well
         # as at numpy's default level, several times faster
@@ -279,5 +282,6 @@ def read_chunk(folder: str | Path, spec: StudySpec, index: int) -> ChunkResult |
     if str(content["digest"]) != _content_digest(spec.key, columns, start, stop, table,
                                                  history):
         return None
-    seconds = float(content["seconds"][0]) if content["seconds"].shape == (1,) else 0.0
-    return ChunkResult(index, start, stop, table, history, seconds)
+    times = content["seconds"]
+    seconds, cpu = (float(times[0]), float(times[1])) if times.shape == (2,) else (0.0, 0.0)
+    return ChunkResult(index, start, stop, table, history, seconds, cpu)
