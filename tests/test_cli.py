@@ -9,7 +9,7 @@ import pytest
 from uavdyn.airframes import load_airframe, to_toml_dict
 from uavdyn.cli import main
 
-COMMANDS = ["airframes", "trim", "modes", "simulate", "export-c"]
+COMMANDS = ["airframes", "trim", "modes", "simulate", "export-c", "montecarlo"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)

@@ -69,7 +69,6 @@ def test_cli_train_writes_weights_history_and_plot(tmp_path, monkeypatch):
 
 def test_cli_defaults_match_train_config():
     from uavdyn.cli import build_parser
-
     from uavdyn.learned.safe import SafeConfig
 
     args = build_parser().parse_args(["train"])

@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from uavdyn.airframes import list_presets, load_airframe
+from uavdyn.learned import shipped_correction
 from uavdyn.montecarlo import (
     MonteCarloError,
     build_spec,
@@ -40,8 +41,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help=f"preset name ({', '.join(list_presets())}) or path of a TOML/JSON "
                         "parameter file (default aerosonde)")
     p.add_argument("--weights", default=None,
-                   help="weight file of a hybrid study ('shipped' = the airframe's shipped "
-                        "weights); default: the physics RK4 step")
+                   help="weight file of a hybrid study ('shipped' = the preset's shipped safe "
+                        "correction, run on the identified airframe it was trained on); "
+                        "default: the physics RK4 step")
     p.add_argument("--runs", type=int, default=1000, help="number of runs (default 1000)")
     p.add_argument("--duration", type=float, default=60.0, help="seconds per run (default 60)")
     p.add_argument("--dispersions", required=True,
@@ -86,10 +88,12 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     if args.seed is not None and args.seed < 0:
         raise MonteCarloError(f"--seed must be >= 0, got {args.seed}")
     check_output_folder(args.out, COMMAND, args.force)  # before any work
-    airframe = load_airframe(args.airframe)
+    airframe, weights = load_airframe(args.airframe), args.weights
+    if weights == "shipped":  # the shipped safe correction, on the airframe it was trained on
+        weights, airframe = shipped_correction(airframe.name)
     dispersions = load_dispersions(args.dispersions, airframe)
     spec = build_spec(airframe, dispersions, runs=args.runs, duration=args.duration,
-                      dt=args.dt, mission=args.mission, weights=args.weights, seed=args.seed,
+                      dt=args.dt, mission=args.mission, weights=weights, seed=args.seed,
                       chunk_size=args.chunk_size, history_dt=args.history_dt,
                       airspeed=args.airspeed)
     try:

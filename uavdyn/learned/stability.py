@@ -81,16 +81,28 @@ def envelope_speeds(envelope: Envelope) -> tuple[float, float]:
 
 def trims_between(airframe: Airframe, lo: float, hi: float, layout: CorrectionLayout,
                   n_speeds: int = 4) -> tuple[list[TrimSample], list[str]]:
-    """Trim points at ``n_speeds`` airspeeds in ``[lo, hi]``: level and +-3 deg climb for a
-    fixed wing; hover and forward flight for a multirotor. Returns the points and why others
-    could not be trimmed."""
+    """Trim points at ``n_speeds`` airspeeds spread over the part of ``[lo, hi]`` where the
+    airframe can be trimmed level (found on a grid four times finer, so untrimmable ends of
+    the range do not use up the points): level and +-3 deg climb for a fixed wing; hover and
+    forward flight for a multirotor. Returns the points and why others could not be
+    trimmed."""
+    skipped: list[str] = []
     if airframe.kind == "fixed_wing":
-        grid = [(v, g) for v in np.linspace(lo, hi, n_speeds)
+        feasible = []
+        for v in np.linspace(lo, hi, 4 * n_speeds + 1):
+            try:
+                trim(airframe, float(v), 0.0)
+                feasible.append(float(v))
+            except TrimError as exc:
+                skipped.append(f"{v:.3g} m/s, level: {exc}")
+        pick = sorted({int(round(i)) for i in np.linspace(0, len(feasible) - 1, n_speeds)}
+                      ) if feasible else []
+        grid = [(feasible[i], g) for i in pick
                 for g in (0.0, math.radians(-3), math.radians(3))]
     else:
         forward = np.linspace(max(lo, 1.0), max(hi, 1.0), n_speeds - 1) if hi > 1.0 else []
         grid = [(0.0, 0.0)] + [(float(v), 0.0) for v in forward]
-    out, skipped = [], []
+    out = []
     for v, g in grid:
         try:
             point = trim(airframe, float(v), float(g))

@@ -15,7 +15,7 @@ from uavdyn.montecarlo.statistics import SIGNAL_LABELS, column_percentiles
 from uavdyn.outputs import atomic_file, write_text_atomic
 
 if TYPE_CHECKING:  # pragma: no cover
-    from uavdyn.montecarlo.study import MonteCarloResult
+    from uavdyn.montecarlo.result import MonteCarloResult
 
 METRIC_COLUMNS = ("max_abs_pitch_deg", "max_alpha_deg", "min_airspeed_mps", "max_load_factor",
                   "min_load_factor")

@@ -23,7 +23,6 @@ import os
 import re
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -39,14 +38,9 @@ from uavdyn.montecarlo.chunks import (
     write_chunk,
 )
 from uavdyn.montecarlo.report import OUTPUT_FILES, json_text, write_outputs
+from uavdyn.montecarlo.result import MonteCarloResult
 from uavdyn.montecarlo.spec import MonteCarloError, StudySpec
-from uavdyn.montecarlo.statistics import (
-    Envelopes,
-    Exceedance,
-    RunTable,
-    envelopes,
-    exceedances,
-)
+from uavdyn.montecarlo.statistics import RunTable, envelopes, exceedances
 from uavdyn.outputs import MARKER, check_output_folder, write_text_atomic
 
 try:  # POSIX; elsewhere two studies in one folder are not prevented
@@ -57,69 +51,6 @@ except ImportError:  # pragma: no cover - Windows
 COMMAND = "montecarlo"
 LOCK_NAME = ".montecarlo.lock"
 _TEMP = re.compile(r"^\..+\.(tmp|partial|old)-(\d+)-\d+-[0-9a-f]{8}$")
-
-
-@dataclass
-class MonteCarloResult:
-    """The outcome of a study, usable from Python.
-
-    Attributes
-    ----------
-    spec : StudySpec
-        The study.
-    table : RunTable
-        One row per run (``table["max_abs_pitch_deg"]`` etc.).
-    history : numpy.ndarray
-        ``runs x len(SIGNALS) x len(spec.history_time)`` envelope samples (float32, SI).
-    envelopes : Envelopes
-        Percentile envelopes (5/50/95 %).
-    exceedance : list of Exceedance
-        Probabilities with Wilson intervals.
-    wall_s : float
-        Wall time of this call (s).
-    computed, reused : tuple of int
-        Chunks computed now and taken from an earlier run.
-    folder : Path or None
-        Where the files are (None: in memory only).
-    files : dict of str to str
-        Written files by name.
-    workers, threads : int
-        Dask workers (1: this process) and CasADi threads per chunk.
-    scheduler : str or None
-        Scheduler address of a remote cluster.
-    """
-
-    spec: StudySpec
-    table: RunTable
-    history: np.ndarray
-    envelopes: Envelopes
-    exceedance: list[Exceedance]
-    wall_s: float
-    computed: tuple[int, ...]
-    reused: tuple[int, ...]
-    folder: Path | None = None
-    files: dict[str, str] = field(default_factory=dict)
-    workers: int = 1
-    threads: int = 1
-    scheduler: str | None = None
-
-    @property
-    def runs_computed(self) -> int:
-        """Runs flown by this call (not taken from reused chunks)."""
-        return sum(np.subtract(*reversed(self.spec.chunk_runs(c))) for c in self.computed)
-
-    @property
-    def runs_per_s(self) -> float:
-        """Computed runs per second of wall time."""
-        return self.runs_computed / self.wall_s if self.wall_s > 0 else float("nan")
-
-    def exceedance_of(self, event_start: str) -> Exceedance:
-        """The first exceedance whose event text starts with ``event_start``."""
-        for e in self.exceedance:
-            if e.event.startswith(event_start):
-                return e
-        raise KeyError(f"no exceedance '{event_start}'; have "
-                       f"{', '.join(e.event for e in self.exceedance)}")
 
 
 @contextlib.contextmanager
