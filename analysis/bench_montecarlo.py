@@ -29,7 +29,7 @@ import numpy as np
 
 from uavdyn.integrate import compile_function, physics_step, rollout
 from uavdyn.learned import hybrid_step, shipped_correction
-from uavdyn.linear import trim
+from uavdyn.linear import trim, trim_state
 from uavdyn.model import NUMPY_OPS, body_forces
 from uavdyn.montecarlo import build_spec, load_dispersions, run_study
 from uavdyn.montecarlo.chunks import compiled_batch
@@ -92,7 +92,11 @@ def _sequential_loop(spec, runs: int, step) -> tuple[float, np.ndarray]:
         point = trim(airframe, spec.airspeed)
         p = airframe.p
         controls = point.u + spec.deviations
-        x = np.asarray(sim(point.x, controls.T, p, spec.dt))
+        # the step's whole state at trim: the physics' (augmented) trim state, then each
+        # command memory of a safe correction at the trim command
+        z0 = trim_state(airframe, point)
+        z0 = np.concatenate([z0, np.tile(point.u, (sim.size1_in(0) - len(z0)) // len(point.u))])
+        x = np.asarray(sim(z0, controls.T, p, spec.dt))[:4]
         x = np.hstack([point.x[:, None], x])
         if not np.all(np.isfinite(x)):
             raise RuntimeError(f"run {run} diverged in the sequential loop")
