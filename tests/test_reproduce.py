@@ -223,3 +223,27 @@ def test_evaluate_refuses_a_dataset_without_test_split_unless_asked(tmp_path, ca
     metrics = json.loads(out.read_text())
     assert metrics["split"].startswith("all sorties") and len(metrics["sorties"]) == 2
     assert "all sorties" in out.with_suffix(".md").read_text()
+
+
+def test_free_run_runner_starts_an_augmented_step_from_its_own_start_state():
+    """Table 3 / work-precision time a safe correction (command-memory states) from the state
+    its ``start_states`` builds: the body states it returns equal a hand-built rollout from
+    ``[x0, u0, u0]``."""
+    from test_safe_correction import _pitch_feedback_net
+
+    from uavdyn.experiments.reproduce import free_run_runner
+    from uavdyn.integrate import rollout as make_rollout
+    from uavdyn.learned import hybrid_step
+    from uavdyn.linear import trim as trim_point
+
+    af = load_airframe("aerosonde")
+    step = hybrid_step(_pitch_feedback_net(af, -1.0), af, compile=False)
+    point = trim_point(af)
+    controls = np.tile(point.u, (50, 1))
+    controls[10:20, 0] += 0.02
+    got = free_run_runner(step, point.x, controls, af.p, 0.01, 0.01, compiled=False)()
+    z0 = np.concatenate([point.x, np.tile(controls[0], 2)])
+    want = np.asarray(make_rollout(step, 50)(z0, controls.T, af.p, 0.01))[:4].T
+    assert got.shape == (51, 4)
+    np.testing.assert_allclose(got[0], point.x)
+    np.testing.assert_allclose(got[1:], want, rtol=0, atol=1e-12)

@@ -19,12 +19,15 @@ from uavdyn.experiments.common import condition, hybrid_steps, target_states  # 
 from uavdyn.integrate import physics_step  # noqa: E402
 
 
-def _solvers(airframe: Airframe, nets: dict, dt: float = 0.005) -> list[tuple[Solver, str]]:
-
+def _solvers(airframe: Airframe, nets: dict, dt: float = 0.005,
+             net_airframe: Airframe | None = None) -> list[tuple[Solver, str, np.ndarray]]:
+    """(solver, style, parameters): the nominal physics, and each flight-data correction on
+    the airframe its weights were trained on (``net_airframe``, default ``airframe``)."""
     styles = {"hybrid improved": "C3-", "hybrid paper": "C2:"}
-    out = [(Solver("RK4 nominal physics", physics_step(airframe), dt), "C0--")]
-    out += [(Solver(name, step, dt), styles.get(name, "C4-."))
-            for name, step in hybrid_steps(airframe, nets).items()]
+    base = net_airframe or airframe
+    out = [(Solver("RK4 nominal physics", physics_step(airframe), dt), "C0--", airframe.p)]
+    out += [(Solver(name, step, dt), styles.get(name, "C4-."), base.p)
+            for name, step in hybrid_steps(base, nets).items()]
     return out
 
 
@@ -36,12 +39,13 @@ def _save(fig, path: Path) -> str:
     return str(path)
 
 
-def time_histories(airframe: Airframe, sortie, nets: dict, out: Path) -> dict[str, str]:
+def time_histories(airframe: Airframe, sortie, nets: dict, out: Path,
+                   net_airframe: Airframe | None = None) -> dict[str, str]:
     """Figures 2 and 3: pitch angle and pitch rate against time on one test sortie."""
 
     truth = target_states(sortie)
-    runs = [(s, style, evaluate_trajectory(s, sortie.time, truth, sortie.controls, airframe.p))
-            for s, style in _solvers(airframe, nets)]
+    runs = [(s, style, evaluate_trajectory(s, sortie.time, truth, sortie.controls, p))
+            for s, style, p in _solvers(airframe, nets, net_airframe=net_airframe)]
     # An open-loop quadrotor is neutrally stable in pitch: a whole-sortie replay of the logged
     # commands drifts away for any model short of the truth, so show 1 s predictions there.
     mode = "free_run" if airframe.kind == "fixed_wing" else "horizon_1s"
@@ -117,16 +121,17 @@ def cost_bars(airframe: Airframe, table3: dict, out: Path) -> str:
     return _save(fig, out / f"fig5_{airframe.name}.png")
 
 
-def error_distribution(airframe: Airframe, sorties: list, nets: dict, out: Path) -> str:
+def error_distribution(airframe: Airframe, sorties: list, nets: dict, out: Path,
+                       net_airframe: Airframe | None = None) -> str:
     """Figure 6: distribution of free-run pitch errors over the test sorties, and each sortie's
     maximum error (the envelope), RK4 against the hybrid."""
 
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
     mode = "free_run" if airframe.kind == "fixed_wing" else "horizon_1s"
-    for k, (solver, style) in enumerate(_solvers(airframe, nets)):
+    for k, (solver, style, p) in enumerate(_solvers(airframe, nets, net_airframe=net_airframe)):
         errs, maxima = [], []
         for s in sorties:
-            res = evaluate_trajectory(solver, s.time, target_states(s), s.controls, airframe.p)
+            res = evaluate_trajectory(solver, s.time, target_states(s), s.controls, p)
             if mode not in res:  # refused: outside the step's trained dt or time range
                 continue
             pred, targ = res[mode]
@@ -178,17 +183,18 @@ def work_precision_plot(airframe: Airframe, points: list[dict], out: Path) -> st
     return _save(fig, out / f"work_precision_{airframe.name}.png")
 
 
-def make_all(airframe: Airframe, ds, nets: dict, result: dict, out: Path) -> dict[str, str]:
+def make_all(airframe: Airframe, ds, nets: dict, result: dict, out: Path,
+             net_airframe: Airframe | None = None) -> dict[str, str]:
     """Every figure for one airframe; returns name -> PNG path."""
 
     out = Path(out)
     test = ds.test
     calm = [s for s in test if condition(s) == "calm"] or test
-    paths = time_histories(airframe, calm[0], nets, out)
+    paths = time_histories(airframe, calm[0], nets, out, net_airframe)
     fig4 = loss_history(airframe, nets, out)
     if fig4:
         paths["fig4"] = fig4
     paths["fig5"] = cost_bars(airframe, result["table3"], out)
-    paths["fig6"] = error_distribution(airframe, test, nets, out)
+    paths["fig6"] = error_distribution(airframe, test, nets, out, net_airframe)
     paths["work_precision"] = work_precision_plot(airframe, result["work_precision"], out)
     return paths

@@ -32,6 +32,7 @@ from uavdyn.evaluation import (
     evaluate_trajectory,
     fine_reference,
     pooled_stats,
+    step_states,
 )
 from uavdyn.experiments.common import (
     FORMULATIONS,
@@ -220,18 +221,21 @@ def altitude(sortie: Sortie) -> float | None:
 def free_run_runner(step, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
                     sample_dt: float, dt: float, compiled: bool = True):
     """A callable running one whole-sortie free run of ``step`` (``controls`` one row per log
-    interval) and returning the ``(N+1) x 4`` states at the log times: what is timed (inputs
-    converted once, outside the callable)."""
+    interval) and returning the ``(N+1) x 4`` body states at the log times: what is timed
+    (inputs converted once, outside the callable). A step on an augmented state starts from
+    the state its own ``start_states`` builds from ``x0`` and the first command."""
     g = EvalGrid(sample_dt, dt)
     check_use(step, dt, 0.0, len(controls) * sample_dt)
     func = rollout(step, len(controls), g.substeps)
     func = compile_function(func) if compiled else func
-    args = [ca.DM(x0), ca.DM(np.ascontiguousarray(controls.T)), ca.DM(p), dt]
+    z0 = (x0 if step.size1_in(0) == len(x0)
+          else step_states(step, None, x0[None, :], controls[:1], p, g)[0])
+    args = [ca.DM(z0), ca.DM(np.ascontiguousarray(controls.T)), ca.DM(p), dt]
     if takes_time(step):
         args.append(0.0)
 
     def run() -> np.ndarray:
-        return np.vstack([x0, np.asarray(func(*args)).T])
+        return np.vstack([x0, np.asarray(func(*args))[:len(x0)].T])
 
     return run
 
@@ -405,7 +409,8 @@ def _median_time(fn, repeats: int) -> float:
     return float(np.median(times))
 
 
-def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> dict:
+def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int,
+               net_airframe: Airframe | None = None) -> dict:
     """Table 3: wall time of one test sortie's free run for every solver that matters,
     compiled and VM, with the pitch RMSE each reaches against the flight data (true states)
     and against the baseline fine-step reference."""
@@ -426,7 +431,8 @@ def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> 
                      "theta_rmse_vs_flight": error_stats(traj, truth)["theta_rmse"],
                      "theta_rmse_vs_reference": error_stats(traj, ref)["theta_rmse"]})
 
-    steps = {"RK4": physics_step(airframe), **hybrid_steps(airframe, nets)}
+    net_p = (net_airframe or airframe).p  # a correction runs on the airframe it was trained on
+    steps = {"RK4": physics_step(airframe), **hybrid_steps(net_airframe or airframe, nets)}
     plan = [("RK4", 0.001), ("RK4", 0.0005), ("RK4", 0.005), ("hybrid improved", 0.005),
             ("hybrid paper", 0.005)]
     missing: list[dict] = []
@@ -438,7 +444,9 @@ def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int) -> 
             missing.append({"solver": name, "dt": dt, "missing": why})
             continue
         for compiled in (True, False):
-            run = free_run_runner(steps[name], x0, controls, p, sample_dt, dt, compiled)
+            run = free_run_runner(steps[name], x0, controls,
+                                  net_p if name.startswith("hybrid") else p, sample_dt, dt,
+                                  compiled)
             add(f"{name} {'compiled' if compiled else 'CasADi VM'}", dt, run,
                 repeats if compiled else max(1, repeats // 2), compiled)
     # CVODES on the same zero-order-held grid (one integrator call per log interval)
@@ -485,7 +493,8 @@ def flight_mode(kind: str) -> str:
 
 
 def work_precision(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int,
-                   missing: list | None = None) -> list[dict]:
+                   missing: list | None = None, net_airframe: Airframe | None = None
+                   ) -> list[dict]:
     """Error against wall time for every solver and step size, on one test sortie: wall time of
     the compiled whole-sortie free run; pitch RMSE against the flight data (see
     :func:`flight_mode`) and, free run, against the baseline fine-step reference. A point the
@@ -495,12 +504,13 @@ def work_precision(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int,
     controls, x0, p, sample_dt = sortie.controls[:-1], truth[0], airframe.p, sortie.dt
     mode = flight_mode(airframe.kind)
     families = {"RK4": (physics_step(airframe), (0.01, 0.005, 0.0025, 0.002, 0.001,
-                                                             0.0005))}
+                                                             0.0005), p)}
     for target, label in (("data", ""), ("reference", " (numerical)")):
-        for name, step in hybrid_steps(airframe, nets, target).items():
-            families[f"{name}{label}"] = (step, (0.01, 0.005, 0.0025))
+        owner = (net_airframe or airframe) if target == "data" else airframe
+        for name, step in hybrid_steps(owner, nets, target).items():
+            families[f"{name}{label}"] = (step, (0.01, 0.005, 0.0025), owner.p)
     points = []
-    for family, (step, dts) in families.items():
+    for family, (step, dts, p) in families.items():
         for dt in dts:
             why = refusal(step, dt, sortie.time[-1] - sortie.time[0])
             if why:
@@ -632,9 +642,10 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
     log(f"[{airframe.name}] Tables 2-4, work-precision ...")
     table2 = convergence_table(nets)
     calm = [s for s in test if condition(s) == "calm"] or test
-    table3 = cost_table(airframe, calm[0], nets, config.cost_repeats)
+    table3 = cost_table(airframe, calm[0], nets, config.cost_repeats, net_airframes["data"])
     wp_missing: list[dict] = []
-    wp = work_precision(airframe, calm[0], nets, max(1, config.cost_repeats // 2), wp_missing)
+    wp = work_precision(airframe, calm[0], nets, max(1, config.cost_repeats // 2), wp_missing,
+                        net_airframes["data"])
     table4 = robustness_table(airframe, ds, nets, config, identified=identified,
                               net_airframe=net_airframes["data"])
     result = {"airframe": airframe.name, "kind": airframe.kind,
@@ -647,7 +658,7 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
                                          for t, a in net_airframes.items()},
               "table1": table1, "table2": table2, "table3": table3,
               "work_precision": wp, "work_precision_missing": wp_missing, "table4": table4}
-    result["figures"] = figures.make_all(airframe, ds, nets, result, out)
+    result["figures"] = figures.make_all(airframe, ds, nets, result, out, net_airframes["data"])
     return result
 
 
