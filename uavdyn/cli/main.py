@@ -120,12 +120,12 @@ def cmd_trim(args: argparse.Namespace) -> int:
 def cmd_modes(args: argparse.Namespace) -> int:
     """Trim, linearise and print the modes as a Markdown table (or JSON)."""
 
+    if args.hybrid:
+        return _hybrid_modes(args)
     airframe, point = _trim(args)
     A, B = linearise(airframe, point)
     names = linear_state_names(airframe)
     found = modes(A, airframe.kind, B, names)
-    if args.hybrid:
-        return _hybrid_modes(args, airframe, point)
     if args.json:
         print(json.dumps({"trim": point.as_dict(), "state_names": list(names),
                           "A": A.tolist(), "B": B.tolist(),
@@ -158,11 +158,11 @@ def _correction(args: argparse.Namespace, airframe):
     return weights, identified
 
 
-def _hybrid_modes(args: argparse.Namespace, airframe, point) -> int:
+def _hybrid_modes(args: argparse.Namespace) -> int:
     """Modes of the hybrid discrete map beside the physics model and exp(A dt) at the trim
     point, then the stability rule at trims over the weights' training envelope."""
 
-    weights, airframe = _correction(args, airframe)
+    weights, airframe = _correction(args, load_airframe(args.airframe))
     net = load_weights(weights, airframe)
     dt = args.dt if args.dt is not None else net.dt
     if not (dt > 0 and math.isfinite(dt)):
@@ -175,7 +175,7 @@ def _hybrid_modes(args: argparse.Namespace, airframe, point) -> int:
     check_use(step, dt)
     point = trim(airframe, args.airspeed, math.radians(args.gamma_deg))
     comp = discrete_map_modes(step, airframe, point, dt, tuple(net.memory_tau))
-    sweep = envelope_check(net, airframe, dt) if net.envelope is not None else None
+    sweep = envelope_check(net, airframe, dt, step=step) if net.envelope is not None else None
     if args.json:
         print(json.dumps({
             "trim": point.as_dict(), "dt": dt, "weights": str(weights),
@@ -257,16 +257,15 @@ def cmd_export_c(args: argparse.Namespace) -> int:
         raise CliError(f"--dt must be a positive number of seconds, got {args.dt}")
     if args.rollout < 0:
         raise CliError(f"--rollout must be >= 0 steps, got {args.rollout}")
-    airframe, point = _trim(args)
-    if args.model == "hybrid":
-
+    airframe = load_airframe(args.airframe)
+    if args.model == "hybrid":  # the correction runs on the airframe it was trained on
         weights, airframe = _correction(args, airframe)
-        point = trim(airframe, args.airspeed, math.radians(args.gamma_deg))
         net = load_weights(weights, airframe)
         step = hybrid_step(net, airframe, compile=False)
         memory = tuple(net.memory_tau)
     else:
         step, memory = physics_step(airframe), ()
+    point = trim(airframe, args.airspeed, math.radians(args.gamma_deg))
     spec = airframe_bundle_spec(args.name, airframe, point, args.dt, memory, real=args.real,
                                 rollout_steps=args.rollout, has_time_input=takes_time(step))
     out = export_bundle(step, spec, args.out, force=args.force)

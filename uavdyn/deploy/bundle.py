@@ -68,7 +68,7 @@ def airframe_bundle_spec(name: str, airframe: Airframe, point: TrimPoint, dt: fl
     memory = memory_state_names(structure.control_names, tuple(memory_tau))
     return BundleSpec(name, structure.state_names() + memory, structure.control_names,
                       airframe.param_names, point_params(airframe, point),
-                      np.concatenate([trim_state(airframe, point), np.tile(u, len(memory_tau))]),
+                      trim_state(airframe, point, memory_tau=tuple(memory_tau)),
                       u, dt, **options)
 
 

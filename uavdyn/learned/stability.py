@@ -50,14 +50,6 @@ class TrimSample:
         return f"trim at {self.airspeed:.3g} m/s, gamma {math.degrees(self.gamma):+.3g} deg"
 
 
-def hybrid_trim_state(airframe: Airframe, point, layout: CorrectionLayout) -> np.ndarray:
-    """The hybrid step's state at a trim point: the physics' augmented trim state and every
-    command memory at the trim command."""
-    z = trim_state(airframe, point)
-    memory = np.tile(np.asarray(point.u, float), len(layout.memory_tau))
-    return np.concatenate([z, memory])
-
-
 def envelope_trims(airframe: Airframe, sorties: list[Sortie], layout: CorrectionLayout,
                    n_speeds: int = 4) -> tuple[list[TrimSample], list[str]]:
     """Trim points over the flown envelope: airspeeds between the 5th and 95th percentile of
@@ -109,7 +101,8 @@ def trims_between(airframe: Airframe, lo: float, hi: float, layout: CorrectionLa
         except TrimError as exc:
             skipped.append(f"{v:.3g} m/s, gamma {math.degrees(g):+.3g} deg: {exc}")
             continue
-        out.append(TrimSample(float(v), float(g), hybrid_trim_state(airframe, point, layout),
+        out.append(TrimSample(float(v), float(g), trim_state(airframe, point,
+                                                         memory_tau=layout.memory_tau),
                               np.asarray(point.u, float), point_params(airframe, point)))
     return out, skipped
 
@@ -256,7 +249,8 @@ def stability_penalty(model, trims: list[TrimSample], targets, dt: float):
 
 
 def envelope_check(net, airframe: Airframe, dt: float | None = None,
-                   margin: float = DEFAULT_MARGIN, n_speeds: int = 4) -> StabilityReport:
+                   margin: float = DEFAULT_MARGIN, n_speeds: int = 4,
+                   step: ca.Function | None = None) -> StabilityReport:
     """The stability rule of a trained correction at trims over its own training envelope.
 
     Parameters
@@ -269,6 +263,8 @@ def envelope_check(net, airframe: Airframe, dt: float | None = None,
         Map step (default: the step the network was trained at).
     margin : float
         See the module docstring.
+    step : casadi.Function, optional
+        The (uncompiled) hybrid step of ``net`` if the caller has already built it.
 
     Raises
     ------
@@ -285,6 +281,6 @@ def envelope_check(net, airframe: Airframe, dt: float | None = None,
     layout = net.layout(structure)
     lo, hi = envelope_speeds(net.envelope)
     trims, skipped = trims_between(airframe, lo, hi, layout, n_speeds)
-    step = hybrid_step(net, airframe, compile=False)
+    step = step if step is not None else hybrid_step(net, airframe, compile=False)
     return check_map_stability(step, physics_step(structure), trims, dt or net.dt, margin,
                                skipped)

@@ -84,7 +84,7 @@ def body_structure(airframe: Airframe | ModelStructure) -> ModelStructure:
 
 
 def trim_state(airframe: Airframe, point: TrimPoint, with_position: bool = False,
-               fitting=()) -> np.ndarray:
+               fitting=(), memory_tau: tuple[float, ...] = ()) -> np.ndarray:
     """The augmented state of the discrete step at a trim point: the body state, then every
     actuator at its trim command and every delay buffer full of it (the step's layout:
     ``structure_of(airframe, fitting).state_names(with_position)``). Without lags and delays
@@ -100,16 +100,19 @@ def trim_state(airframe: Airframe, point: TrimPoint, with_position: bool = False
         Include the ``[x_n, h]`` states.
     fitting : sequence of str
         Parameters about to be identified (as for the step: their actuator states are kept).
+    memory_tau : tuple of float
+        Time constants of a learned correction's command memory: one state per time constant
+        and command, appended at the trim command (at rest, like the actuators).
     """
     structure = structure_of(airframe, fitting)
+    u = np.asarray(point.u, float)
     x = np.asarray(point.x, float)
     if with_position:
         x = np.concatenate([x, [0.0, point.altitude_m or 0.0]])
-    if not structure.augmented:
-        return x.copy()
-    rest = actuator_history(structure, np.asarray(point.u, float)[None, :],
-                            point_params(airframe, point), 1.0)[0]
-    return np.concatenate([x, rest])
+    if structure.augmented:
+        x = np.concatenate([x, actuator_history(structure, u[None, :],
+                                                point_params(airframe, point), 1.0)[0]])
+    return np.concatenate([x, np.tile(u, len(memory_tau))])
 
 
 @cache
