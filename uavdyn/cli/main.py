@@ -416,9 +416,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
                              retrain=args.retrain, cache=args.cache,
                              cost_repeats=args.cost_repeats, sorties=args.sorties,
                              duration_s=args.duration, force=args.force,
-                             identify=not args.no_identify)
+                             identify=not args.no_identify,
+                             save_trajectories=args.save_trajectories)
     result = run(config)
-    print(f"report: {Path(args.out) / 'report.md'} ({result['wall_s']:.0f} s)")
+    print(f"report: {Path(args.out) / 'report.md'} ({result['wall_s']:.0f} s, "
+          f"{result['size_bytes'] / 1e6:.1f} MB written)")
     return 0
 
 
@@ -594,12 +596,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="results", help="output folder (default results/)")
     p.add_argument("--quick", action="store_true", help="tiny configuration (seconds)")
     p.add_argument("--no-identify", action="store_true",
-                   help="skip the identification step (no 'identified physics' rung)")
+                   help="with --retrain: skip the identification (then no identified physics "
+                        "and no correction rung)")
     p.add_argument("--retrain", action="store_true",
-                   help="train the networks here (needs torch) instead of the shipped weights; "
-                        "the flight-data corrections learn on top of the identified physics")
+                   help="identify the physics and train the networks here (needs torch) "
+                        "instead of using the shipped identified airframe and weights")
     p.add_argument("--cache", default=None, help="dataset cache folder (default: user cache)")
-    p.add_argument("--cost-repeats", type=int, default=5, help="timing repeats (default 5)")
+    p.add_argument("--cost-repeats", type=int, default=15,
+                   help="interleaved timing repeats (default 15)")
+    p.add_argument("--save-trajectories", action="store_true",
+                   help="also write every Table 1 prediction as compressed npz (large)")
     p.add_argument("--sorties", type=int, default=None, help="override the recipe's count")
     p.add_argument("--duration", type=float, default=None,
                    help="override the recipe's sortie duration (s)")

@@ -9,8 +9,10 @@ byte-identical files on the same platform (compiler and libm).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import warnings
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from importlib import resources
@@ -93,6 +95,25 @@ class Recipe:
         return list(self.missions) or missions_for(kind)
 
 
+GENERATOR_PACKAGES = ("uavdyn.emulation", "uavdyn.model", "uavdyn.airframes")
+
+
+def generator_code_hash() -> str:
+    """A hash of what decides a generated dataset besides its recipe: the package version
+    and the source of the emulator, the model it builds on and the airframe presets. A cache
+    keyed by the recipe alone would hand back stale data after any of them changed."""
+    import uavdyn
+
+    digest = hashlib.sha256(uavdyn.__version__.encode())
+    for package in GENERATOR_PACKAGES:
+        files = [f for f in resources.files(package).iterdir()
+                 if f.is_file() and f.name.endswith((".py", ".toml", ".json"))]
+        for f in sorted(files, key=lambda f: f.name):
+            digest.update(f"{package}/{f.name}".encode())
+            digest.update(f.read_bytes())
+    return digest.hexdigest()[:16]
+
+
 def assign_sorties(recipe: Recipe, kind: str) -> list[dict]:
     """Mission, condition (calm/turbulent) and split of every sortie. Missions cycle so each
     appears equally often; calm/turbulent and the split are stratified per mission, so every
@@ -116,6 +137,12 @@ def assign_sorties(recipe: Recipe, kind: str) -> list[dict]:
         for rank, j in enumerate(order):
             members[j]["condition"] = "turbulent" if (rank * n_turb) // n != \
                 ((rank + 1) * n_turb) // n else "calm"
+    for split, fraction in zip(SPLITS, fractions):
+        if fraction > 0 and not any(p["split"] == split for p in plan):
+            warnings.warn(f"{recipe.sorties} sorties over {len(missions)} missions leave the "
+                          f"'{split}' split empty although its fraction is {fraction:g}: "
+                          "give more sorties (at least one per mission and split)",
+                          UserWarning, stacklevel=2)
     return plan
 
 

@@ -9,6 +9,7 @@ from uavdyn.evaluation.metrics import (
     error_stats,
     evaluate_trajectory,
     fine_reference,
+    horizon_predictions,
     pitch_rmse,
     pooled_stats,
     predict_windows,
@@ -16,7 +17,20 @@ from uavdyn.evaluation.metrics import (
     sortie_free_run,
     step_states,
 )
+from uavdyn.evaluation.spread import (
+    PairedComparison,
+    PooledError,
+    SortieError,
+    compare_paired,
+    pooled_rmse,
+    pooled_with_interval,
+    squared_error,
+)
+from uavdyn.evaluation.timing import Timing, interleaved_timing, ratio
 
 __all__ = ["METRIC_STATES", "MODES", "Solver", "error_growth", "error_stats",
-           "evaluate_trajectory", "fine_reference", "pitch_rmse", "pooled_stats",
-           "predict_windows", "sortie_altitude", "sortie_free_run", "step_states"]
+           "evaluate_trajectory", "fine_reference", "horizon_predictions", "pitch_rmse",
+           "pooled_stats",
+           "predict_windows", "sortie_altitude", "sortie_free_run", "step_states",
+           "PairedComparison", "PooledError", "SortieError", "compare_paired", "pooled_rmse",
+           "pooled_with_interval", "squared_error", "Timing", "interleaved_timing", "ratio"]

@@ -188,18 +188,9 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
         results["one_step"] = (pred[:, 0, :nb], states[starts + stride])
 
     def horizon() -> None:  # windows restarted from the recorded state every horizon
-        L = int(round(horizon_s / sample_dt))
-        L -= L % stride
-        starts = np.arange(0, N - L, L)
-        if not len(starts):
-            return
-        pred, _ = predict_windows(solver, z[starts],
-                                  np.stack([controls[k:k + L] for k in starts]), time[starts], p,
-                                  sample_dt)
-        idx = starts[:, None] + stride * (1 + np.arange(L // stride))[None, :]
-        results["horizon_1s"] = (pred[..., :nb].reshape(-1, nb),
-                                 states[idx].reshape(-1, states.shape[1]))
-        results["horizon_1s_time"] = time[idx].reshape(-1)
+        windows = _horizon_windows(solver, z, time, states, controls, p, grid, horizon_s)
+        if windows is not None:
+            results["horizon_1s"], results["horizon_1s_time"] = windows[:2], windows[2]
 
     def whole() -> None:  # the whole sortie from its first state
         L = (N - 1) - (N - 1) % stride
@@ -217,6 +208,52 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
     if refused:
         results["refused"] = refused
     return results
+
+
+def _horizon_windows(solver: Solver, z: np.ndarray, time: np.ndarray, states: np.ndarray,
+                     controls: np.ndarray, p, grid: EvalGrid, horizon_s: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Windows of ``horizon_s`` restarted from the recorded (augmented) state ``z`` at the
+    start of every window: ``(predicted, target, time)`` at the solver's grid points inside
+    the windows, or None when the sortie is shorter than one window or the horizon shorter
+    than one solver step."""
+    N, nb = len(time), states.shape[1]
+    L = int(round(horizon_s / grid.sample_dt))
+    L -= L % grid.stride
+    if L <= 0:
+        return None
+    starts = np.arange(0, N - L, L)
+    if not len(starts):
+        return None
+    pred, _ = predict_windows(solver, z[starts], np.stack([controls[k:k + L] for k in starts]),
+                              time[starts], p, grid.sample_dt)
+    idx = starts[:, None] + grid.stride * (1 + np.arange(L // grid.stride))[None, :]
+    return pred[..., :nb].reshape(-1, nb), states[idx].reshape(-1, nb), time[idx].reshape(-1)
+
+
+def horizon_predictions(solver: Solver, time: np.ndarray, states: np.ndarray,
+                        controls: np.ndarray, p: np.ndarray, horizons_s
+                        ) -> dict[float, tuple[np.ndarray, np.ndarray]]:
+    """Prediction error against horizon: for every horizon H, windows of H restarted from
+    the recorded state every H (as the ``horizon_1s`` mode of :func:`evaluate_trajectory`),
+    ``{H: (predicted, target)}`` body states at the solver's grid points inside the windows.
+    A horizon shorter than one solver step or longer than the sortie is absent.
+
+    Raises
+    ------
+    StepUseError
+        If the step refuses this step size or time range (then no horizon can be scored).
+    """
+    sample_dt = float(np.median(np.diff(time)))
+    grid = EvalGrid(sample_dt, solver.dt)
+    time = time - time[0]
+    z = step_states(solver.step, solver.structure, states, controls, p, grid)
+    out = {}
+    for h in horizons_s:
+        windows = _horizon_windows(solver, z, time, states, controls, p, grid, float(h))
+        if windows is not None:
+            out[float(h)] = windows[:2]
+    return out
 
 
 def fine_reference(kind: str | Airframe | ModelStructure, time: np.ndarray, x0: np.ndarray,

@@ -3,10 +3,20 @@ sortie's target states are and which condition it was flown in."""
 
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import Airframe
+from uavdyn.evaluation import step_states
 from uavdyn.flightdata import Sortie
+from uavdyn.integrate import (
+    EvalGrid,
+    StepUseError,
+    check_use,
+    compile_function,
+    rollout,
+    takes_time,
+)
 from uavdyn.learned import hybrid_step
 
 FORMULATIONS = ("improved", "paper")
@@ -74,3 +84,49 @@ def provenance() -> dict:
     return {"uavdyn": uavdyn.__version__, "commit": commit,
             "python": platform.python_version(), "numpy": np.__version__,
             "casadi": casadi.__version__, "machine": platform.machine()}
+
+
+def flight_mode(kind: str) -> str:
+    """How accuracy against flight data is measured: whole-sortie free run for the fixed wing;
+    1 s predictions restarted from the recorded state for the quadrotor, whose open-loop pitch
+    is neutrally stable (a replay of logged commands drifts away for any imperfect model)."""
+    return "free_run" if kind == "fixed_wing" else "horizon_1s"
+
+
+def refusal(step, dt: float, t_end: float = 0.0) -> str | None:
+    """Why ``step`` may not be used at ``dt`` up to ``t_end`` s into a sortie (a correction
+    tied to its trained step size or time range), or None."""
+    try:
+        check_use(step, dt, 0.0, t_end)
+    except StepUseError as exc:
+        return str(exc)
+    return None
+
+
+def usable(step, dt: float) -> bool:
+    """Whether ``step`` may be used at ``dt`` (a dt-bound correction only at its own)."""
+    return refusal(step, dt) is None
+
+
+def free_run_runner(step, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
+                    sample_dt: float, dt: float, compiled: bool = True):
+    """A callable running one whole-sortie free run of ``step`` (``controls`` one row per log
+    interval) and returning the body states at the log times (every ``dt/sample_dt``-th one
+    when ``dt`` exceeds the log interval): what is timed (inputs converted once, outside the
+    callable). A step on an augmented state starts from the state its own ``start_states``
+    builds from ``x0`` and the first command."""
+    g = EvalGrid(sample_dt, dt)
+    check_use(step, dt, 0.0, len(controls) * sample_dt)
+    controls = controls[::g.stride]  # a step longer than the log interval samples its start
+    func = rollout(step, len(controls), g.substeps)
+    func = compile_function(func) if compiled else func
+    z0 = (x0 if step.size1_in(0) == len(x0)
+          else step_states(step, None, x0[None, :], controls[:1], p, g)[0])
+    args = [ca.DM(z0), ca.DM(np.ascontiguousarray(controls.T)), ca.DM(p), dt]
+    if takes_time(step):
+        args.append(0.0)
+
+    def run() -> np.ndarray:
+        return np.vstack([x0, np.asarray(func(*args))[:len(x0)].T])
+
+    return run

@@ -15,19 +15,30 @@ import numpy as np  # noqa: E402
 
 from uavdyn.airframes import Airframe  # noqa: E402
 from uavdyn.evaluation import Solver, evaluate_trajectory  # noqa: E402
-from uavdyn.experiments.common import condition, hybrid_steps, target_states  # noqa: E402
-from uavdyn.integrate import physics_step  # noqa: E402
+from uavdyn.experiments.common import condition, target_states  # noqa: E402
+from uavdyn.integrate import StepUseError, check_use  # noqa: E402
+
+STYLES = {"nominal physics": "C0--", "identified physics": "C1-", "corrected": "C3-",
+          "hybrid paper": "C2:"}
 
 
-def _solvers(airframe: Airframe, nets: dict, dt: float = 0.005,
-             net_airframe: Airframe | None = None) -> list[tuple[Solver, str, np.ndarray]]:
-    """(solver, style, parameters): the nominal physics, and each flight-data correction on
-    the airframe its weights were trained on (``net_airframe``, default ``airframe``)."""
-    styles = {"hybrid improved": "C3-", "hybrid paper": "C2:"}
-    base = net_airframe or airframe
-    out = [(Solver("RK4 nominal physics", physics_step(airframe), dt), "C0--", airframe.p)]
-    out += [(Solver(name, step, dt), styles.get(name, "C4-."), base.p)
-            for name, step in hybrid_steps(base, nets).items()]
+def _solvers(rungs, legacy: dict) -> list[tuple[Solver, str, np.ndarray]]:
+    """(solver, style, parameters): the ladder's models, and the earlier flight-data
+    formulation (``paper``) at the ladder's step where it accepts it, each on the airframe its
+    weights were trained on."""
+    out = [(r.solver, STYLES.get(r.label, "C4-."), r.airframe.p) for r in rungs]
+    dt = rungs[0].solver.dt
+    for label, (step, owner, _) in legacy.items():
+        if "numerical" in label:
+            continue
+        for d in (dt, 0.005):
+            solver = Solver(label, step, d)
+            try:
+                check_use(step, d, 0.0, 0.0)
+            except StepUseError:
+                continue
+            out.append((solver, STYLES.get(label, "C4-."), owner.p))
+            break
     return out
 
 
@@ -39,13 +50,20 @@ def _save(fig, path: Path) -> str:
     return str(path)
 
 
-def time_histories(airframe: Airframe, sortie, nets: dict, out: Path,
-                   net_airframe: Airframe | None = None) -> dict[str, str]:
+def _predict(solver: Solver, sortie, p, known: dict | None) -> dict:
+    """The solver's predictions on a sortie: the pipeline's own where it made them already."""
+    res = (known or {}).get((solver.name, sortie.name))
+    if res is None:
+        res = evaluate_trajectory(solver, sortie.time, target_states(sortie), sortie.controls, p)
+    return res
+
+
+def time_histories(airframe: Airframe, sortie, models: list, out: Path,
+                   known: dict | None = None) -> dict[str, str]:
     """Figures 2 and 3: pitch angle and pitch rate against time on one test sortie."""
 
     truth = target_states(sortie)
-    runs = [(s, style, evaluate_trajectory(s, sortie.time, truth, sortie.controls, p))
-            for s, style, p in _solvers(airframe, nets, net_airframe=net_airframe)]
+    runs = [(s, style, _predict(s, sortie, p, known)) for s, style, p in models]
     # An open-loop quadrotor is neutrally stable in pitch: a whole-sortie replay of the logged
     # commands drifts away for any model short of the truth, so show 1 s predictions there.
     mode = "free_run" if airframe.kind == "fixed_wing" else "horizon_1s"
@@ -77,61 +95,81 @@ def time_histories(airframe: Airframe, sortie, nets: dict, out: Path,
     return paths
 
 
-def loss_history(airframe: Airframe, nets: dict, out: Path) -> str | None:
-    """Figure 4: training and validation loss per epoch of each network."""
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    drawn = False
-    for (formulation, target), path in nets.items():
-        if path is None:
-            continue
-        hist_path = Path(path).with_name(Path(path).stem + "_history.json")
-        if not hist_path.exists():
-            continue
-        hist = json.loads(hist_path.read_text())["history"]
-        ep = [h["epoch"] for h in hist]
-        for key, style in (("train_one_step", "-"), ("val_total", "--")):
-            vals = [h.get(key) for h in hist]
-            pts = [(e, v) for e, v in zip(ep, vals) if v is not None]
-            if pts:
-                ax.semilogy(*zip(*pts), style, label=f"{formulation}/{target} {key}")
-                drawn = True
-    if not drawn:
-        plt.close(fig)
+def loss_history(airframe: Airframe, weight_files: dict, out: Path) -> str | None:
+    """Figure 4: the correction's training history, like against like: (a) the validation
+    1 s pitch RMSE at the end of every epoch against the identified physics' own on the same
+    sorties, (b) the training rollout loss (mean over the epoch's mini-batches, relative to
+    the physics: 1 = no improvement)."""
+    path = weight_files.get("corrected")
+    hist_path = Path(path).with_name(Path(path).stem + "_history.json") if path else None
+    if hist_path is None or not hist_path.exists():
         return None
-    ax.set_xlabel("epoch")
-    ax.set_ylabel("loss (relative to physics-only error)")
-    ax.set_title(f"Fig. 4: training history, {airframe.name}")
-    ax.legend(fontsize=7)
-    ax.grid(alpha=0.3)
+    hist = json.loads(hist_path.read_text())["history"]
+    val = [(h["epoch"], h["val_theta_rmse"]) for h in hist if h.get("val_theta_rmse")]
+    physics = next((h["physics_val_theta_rmse"] for h in hist
+                    if h.get("physics_val_theta_rmse")), None)
+    train = [(h["epoch"], h["train_loss"]) for h in hist if h.get("train_loss") is not None]
+    if not val:
+        return None
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    ax.plot(*zip(*val), "C3o-", label="corrected (end of epoch)")
+    if physics:
+        ax.axhline(physics, color="C1", ls="--", label="identified physics")
+    ax.set_ylabel("validation 1 s pitch RMSE (rad)")
+    ax.set_title(f"Fig. 4a: {airframe.name}, validation split, end of every epoch",
+                 fontsize=9)
+    if train:
+        ax2.plot(*zip(*train), "C0o-", label="training rollout loss")
+        ax2.axhline(1.0, color="C1", ls="--", label="physics (= 1)")
+    ax2.set_ylabel("training loss / physics loss")
+    ax2.set_title("Fig. 4b: training loss, mean over each epoch's mini-batches", fontsize=9)
+    for a in (ax, ax2):
+        a.set_xlabel("epoch")
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
     return _save(fig, out / f"fig4_{airframe.name}.png")
 
 
-def cost_bars(airframe: Airframe, table3: dict, out: Path) -> str:
-    """Figure 5: wall time of each solver on the same sortie (log scale)."""
-    rows = table3["rows"]
-    fig, ax = plt.subplots(figsize=(9, 0.45 * len(rows) + 1.5))
-    names = [f"{r['solver']}" + (f" @ {r['dt']:g} s" if r["dt"] else "") for r in rows]
-    ax.barh(names, [r["wall_ms"] for r in rows],
-            color=["C3" if "hybrid" in n else "C0" for n in names])
-    ax.set_xscale("log")
-    ax.set_xlabel(f"wall time for one {table3['duration_s']:.0f} s sortie (ms, median)")
-    ax.set_title(f"Fig. 5: cost, {airframe.name}")
-    ax.invert_yaxis()
-    ax.grid(alpha=0.3, axis="x")
-    return _save(fig, out / f"fig5_{airframe.name}.png")
+def error_vs_horizon(airframe: Airframe, curves: dict, out: Path) -> str | None:
+    """Prediction error against horizon (log axes), one panel per condition: the pooled pitch
+    RMSE of every model of the ladder and the spread over sorties (band: per-sortie
+    quartiles; dots: per-sortie minimum and maximum)."""
+    conditions = [c for c in ("calm", "turbulent") if c in curves]
+    if not conditions:
+        return None
+    fig, axes = plt.subplots(1, len(conditions), figsize=(5.5 * len(conditions), 4.2),
+                             squeeze=False, sharey=True)
+    for ax, cond in zip(axes[0], conditions):
+        for model, points in curves[cond].items():
+            color = STYLES.get(model, "C4-")[:2]
+            h = [p["horizon_s"] for p in points]
+            ax.loglog(h, [p["pooled"] for p in points], "o-", color=color,
+                      label=f"{model} (pooled)")
+            ax.fill_between(h, [p["per_sortie_q1"] for p in points],
+                            [p["per_sortie_q3"] for p in points], color=color, alpha=0.15,
+                            lw=0)
+            ax.plot(h, [p["per_sortie_max"] for p in points], "v", color=color, ms=3,
+                    alpha=0.6)
+        n = max(p["sorties"] for pts in curves[cond].values() for p in pts)
+        ax.set_title(f"{airframe.name}, {cond} test sorties ({n})", fontsize=9)
+        ax.set_xlabel("prediction horizon (s), restarted from the recorded state")
+        ax.grid(alpha=0.3, which="both")
+    axes[0][0].set_ylabel("pitch RMSE (rad); band: per-sortie quartiles, v: worst sortie")
+    axes[0][0].legend(fontsize=8)
+    return _save(fig, out / f"error_vs_horizon_{airframe.name}.png")
 
 
-def error_distribution(airframe: Airframe, sorties: list, nets: dict, out: Path,
-                       net_airframe: Airframe | None = None) -> str:
+def error_distribution(airframe: Airframe, sorties: list, models: list, out: Path,
+                       known: dict | None = None) -> str:
     """Figure 6: distribution of free-run pitch errors over the test sorties, and each sortie's
     maximum error (the envelope), RK4 against the hybrid."""
 
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
     mode = "free_run" if airframe.kind == "fixed_wing" else "horizon_1s"
-    for k, (solver, style, p) in enumerate(_solvers(airframe, nets, net_airframe=net_airframe)):
+    for k, (solver, style, p) in enumerate(models):
         errs, maxima = [], []
         for s in sorties:
-            res = evaluate_trajectory(solver, s.time, target_states(s), s.controls, p)
+            res = _predict(solver, s, p, known)
             if mode not in res:  # refused: outside the step's trained dt or time range
                 continue
             pred, targ = res[mode]
@@ -152,7 +190,8 @@ def error_distribution(airframe: Airframe, sorties: list, nets: dict, out: Path,
     ax.set_ylabel("samples")
     ax.set_title(f"Fig. 6a: error distribution, {airframe.name}")
     ax2.set_xticks(range(len(sorties)))
-    ax2.set_xticklabels([s.mission[:10] for s in sorties], rotation=70, fontsize=7)
+    ax2.set_xticklabels([f"{s.name} {s.mission} ({condition(s)})" for s in sorties],
+                        rotation=75, fontsize=6)
     ax2.set_ylabel("max |pitch error| per sortie (deg)")
     ax2.set_title("Fig. 6b: error envelope per test sortie")
     for a in (ax, ax2):
@@ -161,40 +200,25 @@ def error_distribution(airframe: Airframe, sorties: list, nets: dict, out: Path,
     return _save(fig, out / f"fig6_{airframe.name}.png")
 
 
-def work_precision_plot(airframe: Airframe, points: list[dict], out: Path) -> str:
-    """Error against wall time, every solver family and step size, two targets."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.5))
-    families = sorted({p["family"] for p in points})
-    for i, fam in enumerate(families):
-        pts = sorted((p for p in points if p["family"] == fam), key=lambda p: p["wall_ms"])
-        for ax, key in zip(axes, ("theta_rmse_vs_flight", "theta_rmse_vs_reference")):
-            ax.loglog([p["wall_ms"] for p in pts], [max(p[key], 1e-16) for p in pts], "o-",
-                      color=f"C{i}", label=fam)
-            for p in pts:
-                ax.annotate(f"{p['dt']:g}", (p["wall_ms"], max(p[key], 1e-16)), fontsize=6)
-    mode = points[0]["flight_mode"].replace("_", " ") if points else ""
-    axes[0].set_title(f"{airframe.name}: vs flight data (true states, {mode})", fontsize=9)
-    axes[1].set_title(f"{airframe.name}: vs baseline fine-step reference (free run)", fontsize=9)
-    for ax in axes:
-        ax.set_xlabel("wall time per sortie (ms, compiled)")
-        ax.set_ylabel("pitch RMSE (rad)")
-        ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7)
-    return _save(fig, out / f"work_precision_{airframe.name}.png")
-
-
-def make_all(airframe: Airframe, ds, nets: dict, result: dict, out: Path,
-             net_airframe: Airframe | None = None) -> dict[str, str]:
-    """Every figure for one airframe; returns name -> PNG path."""
+def make_all(airframe: Airframe, ds, rungs, legacy: dict, result: dict, out: Path,
+             known: dict | None = None) -> dict[str, str]:
+    """Every figure for one airframe; returns name -> PNG path. ``known``: predictions the
+    pipeline already made, ``{(model, sortie): result}``, reused instead of recomputed."""
+    from uavdyn.experiments import cost
 
     out = Path(out)
     test = ds.test
+    models = _solvers(rungs, legacy)
     calm = [s for s in test if condition(s) == "calm"] or test
-    paths = time_histories(airframe, calm[0], nets, out, net_airframe)
-    fig4 = loss_history(airframe, nets, out)
+    paths = {}
+    horizon = error_vs_horizon(airframe, result["ladder"]["horizons"], out)
+    if horizon:
+        paths["error_vs_horizon"] = horizon
+    paths.update(time_histories(airframe, calm[0], models, out, known))
+    fig4 = loss_history(airframe, result["weights"], out)
     if fig4:
         paths["fig4"] = fig4
-    paths["fig5"] = cost_bars(airframe, result["table3"], out)
-    paths["fig6"] = error_distribution(airframe, test, nets, out, net_airframe)
-    paths["work_precision"] = work_precision_plot(airframe, result["work_precision"], out)
+    paths["fig5"] = cost.cost_figure(airframe.name, result["cost"], out)
+    paths["fig6"] = error_distribution(airframe, test, models, out, known)
+    paths["work_precision"] = cost.work_precision_figure(airframe.name, result["cost"], out)
     return paths

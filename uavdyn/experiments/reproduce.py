@@ -18,45 +18,34 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
-import scipy.integrate
 from tqdm import tqdm
 
 from uavdyn.airframes import Airframe, load_airframe, perturb
-from uavdyn.emulation import Emulator, open_loop_references, plan_mission
-from uavdyn.emulation.datagen import generate_dataset, shipped_recipe
+from uavdyn.emulation import Emulator, plan_mission
+from uavdyn.emulation.datagen import generate_dataset, generator_code_hash, shipped_recipe
 from uavdyn.evaluation import (
     MODES,
     Solver,
     error_growth,
-    error_stats,
     evaluate_trajectory,
     fine_reference,
     pooled_stats,
-    step_states,
 )
 from uavdyn.experiments.common import (
-    FORMULATIONS,
     IDENTIFIED_PHYSICS,
     IDENTIFY_PARAMS,
     NOMINAL_PHYSICS,
-    TARGETS,
     condition,
-    hybrid_steps,
     identification_sorties,
     provenance,
     target_states,
+    usable,
 )
+from uavdyn.experiments.ladder import headline, horizon_curves, ladder_rungs, per_sortie_rows
 from uavdyn.experiments.report import _table1, _table4, write_report
 from uavdyn.flightdata import Dataset, Sortie, load_dataset
 from uavdyn.integrate import (
-    EvalGrid,
-    StepUseError,
     cache_dir,
-    check_use,
-    compile_function,
-    reference_step,
-    rollout,
-    takes_time,
 )
 from uavdyn.integrate.augmented import physics_step
 from uavdyn.learned import (
@@ -64,9 +53,10 @@ from uavdyn.learned import (
     hybrid_step,
     load_weights,
     save_weights,
+    shipped_correction,
     shipped_weights,
 )
-from uavdyn.model import build_model, numpy_rhs, sortie_params, structure_of
+from uavdyn.model import sortie_params, structure_of
 from uavdyn.outputs import output_folder
 
 PAPER = {"rmse": 1.82e-3, "mae": 1.47e-3, "max": 2.31e-3, "cost_reduction": 0.38,
@@ -87,7 +77,9 @@ class ReproduceConfig:
     retrain: bool = False
     weights_dir: str | None = None  # None: the weights shipped with the package
     cache: str | None = None
-    cost_repeats: int = 5
+    cost_repeats: int = 15  # interleaved repeats of the one timing harness
+    cost_segment_s: float | None = 5.0  # the timed stretch of the cost sortie (None: whole)
+    save_trajectories: bool = False  # compressed npz of every prediction (large)
     progress: bool = True
     force: bool = False  # write into a non-empty folder that is not a previous reproduce output
     identify: bool = True  # fit the physics on the train split first (nominal -> identified)
@@ -97,9 +89,16 @@ class ReproduceConfig:
 # ----------------------------------------------------------------------------- data
 
 
+def dataset_cache_key(recipe) -> str:
+    """The cache key of a generated dataset: its recipe and the generator's code and version."""
+    return hashlib.sha256((json.dumps(asdict(recipe), sort_keys=True) +
+                           generator_code_hash()).encode()).hexdigest()[:12]
+
+
 def dataset_for(airframe_name: str, config: ReproduceConfig) -> Dataset:
     """The emulated dataset of the shipped recipe (or its quick variant), generated once and
-    reused from the cache folder while the recipe is unchanged."""
+    reused from the cache folder while the recipe, the package version and the generator's
+    code (:func:`~uavdyn.emulation.datagen.generator_code_hash`) are unchanged."""
 
     recipe = shipped_recipe(RECIPES[airframe_name])
     if config.quick:  # few, short sorties of a few missions, still split by sortie
@@ -111,7 +110,7 @@ def dataset_for(airframe_name: str, config: ReproduceConfig) -> Dataset:
         recipe.sorties = config.sorties
     if config.duration_s:
         recipe.duration_s = config.duration_s
-    key = hashlib.sha256(json.dumps(asdict(recipe), sort_keys=True).encode()).hexdigest()[:12]
+    key = dataset_cache_key(recipe)
     folder = Path(config.cache or cache_dir() / "datasets") / f"{airframe_name}_{key}"
     if not (folder / "manifest.json").exists():
         folder.parent.mkdir(parents=True, exist_ok=True)  # the cache is ours to create
@@ -218,43 +217,6 @@ def altitude(sortie: Sortie) -> float | None:
     return None if value is None else float(value)
 
 
-def free_run_runner(step, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
-                    sample_dt: float, dt: float, compiled: bool = True):
-    """A callable running one whole-sortie free run of ``step`` (``controls`` one row per log
-    interval) and returning the ``(N+1) x 4`` body states at the log times: what is timed
-    (inputs converted once, outside the callable). A step on an augmented state starts from
-    the state its own ``start_states`` builds from ``x0`` and the first command."""
-    g = EvalGrid(sample_dt, dt)
-    check_use(step, dt, 0.0, len(controls) * sample_dt)
-    func = rollout(step, len(controls), g.substeps)
-    func = compile_function(func) if compiled else func
-    z0 = (x0 if step.size1_in(0) == len(x0)
-          else step_states(step, None, x0[None, :], controls[:1], p, g)[0])
-    args = [ca.DM(z0), ca.DM(np.ascontiguousarray(controls.T)), ca.DM(p), dt]
-    if takes_time(step):
-        args.append(0.0)
-
-    def run() -> np.ndarray:
-        return np.vstack([x0, np.asarray(func(*args))[:len(x0)].T])
-
-    return run
-
-
-def refusal(step, dt: float, t_end: float = 0.0) -> str | None:
-    """Why ``step`` may not be used at ``dt`` up to ``t_end`` s into a sortie (a correction
-    tied to its trained step size or time range), or None."""
-    try:
-        check_use(step, dt, 0.0, t_end)
-    except StepUseError as exc:
-        return str(exc)
-    return None
-
-
-def usable(step, dt: float) -> bool:
-    """Whether ``step`` may be used at ``dt`` (a dt-bound correction only at its own)."""
-    return refusal(step, dt) is None
-
-
 @dataclass(frozen=True)
 class Candidate:
     """A solver of the comparison with the airframe whose parameters it runs on and the rung of
@@ -265,38 +227,13 @@ class Candidate:
     physics: str
 
 
-def build_solvers(airframe: Airframe, nets: dict, dts, identified: Airframe | None = None,
-                  net_airframes: dict | None = None) -> dict[str, list[Candidate]]:
-    """Solvers per target, the ladder of SPEC section 4: nominal physics, identified physics
-    (flight-data target only) and each hybrid formulation with weights, on the physics its
-    weights were trained on (``net_airframes[target]``, default the nominal airframe)."""
-    out: dict[str, list[Candidate]] = {}
-    rungs = [(NOMINAL_PHYSICS, airframe, "nominal")]
-    if identified is not None:
-        rungs.append((IDENTIFIED_PHYSICS, identified, "identified"))
-    for target in TARGETS:
-        cands = []
-        for label, af, physics in rungs:
-            if physics == "identified" and target != "data":
-                continue  # the reference target is the nominal model's own fine-step solution
-            step = physics_step(af)
-            cands += [Candidate(Solver(f"{label} @ {dt:g} s", step, dt, structure_of(af)), af,
-                                physics)
-                      for dt in dts]
-        base = (net_airframes or {}).get(target, airframe)
-        physics = "identified" if base is not airframe else "nominal"
-        suffix = " on identified physics" if physics == "identified" else ""
-        for name, step in hybrid_steps(base, nets, target, suffix).items():
-            cands += [Candidate(Solver(f"{name} @ {dt:g} s", step, dt), base, physics)
-                      for dt in dts if usable(step, dt)]
-        out[target] = cands
-    return out
-
-
 def accuracy_tables(airframe: Airframe, sorties: list[Sortie], solvers: dict,
-                    traj_dir: Path | None = None, progress=None) -> dict:
+                    traj_dir: Path | None = None, progress=None, known: dict | None = None
+                    ) -> dict:
     """Table 1: pooled error statistics per target group, solver and mode; ``solvers`` maps a
-    target to :class:`Candidate` objects (or plain solvers on ``airframe``'s parameters)."""
+    target to :class:`Candidate` objects (or plain solvers on ``airframe``'s parameters).
+    ``known`` holds flight-data predictions already made, ``{(solver name, sortie): result}``
+    (the ladder's), which are pooled instead of recomputed."""
     groups: dict[str, list[tuple[Sortie, np.ndarray, str]]] = {}
     for s in sorties:
         truth = target_states(s)
@@ -316,9 +253,11 @@ def accuracy_tables(airframe: Airframe, sorties: list[Sortie], solvers: dict,
             pairs: dict[str, list] = {m: [] for m in MODES}
             refusals: dict[str, list] = {m: [] for m in MODES}
             saved = {}
-            for s, states, _ in members:
-                res = evaluate_trajectory(solver, s.time, states, s.controls,
-                                          sortie_params(cand.airframe, altitude(s)))
+            for s, states, tgt in members:
+                res = (known or {}).get((solver.name, s.name)) if tgt == "data" else None
+                if res is None:
+                    res = evaluate_trajectory(solver, s.time, states, s.controls,
+                                              sortie_params(cand.airframe, altitude(s)))
                 for m in MODES:
                     if m in res:
                         pairs[m].append(res[m])
@@ -361,38 +300,48 @@ def _save_trajectories(folder: Path, airframe: str, group: str, solver: str, sav
 
 
 def convergence_table(weight_files: dict) -> list[dict]:
-    """Table 2 from the saved training histories beside the weights."""
+    """Table 2 from the saved training histories beside the weights (``{label: path}``), one
+    definition per column, stated in the row (``definitions``): the safe correction's
+    validation figure is the 1 s pitch RMSE on the whole validation split at the end of each
+    epoch; its training figure is the mean rollout loss over the epoch's mini-batches
+    (relative to the physics, which scores 1), taken while the weights change. The earlier
+    trainers' columns are their own (named in the row)."""
     rows = []
-    for (formulation, target), path in weight_files.items():
+    for label, path in weight_files.items():
         if path is None:
             continue
         hist_path = Path(path).with_name(Path(path).stem + "_history.json")
         if not hist_path.exists():
-            rows.append({"weights": str(path), "note": "no training history saved"})
+            rows.append({"model": label, "weights": Path(path).name,
+                         "note": "no training history saved"})
             continue
         doc = json.loads(hist_path.read_text())
         hist = doc["history"]
-        # the safe trainer's losses: training rollout loss (physics = 1) and the validation
-        # 1 s pitch RMSE it selects by
         safe = "val_theta_rmse" in hist[-1]
         train_key = ("train_loss" if safe else "train_total" if "train_total" in hist[-1]
                      else "train_one_step")
         val_key = "val_theta_rmse" if safe else "val_total"
         val = [h.get(val_key) for h in hist if h.get(val_key) is not None]
         train = [h.get(train_key) for h in hist if h.get(train_key) is not None]
+        physics_val = next((h["physics_val_theta_rmse"] for h in hist
+                            if h.get("physics_val_theta_rmse")), None)
         rows.append({
-            "weights": Path(path).name, "formulation": formulation, "target": target,
-            "initial_train_loss": train[0] if train else None,
+            "model": label, "weights": Path(path).name,
+            "train_metric": ("rollout loss / physics, mean over the epoch's mini-batches" if safe
+                             else f"{train_key} (earlier trainer)"),
+            "val_metric": ("1 s pitch RMSE (rad), whole validation split, end of epoch"
+                           if safe else f"{val_key} (earlier trainer)"),
+            "physics_val": physics_val,
+            "first_train_loss": train[0] if train else None,
             "final_train_loss": train[-1] if train else None,
-            "initial_val_loss": val[0] if val else None,
-            "best_val_loss": min(val) if val else None,
+            "initial_val": val[0] if val else None,
+            "best_val": min(val) if val else None,
             "epochs": len(hist) - 1, "best_epoch": doc.get("best_epoch"),
+            "kept": doc.get("kept"), "reason": doc.get("reason"),
             "stopped": doc.get("stopped"),
             "monotonic_train": bool(np.all(np.diff(train) <= 0)) if len(train) > 1 else None,
             "monotonic_val": bool(np.all(np.diff(val) <= 0)) if len(val) > 1 else None,
             "history_file": str(hist_path),
-            **({"validation_metric": "1 s pitch RMSE (rad)", "train_metric":
-                "rollout loss (physics = 1)"} if safe else {}),
         })
     return rows
 
@@ -400,157 +349,16 @@ def convergence_table(weight_files: dict) -> list[dict]:
 # ----------------------------------------------------------------------------- Table 3
 
 
-def _median_time(fn, repeats: int) -> float:
-    times = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
-
-
-def cost_table(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int,
-               net_airframe: Airframe | None = None) -> dict:
-    """Table 3: wall time of one test sortie's free run for every solver that matters,
-    compiled and VM, with the pitch RMSE each reaches against the flight data (true states)
-    and against the baseline fine-step reference."""
-
-
-    truth = target_states(sortie)
-    ref = fine_reference(airframe, sortie.time, truth[0], sortie.controls, airframe.p)
-    sample_dt = sortie.dt
-    controls = sortie.controls[:-1]
-    x0 = truth[0]
-    p = airframe.p
-    rows = []
-
-    def add(name, dt, run, n_rep, compiled):
-        traj = run()  # warm-up; also the accuracy
-        wall = _median_time(run, n_rep)
-        rows.append({"solver": name, "dt": dt, "compiled": compiled, "wall_ms": wall * 1e3,
-                     "theta_rmse_vs_flight": error_stats(traj, truth)["theta_rmse"],
-                     "theta_rmse_vs_reference": error_stats(traj, ref)["theta_rmse"]})
-
-    net_p = (net_airframe or airframe).p  # a correction runs on the airframe it was trained on
-    steps = {"RK4": physics_step(airframe), **hybrid_steps(net_airframe or airframe, nets)}
-    plan = [("RK4", 0.001), ("RK4", 0.0005), ("RK4", 0.005), ("hybrid improved", 0.005),
-            ("hybrid paper", 0.005)]
-    missing: list[dict] = []
-    for name, dt in plan:
-        if name not in steps:
-            continue
-        why = refusal(steps[name], dt, sortie.time[-1] - sortie.time[0])
-        if why:  # reported as missing, never run outside what the step was trained for
-            missing.append({"solver": name, "dt": dt, "missing": why})
-            continue
-        for compiled in (True, False):
-            run = free_run_runner(steps[name], x0, controls,
-                                  net_p if name.startswith("hybrid") else p, sample_dt, dt,
-                                  compiled)
-            add(f"{name} {'compiled' if compiled else 'CasADi VM'}", dt, run,
-                repeats if compiled else max(1, repeats // 2), compiled)
-    # CVODES on the same zero-order-held grid (one integrator call per log interval)
-    cv = rollout(reference_step(build_model(airframe).f, tol=1e-8), len(controls))
-
-    def run_cvodes():
-        return np.vstack([x0, np.asarray(cv(x0, controls.T, p, sample_dt)).T])
-
-    add("CVODES (tol 1e-8)", None, run_cvodes, 1, False)
-    rhs = numpy_rhs(airframe.kind)
-
-    def run_rk45():
-        out = [x0]
-        x = x0
-        for u in controls:
-            sol = scipy.integrate.solve_ivp(lambda t, y, u=u: rhs(y, u, p), (0.0, sample_dt), x,
-                                            method="RK45", rtol=1e-6, atol=1e-8)
-            x = sol.y[:, -1]
-            out.append(x)
-        return np.array(out)
-
-    add("scipy RK45 (rtol 1e-6)", None, run_rk45, 1, False)
-    emulator = Emulator(airframe)
-    xe0 = emulator.initial_state(x0, controls[0], 100.0)
-    refs = open_loop_references(sortie.controls)
-
-    def run_emulator():
-        return emulator.fly(xe0, refs).true_states
-
-    add("emulator (truth model, RK4 @ 0.001 s + actuators, unsteady aero)", 0.001,
-        run_emulator, 1, True)
-    base = next((r for r in rows if r["solver"] == "hybrid improved compiled"), None)
-    for r in rows:
-        r["ratio_to_hybrid_0.005"] = r["wall_ms"] / base["wall_ms"] if base else None
-    return {"sortie": sortie.name, "duration_s": sortie.duration, "rows": rows, "missing": missing,
-            "grid": f"logged controls held over each {sample_dt:g} s interval (ZOH)"}
-
-
-def flight_mode(kind: str) -> str:
-    """How accuracy against flight data is measured: whole-sortie free run for the fixed wing;
-    1 s predictions restarted from the recorded state for the quadrotor, whose open-loop pitch
-    is neutrally stable (a replay of logged commands drifts away for any imperfect model)."""
-    return "free_run" if kind == "fixed_wing" else "horizon_1s"
-
-
-def work_precision(airframe: Airframe, sortie: Sortie, nets: dict, repeats: int,
-                   missing: list | None = None, net_airframe: Airframe | None = None
-                   ) -> list[dict]:
-    """Error against wall time for every solver and step size, on one test sortie: wall time of
-    the compiled whole-sortie free run; pitch RMSE against the flight data (see
-    :func:`flight_mode`) and, free run, against the baseline fine-step reference. A point the
-    step refuses (outside its trained dt or time range) goes to ``missing`` with the reason."""
-    truth = target_states(sortie)
-    ref = fine_reference(airframe, sortie.time, truth[0], sortie.controls, airframe.p)
-    controls, x0, p, sample_dt = sortie.controls[:-1], truth[0], airframe.p, sortie.dt
-    mode = flight_mode(airframe.kind)
-    families = {"RK4": (physics_step(airframe), (0.01, 0.005, 0.0025, 0.002, 0.001,
-                                                             0.0005), p)}
-    for target, label in (("data", ""), ("reference", " (numerical)")):
-        owner = (net_airframe or airframe) if target == "data" else airframe
-        for name, step in hybrid_steps(owner, nets, target).items():
-            families[f"{name}{label}"] = (step, (0.01, 0.005, 0.0025), owner.p)
-    points = []
-    for family, (step, dts, p) in families.items():
-        for dt in dts:
-            why = refusal(step, dt, sortie.time[-1] - sortie.time[0])
-            if why:
-                if missing is not None:
-                    missing.append({"family": family, "dt": dt, "missing": why})
-                continue
-            run = free_run_runner(step, x0, controls, p, sample_dt, dt)
-            run()
-            wall = _median_time(run, repeats)
-            solver = Solver(family, step, dt)
-            flight = evaluate_trajectory(solver, sortie.time, truth, sortie.controls, p)[mode]
-            free = evaluate_trajectory(solver, sortie.time, ref, sortie.controls, p)["free_run"]
-            points.append({
-                "family": family, "dt": dt, "wall_ms": wall * 1e3, "flight_mode": mode,
-                "theta_rmse_vs_flight": error_stats(*flight)["theta_rmse"],
-                "theta_rmse_vs_reference": error_stats(*free)["theta_rmse"],
-            })
-    return points
-
-
 # ----------------------------------------------------------------------------- Table 4
 
 
-def robustness_table(airframe: Airframe, ds: Dataset, nets: dict, config: ReproduceConfig,
-                     dt: float = 0.005, identified: Airframe | None = None,
-                     net_airframe: Airframe | None = None) -> list[dict]:
-    """Table 4: error growth, maximum error and divergence of RK4 and the hybrid in the nominal
-    test sorties, the high-angle-of-attack sorties (fixed wing) and sorties flown by a truth
-    model whose stability derivatives and mass terms are 15 % off (the solvers keep nominal p)."""
-    solvers = [(Solver(NOMINAL_PHYSICS, physics_step(airframe), dt, structure_of(airframe)),
-                airframe)]
-    if identified is not None:
-        solvers.append((Solver(IDENTIFIED_PHYSICS, physics_step(identified), dt,
-                               structure_of(identified)), identified))
-    base = net_airframe or airframe
-    suffix = " on identified physics" if base is not airframe else ""
-    solvers += [(Solver(name, step, dt), base)
-                for name, step in hybrid_steps(base, nets, "data", suffix).items()]
-    # only test sorties are scored; a group with none is reported missing, never filled with
-    # training or validation sorties
+def robustness_table(airframe: Airframe, ds: Dataset, rungs, config: ReproduceConfig,
+                     known: dict | None = None) -> list[dict]:
+    """Table 4: error growth, maximum error before divergence and divergence of the ladder's
+    models (at their step) in the calm test sorties, the high-angle-of-attack test sorties
+    (fixed wing only) and sorties flown by a truth model whose stability derivatives and mass
+    terms are 15 % off (the models keep their own parameters). Only test sorties are scored;
+    a group with none is reported missing, never filled with training or validation sorties."""
     test = [s for s in ds.test if condition(s) != "turbulent"]
     scenarios = {"nominal (calm test sorties)": (test, "no calm test sortie in the dataset")}
     if airframe.kind == "fixed_wing":  # alpha is meaningless for a hovering multirotor
@@ -563,29 +371,32 @@ def robustness_table(airframe: Airframe, ds: Dataset, nets: dict, config: Reprod
         "no test sortie to take the missions from")
     rows = []
     for scenario, (sorties, why) in scenarios.items():
-        for solver, solver_airframe in solvers:
+        for rung in rungs:
+            name = ladder_name(rung)
             if not sorties:
-                rows.append({"scenario": scenario, "solver": solver.name, "sorties": 0,
+                rows.append({"scenario": scenario, "solver": name, "sorties": 0,
                              "missing": why})
                 continue
             growth, refused = [], None
             for s in sorties:
-                res = evaluate_trajectory(solver, s.time, target_states(s), s.controls,
-                                          sortie_params(solver_airframe, altitude(s)))
+                res = (known or {}).get((rung.label, s.name))  # the ladder's, test sorties
+                if res is None:
+                    res = evaluate_trajectory(rung.solver, s.time, target_states(s),
+                                              s.controls, sortie_params(rung.airframe,
+                                                                        altitude(s)))
                 if "free_run" not in res:  # outside what the step was trained for
                     refused = res.get("refused", {}).get("free_run", "not evaluated")
                     break
-                pred, targ = res["free_run"]
-                growth.append(error_growth(res["free_run_time"], pred, targ))
+                growth.append(error_growth(res["free_run_time"], *res["free_run"]))
             if refused:
-                rows.append({"scenario": scenario, "solver": f"{solver.name} @ {dt:g} s",
-                             "sorties": len(sorties), "missing": refused})
+                rows.append({"scenario": scenario, "solver": name, "sorties": len(sorties),
+                             "missing": refused})
                 continue
             rows.append({
-                "scenario": scenario, "solver": f"{solver.name} @ {dt:g} s",
-                "sorties": len(sorties),
+                "scenario": scenario, "solver": name, "sorties": len(sorties),
+                "sortie_names": [s.name for s in sorties],
                 "slope_rad_per_s": float(np.mean([g["slope_rad_per_s"] for g in growth])),
-                "max_error_rad": float(np.max([g["max_error_rad"] for g in growth])),
+                "max_error_rad": float(np.nanmax([g["max_error_rad"] for g in growth])),
                 "diverged": int(sum(g["diverged"] for g in growth)),
                 "first_divergence_s": min((g["time_to_divergence_s"] for g in growth
                                            if g["diverged"]), default=None),
@@ -615,50 +426,141 @@ def perturbed_sorties(airframe: Airframe, missions: list[str], duration: float
 # ----------------------------------------------------------------------------- pipeline
 
 
-def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
-    """Everything for one airframe: dataset, weights, Tables 1-4, work-precision, figures."""
+LEGACY = {("paper", "data"): "hybrid paper", ("improved", "reference"):
+          "hybrid improved (numerical)", ("paper", "reference"): "hybrid paper (numerical)"}
 
-    from uavdyn.experiments import figures
+
+def correction_inputs(airframe: Airframe, ds: Dataset, config: ReproduceConfig, log
+                      ) -> tuple[Airframe | None, Path | None, dict]:
+    """The identified airframe and the safe correction trained on top of it, with where they
+    come from: by default the pair shipped with the package (made by ``python -m
+    training.ship_safe`` from this dataset recipe); with ``retrain`` the physics is identified
+    on the train split and the correction trained here."""
+    if config.retrain:
+        if not config.identify:
+            return None, None, {"missing": "not requested (--no-identify)"}
+        identified, identification = identify_physics(airframe, ds, config, log)
+        if identified is None:
+            return None, None, identification
+        path = obtain_weights(identified, ds, "improved", "data", config, log)
+        identification["correction"] = (str(path) if path else
+                                        "training kept no correction (see the history)")
+        return identified, path, identification
+    try:
+        path, identified = shipped_correction(airframe.name)
+    except WeightFileError as exc:
+        return None, None, {"missing": str(exc)}
+    names = list(IDENTIFY_PARAMS[airframe.kind])
+    return identified, path, {
+        "source": "shipped with the package (python -m training.ship_safe on this dataset "
+                  "recipe: identified on the calm train sorties, correction trained on top)",
+        "file": str(identified.origin), "params": names, "correction": str(path),
+        "estimates": [{"name": n, "nominal": getattr(airframe.params, n),
+                       "value": getattr(identified.params, n)} for n in names]}
+
+
+def legacy_models(airframe: Airframe, ds: Dataset, config: ReproduceConfig, log,
+                  identified: Airframe | None) -> dict[str, tuple[ca.Function, Airframe, Path]]:
+    """The earlier formulations still compared (SPEC section 4: ``paper`` against the default,
+    and both as pure numerical corrections of the nominal model): label -> (step, airframe it
+    runs on, weight file). Skipped with ``quick`` unless retraining."""
+    if config.quick and not config.retrain:
+        return {}
+    out = {}
+    for (formulation, target), label in LEGACY.items():
+        owner = identified if (config.retrain and identified and target == "data") else airframe
+        path = obtain_weights(owner, ds, formulation, target, config, log)
+        if path is not None:
+            out[label] = (hybrid_step(path, owner, compile=False), owner, path)
+    return out
+
+
+def ladder_name(rung) -> str:
+    """A ladder model's row name in the tables: its label and step size."""
+    return f"{rung.label} @ {rung.solver.dt:.3g} s"
+
+
+def table1_candidates(airframe: Airframe, rungs, legacy: dict, dts
+                      ) -> dict[str, list[Candidate]]:
+    """Table 1's solvers per target: the ladder at its step, physics at the other step sizes,
+    and the earlier formulations at every step they accept (the numerical corrections against
+    the fine-step reference of the nominal model)."""
+    data, reference = [], []
+    for rung in rungs:
+        data.append(Candidate(Solver(ladder_name(rung), rung.solver.step,
+                                     rung.solver.dt, rung.solver.structure), rung.airframe,
+                              "nominal" if rung.airframe is airframe else "identified"))
+    for dt in dts:
+        for rung in rungs[:1]:  # the nominal physics at the other step sizes
+            if abs(dt - rung.solver.dt) > 1e-12:
+                data.append(Candidate(Solver(f"{rung.label} @ {dt:g} s", rung.solver.step, dt,
+                                             rung.solver.structure), rung.airframe,
+                                      "nominal" if rung.airframe is airframe else "identified"))
+        reference.append(Candidate(Solver(f"nominal physics @ {dt:g} s", rungs[0].solver.step,
+                                          dt, rungs[0].solver.structure), airframe, "nominal"))
+    for label, (step, owner, _) in legacy.items():
+        group = reference if "numerical" in label else data
+        group += [Candidate(Solver(f"{label} @ {dt:g} s", step, dt), owner,
+                            "nominal" if owner is airframe else "identified")
+                  for dt in dts if usable(step, dt)]
+    return {"data": data, "reference": reference}
+
+
+def _bar(config: ReproduceConfig, total: int, desc: str):
+    return tqdm(total=total, desc=desc, disable=not config.progress, unit="run",
+                mininterval=1.0)
+
+
+def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
+    """Everything for one airframe: dataset, the nominal -> identified -> corrected ladder
+    (headline, per sortie, against horizon), Tables 1-4, work-precision, figures."""
+
+    from uavdyn.experiments import cost, figures
 
     airframe = load_airframe(name)
     out = Path(config.out)
     log(f"[{airframe.name}] dataset ...")
     ds = dataset_for(name, config)
-    identified, identification = (identify_physics(airframe, ds, config, log) if config.identify
-                                  else (None, {"missing": "not requested (--no-identify)"}))
-    # retrained flight-data corrections learn on top of the identified physics; the numerical
-    # (reference-target) correction and shipped weights belong to the nominal model
-    net_airframes = {"data": identified if (config.retrain and identified) else airframe,
-                     "reference": airframe}
-    nets = {(f, t): obtain_weights(net_airframes[t], ds, f, t, config, log)
-            for f in FORMULATIONS for t in TARGETS}
-    solvers = build_solvers(airframe, nets, config.dts, identified, net_airframes)
     test = ds.test
-    n_work = sum(len(v) for v in solvers.values()) * len(test)  # one run per solver and sortie
-    bar = tqdm(total=n_work, desc=f"[{airframe.name}] Table 1", disable=not config.progress,
-               unit="run")
-    table1 = accuracy_tables(airframe, test, solvers, out / "trajectories", bar.update)
+    identified, correction, identification = correction_inputs(airframe, ds, config, log)
+    rungs, ladder_missing = ladder_rungs(airframe, identified, correction)
+    bar = _bar(config, len(test) * len(rungs), f"[{airframe.name}] ladder per sortie")
+    predictions: dict = {}
+    rows = per_sortie_rows(rungs, test, progress=bar.update, keep=predictions)
+    known = {(ladder_name(r), sortie): res for r in rungs for (label, sortie), res
+             in predictions.items() if label == r.label}
     bar.close()
-    log(f"[{airframe.name}] Tables 2-4, work-precision ...")
-    table2 = convergence_table(nets)
+    legacy = legacy_models(airframe, ds, config, log, identified)
+    candidates = table1_candidates(airframe, rungs, legacy, config.dts)
+    bar = _bar(config, len(test) * (len(candidates["data"]) + len(candidates["reference"])),
+               f"[{airframe.name}] Table 1")
+    table1 = accuracy_tables(airframe, test, candidates,
+                             out / "trajectories" if config.save_trajectories else None,
+                             bar.update, known)
+    bar.close()
+    weight_files = {"corrected": correction, **{k: v[2] for k, v in legacy.items()}}
+    table2 = convergence_table(weight_files)
     calm = [s for s in test if condition(s) == "calm"] or test
-    table3 = cost_table(airframe, calm[0], nets, config.cost_repeats, net_airframes["data"])
-    wp_missing: list[dict] = []
-    wp = work_precision(airframe, calm[0], nets, max(1, config.cost_repeats // 2), wp_missing,
-                        net_airframes["data"])
-    table4 = robustness_table(airframe, ds, nets, config, identified=identified,
-                              net_airframe=net_airframes["data"])
+    models = {r.label: (r.solver.step, r.airframe) for r in rungs[1:]}
+    models.update({k: (v[0], v[1]) for k, v in legacy.items()})
+    log(f"[{airframe.name}] cost: one interleaved timing harness ...")
+    timing = cost.cost_study(airframe, calm[0], models, repeats=config.cost_repeats,
+                             segment_s=config.cost_segment_s)
+    log(f"[{airframe.name}] Table 4 ...")
+    table4 = robustness_table(airframe, ds, rungs, config, predictions)
     result = {"airframe": airframe.name, "kind": airframe.kind,
               "dataset": {"path": str(ds.path), "sorties": len(ds.sorties),
                           "test_sorties": [s.name for s in test],
                           "sample_rate_hz": ds.sample_rate_hz},
-              "weights": {f"{f}/{t}": (str(p) if p else None) for (f, t), p in nets.items()},
+              "ladder": {"dt": rungs[0].solver.dt, "models": [r.label for r in rungs],
+                         "missing": ladder_missing, "per_sortie": rows,
+                         "headline": headline(rows), "horizons": horizon_curves(rows)},
+              "weights": {k: (str(v) if v else None) for k, v in weight_files.items()},
               "identification": identification,
-              "corrections_trained_on": {t: ("identified" if a is not airframe else "nominal")
-                                         for t, a in net_airframes.items()},
-              "table1": table1, "table2": table2, "table3": table3,
-              "work_precision": wp, "work_precision_missing": wp_missing, "table4": table4}
-    result["figures"] = figures.make_all(airframe, ds, nets, result, out, net_airframes["data"])
+              "table1": table1, "table2": table2, "cost": timing, "table4": table4}
+    log(f"[{airframe.name}] figures ...")
+    result["figures"] = figures.make_all(airframe, ds, rungs, legacy, result, out,
+                                         predictions)
     return result
 
 
@@ -693,8 +595,9 @@ def run(config: ReproduceConfig) -> dict:
         (tmp / "metrics.json").write_text(json.dumps(relative, indent=2, default=_json) + "\n")
         write_report(results, tmp / "report.md")
     results = _relocate(results, str(tmp) + os.sep, str(out) + os.sep)
+    results["size_bytes"] = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
     log(f"wrote {out / 'report.md'} and {out / 'metrics.json'} "
-        f"(total {results['wall_s']:.0f} s)")
+        f"(total {results['wall_s']:.0f} s, {results['size_bytes'] / 1e6:.1f} MB)")
     return results
 
 

@@ -1,0 +1,515 @@
+"""Cost of the models and solvers: the paper's Table 3, the work-precision diagram and every
+timing ratio of the report, all from ONE interleaved timing run on one input segment.
+
+Every configuration is a free run of the first ``segment_s`` seconds of one sortie, driven by
+the logged commands held over each log interval (zero-order hold on the log grid), timed by
+:func:`uavdyn.evaluation.interleaved_timing` (min and median of ``repeats`` timed calls, inputs
+converted to CasADi once, outside the timed region). Accuracy is computed once, outside the
+timing, on the same segment: pitch RMSE against the flight data (free run for a fixed wing,
+1 s predictions restarted from the recorded state for a multirotor: :func:`flight_mode`) and
+free-run pitch RMSE against the nominal model's fine-step reference.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import scipy.integrate
+
+from uavdyn.airframes import Airframe
+from uavdyn.emulation import Emulator, open_loop_references
+from uavdyn.evaluation import (
+    Solver,
+    Timing,
+    error_stats,
+    evaluate_trajectory,
+    fine_reference,
+    interleaved_timing,
+    ratio,
+    sortie_altitude,
+)
+from uavdyn.experiments.common import flight_mode, free_run_runner, refusal, target_states
+from uavdyn.flightdata import Sortie
+from uavdyn.integrate import (
+    EvalGrid,
+    GridError,
+    StepUseError,
+    physics_step,
+    reference_step,
+    rollout,
+)
+from uavdyn.model import build_model, numpy_rhs, sortie_params, structure_of
+
+NOMINAL = "nominal physics"
+NOMINAL_VM = "nominal physics (CasADi VM)"
+CVODES = "CVODES"
+EMULATOR = "emulator (truth model)"
+RK4_DTS = (0.01, 0.005, 0.0025, 0.001, 0.0005)
+VM_DTS = (0.005, 0.001)
+MODEL_DTS = (0.02, 0.01, 0.005, 0.0025)
+CVODES_TOLS = (1e-6, 1e-8, 1e-10)
+SCIPY_RUNS = (("RK45", 1e-3), ("RK45", 1e-6), ("DOP853", 1e-8))
+SCIPY_ATOL_FACTOR = 1e-2  # atol = rtol * factor (states of order 1-30)
+EMULATOR_DT = 0.001  # the emulator's internal RK4 step
+# Table 3: the paper's rows (RK4 at 0.001 and 0.0005 s, the models at 0.005 s) and every other
+# solver that matters: the nominal physics and each model at the log interval and 0.005 s, the
+# CasADi VM, CVODES at 1e-8, scipy RK45 at rtol 1e-6, DOP853 at 1e-8 and the emulator.
+TABLE3_RK4_DTS = (0.01, 0.005, 0.001, 0.0005)
+TABLE3_MODEL_DTS = (0.01, 0.005)
+TABLE3_CVODES_TOL = 1e-8
+TABLE3_SCIPY = (("RK45", 1e-6), ("DOP853", 1e-8))
+HARNESS = "interleaved, min and median of N repeats, inputs converted outside the timed region"
+FAMILY_ORDER = (NOMINAL, NOMINAL_VM, CVODES, "scipy RK45", "scipy DOP853", EMULATOR)
+
+
+@dataclass
+class _Point:
+    """One timed configuration before timing: its callable and its accuracy."""
+
+    label: str
+    family: str
+    setting: str
+    dt: float | None
+    compiled: bool
+    run: Callable[[], object]
+    airframe: str
+    in_table3: bool
+    tol: float | None = None
+    flight: float | None = None
+    reference: float | None = None
+    note: str | None = None
+
+
+def _segment(sortie: Sortie, segment_s: float | None) -> int:
+    """Number of log intervals of the timed segment (the whole sortie for None or more)."""
+    n = len(sortie.time) - 1
+    if segment_s is None:
+        return n
+    if not (segment_s > 0):
+        raise ValueError(f"segment_s must be positive or None, got {segment_s}")
+    return min(n, int(round(segment_s / sortie.dt)))
+
+
+def _theta_rmse(pred: np.ndarray, target: np.ndarray) -> float:
+    return error_stats(pred, target)["theta_rmse"]
+
+
+def _step_accuracy(solver: Solver, time: np.ndarray, truth: np.ndarray, ref: np.ndarray,
+                   controls: np.ndarray, p: np.ndarray, mode: str
+                   ) -> tuple[float | None, float | None, str | None]:
+    """(vs flight in ``mode``, free run vs reference, why a value is missing) via the same
+    evaluation code as Table 1."""
+    flight = evaluate_trajectory(solver, time, truth, controls, p)
+    free = evaluate_trajectory(solver, time, ref, controls, p)
+    why = [f"{m}: {r}" for res in (flight, free) for m, r in res.get("refused", {}).items()]
+    return (_theta_rmse(*flight[mode]) if mode in flight else None,
+            _theta_rmse(*free["free_run"]) if "free_run" in free else None,
+            "; ".join(why) or None)
+
+
+def _sim_accuracy(simulate: Callable[[np.ndarray, np.ndarray], np.ndarray], time: np.ndarray,
+                  truth: np.ndarray, ref: np.ndarray, controls: np.ndarray, mode: str,
+                  whole: np.ndarray) -> tuple[float, float]:
+    """The same two accuracies for a solver that is not a step Function (scipy, emulator):
+    ``simulate(x0, controls)`` returns ``len(controls) + 1`` body states, the first ``x0``;
+    ``whole`` is its free run of the segment. Windows as in ``evaluate_trajectory``."""
+    vs_ref = _theta_rmse(whole[1:], ref[1:])
+    if mode == "free_run":
+        return _theta_rmse(whole[1:], truth[1:]), vs_ref
+    n_len = int(round(1.0 / float(np.median(np.diff(time)))))  # 1 s windows
+    starts = np.arange(0, len(time) - n_len, n_len)
+    if not len(starts):
+        return math.nan, vs_ref
+    pred = np.concatenate([simulate(truth[k], controls[k:k + n_len + 1])[1:n_len + 1]
+                           for k in starts])
+    target = np.concatenate([truth[k + 1:k + n_len + 1] for k in starts])
+    return _theta_rmse(pred, target), vs_ref
+
+
+def _scipy_simulator(rhs, p: np.ndarray, sample_dt: float, method: str, rtol: float):
+    atol = rtol * SCIPY_ATOL_FACTOR
+
+    def simulate(x0: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """One ``solve_ivp`` call per log interval, the command held over it (rows of
+        ``controls`` past the last interval are ignored)."""
+        n = len(controls) - 1 if len(controls) > 1 else 1
+        out = np.empty((n + 1, len(x0)))
+        x = out[0] = x0
+        for k in range(n):
+            u = controls[k]
+            sol = scipy.integrate.solve_ivp(lambda t, y, u=u: rhs(y, u, p), (0.0, sample_dt), x,
+                                            method=method, rtol=rtol, atol=atol)
+            x = out[k + 1] = sol.y[:, -1]
+        return out
+
+    return simulate
+
+
+def _model_runner(step: ca.Function, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
+                  sample_dt: float, dt: float, compiled: bool) -> Callable[[], np.ndarray]:
+    """:func:`free_run_runner` on the solver's own grid: for ``dt`` a multiple of the log
+    interval the solver samples the logged command at its own step start (as
+    :func:`uavdyn.evaluation.evaluate_trajectory` does)."""
+    g = EvalGrid(sample_dt, dt)
+    if g.stride > 1:
+        n = len(controls) - len(controls) % g.stride
+        return free_run_runner(step, x0, controls[:n:g.stride], p, dt, dt, compiled)
+    return free_run_runner(step, x0, controls, p, sample_dt, dt, compiled)
+
+
+def _bar_total(progress, n: int) -> None:
+    owner = getattr(progress, "__self__", None)  # tqdm's bound ``update``: size the bar
+    if owner is not None and hasattr(owner, "total"):
+        owner.total = n
+        if hasattr(owner, "refresh"):
+            owner.refresh()
+
+
+def cost_study(nominal: Airframe, sortie: Sortie,
+               models: Mapping[str, tuple[ca.Function, Airframe]], repeats: int = 15,
+               segment_s: float | None = 10.0, compiled_vm: bool = True,
+               progress: Callable[[], None] | None = None) -> dict:
+    """Table 3, the work-precision points and the timing ratios from one interleaved run.
+
+    Families (each a free run of the same segment, same zero-order-held inputs):
+
+    - ``"nominal physics"``: the nominal airframe's compiled RK4 rollout at
+      :data:`RK4_DTS`; ``"nominal physics (CasADi VM)"`` the same at :data:`VM_DTS`
+      (``compiled_vm``);
+    - every model of ``models`` (compiled rollout) at each of :data:`MODEL_DTS` it accepts; a
+      step size it refuses is listed under ``missing`` with the reason;
+    - ``"CVODES"`` (one integrator call per log interval, CasADi VM) at :data:`CVODES_TOLS`;
+      ``"scipy RK45"``/``"scipy DOP853"`` (``solve_ivp`` per log interval, NumPy right-hand
+      side) at :data:`SCIPY_RUNS`; the emulator (the truth model) once.
+
+    Parameters
+    ----------
+    nominal : Airframe
+        The nominal airframe (its fine-step RK4 is the reference).
+    sortie : Sortie
+        One (test) sortie; its first ``segment_s`` seconds are timed.
+    models : Mapping[str, tuple[casadi.Function, Airframe]]
+        Label (e.g. ``"identified physics"``, ``"corrected"``) -> (step Function, the airframe
+        whose parameters it runs on). A label containing ``"physics"`` is a physics baseline.
+    repeats : int
+        Timed calls per configuration (15 by default; fewer only for tests/quick runs).
+    segment_s : float or None
+        Seconds from the sortie start that are timed and scored; None: the whole sortie.
+    compiled_vm : bool
+        Also time the nominal RK4 rollout in the CasADi VM.
+    progress : callable, optional
+        Called once per timed call (e.g. a tqdm bar's ``update``; the bar's ``total`` is set
+        to the number of timed calls).
+
+    Returns
+    -------
+    dict
+        JSON-able: ``sortie``, ``segment_s`` (the seconds actually timed), ``grid``,
+        ``repeats``, ``harness``, ``points`` (one dict per configuration: ``label``,
+        ``family``, ``setting``, ``dt``, ``tol``, ``compiled``, ``airframe``, ``min_ms``,
+        ``median_ms``, ``theta_rmse_vs_flight``, ``flight_mode``, ``theta_rmse_vs_reference``,
+        ``in_table3``, ``note``), ``flight_mode``, ``missing`` (``family``, ``dt``,
+        ``compiled`` or ``tol``, ``missing``: the reason) and ``ratios``: ``definition``,
+        ``vs_physics_same_dt`` (``model``, ``dt``, ``baseline``, ``median``, ``min``),
+        ``vs_fine_rk4`` (``model``, ``baseline``, ``median``, ``min``) and
+        ``vs_fastest_model`` (``reference``: the fastest model point; ``points``: ``label``,
+        ``median``, ``min`` for every point). Each ratio is ``time(a) / time(b)`` of the
+        medians (``median``) and of the minima (``min``) of this one harness run.
+
+    Raises
+    ------
+    ValueError
+        If ``segment_s`` is not positive, or ``repeats < 1``.
+    """
+    n = _segment(sortie, segment_s)
+    sample_dt = sortie.dt
+    time = sortie.time[:n + 1]
+    truth = target_states(sortie)[:n + 1]
+    controls = sortie.controls[:n + 1]  # row n is never applied (states at t_0..t_n)
+    ctrl = np.ascontiguousarray(controls[:-1])
+    x0 = truth[0]
+    duration = float(time[-1] - time[0])
+    mode = flight_mode(nominal.kind)
+    alt = sortie_altitude(sortie)
+    p_nom = sortie_params(nominal, alt)
+    ref = fine_reference(nominal, time, x0, controls, p_nom)
+    points: list[_Point] = []
+    missing: list[dict] = []
+
+    def add_steps(family: str, step: ca.Function, af: Airframe, dts, compiled: bool,
+                  table_dts) -> None:
+        p = sortie_params(af, alt)
+        nb = truth.shape[1]
+        structure = (structure_of(af) if step.size1_in(0) != nb
+                     and getattr(step, "start_states", None) is None else None)
+        for dt in dts:
+            why = refusal(step, dt, duration)
+            if why is None:
+                try:
+                    EvalGrid(sample_dt, dt)
+                    run = _model_runner(step, x0, ctrl, p, sample_dt, dt, compiled)
+                except (GridError, StepUseError, ValueError) as exc:
+                    why = str(exc)
+            if why is not None:  # reported missing with the reason, never dropped
+                missing.append({"family": family, "dt": dt, "compiled": compiled,
+                                "missing": why})
+                continue
+            flight, vs_ref, note = _step_accuracy(Solver(family, step, dt, structure), time,
+                                                  truth, ref, controls, p, mode)
+            points.append(_Point(f"{family} @ {dt:g} s", family, f"dt {dt:g} s", dt, compiled,
+                                 run, af.name, dt in table_dts, flight=flight,
+                                 reference=vs_ref, note=note))
+
+    rk4 = physics_step(nominal)
+    add_steps(NOMINAL, rk4, nominal, RK4_DTS, True, TABLE3_RK4_DTS)
+    if compiled_vm:
+        add_steps(NOMINAL_VM, rk4, nominal, VM_DTS, False, VM_DTS)
+    for label, (step, af) in models.items():
+        add_steps(label, step, af, MODEL_DTS, True, TABLE3_MODEL_DTS)
+
+    structure = structure_of(nominal)
+    if structure.augmented:  # CVODES and scipy integrate the rigid body on the logged commands
+        why = ("the reference solvers integrate the rigid body on the logged commands; "
+               f"airframe '{nominal.name}' has actuator lags or delays")
+        missing += [{"family": CVODES, "dt": None, "tol": t, "missing": why}
+                    for t in CVODES_TOLS]
+        missing += [{"family": f"scipy {m}", "dt": None, "tol": r, "missing": why}
+                    for m, r in SCIPY_RUNS]
+    else:
+        f = build_model(nominal).f
+        u_dm, p_dm, x_dm = ca.DM(ctrl.T), ca.DM(p_nom), ca.DM(x0)
+        for tol in CVODES_TOLS:
+            cv_step = reference_step(f, tol=tol)
+            cv = rollout(cv_step, n)
+
+            def run_cvodes(cv=cv) -> np.ndarray:
+                return np.asarray(cv(x_dm, u_dm, p_dm, sample_dt))
+
+            flight, vs_ref, note = _step_accuracy(Solver(CVODES, cv_step, sample_dt), time,
+                                                  truth, ref, controls, p_nom, mode)
+            points.append(_Point(f"CVODES (tol {tol:g})", CVODES, f"tol {tol:g}", None, False,
+                                 run_cvodes, nominal.name, tol == TABLE3_CVODES_TOL, tol=tol,
+                                 flight=flight, reference=vs_ref, note=note))
+        rhs = numpy_rhs(structure)
+        for method, rtol in SCIPY_RUNS:
+            sim = _scipy_simulator(rhs, p_nom, sample_dt, method, rtol)
+
+            def run_scipy(sim=sim) -> np.ndarray:
+                return sim(x0, controls)
+
+            flight, vs_ref = _sim_accuracy(sim, time, truth, ref, controls, mode, run_scipy())
+            points.append(_Point(f"scipy {method} (rtol {rtol:g})", f"scipy {method}",
+                                 f"rtol {rtol:g}, atol {rtol * SCIPY_ATOL_FACTOR:g}", None,
+                                 False, run_scipy, nominal.name,
+                                 (method, rtol) in TABLE3_SCIPY, tol=rtol, flight=flight,
+                                 reference=vs_ref))
+    emulator = Emulator(nominal)
+    emu_alt = 100.0 if alt is None else alt  # the emulator's default when no altitude is logged
+
+    def emulate(x: np.ndarray, c: np.ndarray) -> np.ndarray:
+        xe = emulator.initial_state(x, c[0], emu_alt)
+        return emulator.fly(xe, open_loop_references(c)).true_states[:, :len(x)]
+
+    xe0, refs = emulator.initial_state(x0, controls[0], emu_alt), open_loop_references(controls)
+
+    def run_emulator() -> np.ndarray:
+        return emulator.fly(xe0, refs).true_states
+
+    flight, vs_ref = _sim_accuracy(emulate, time, truth, ref, controls, mode,
+                                   run_emulator()[:, :truth.shape[1]])
+    points.append(_Point(f"{EMULATOR} (RK4 @ {EMULATOR_DT:g} s)", EMULATOR,
+                         f"RK4 @ {EMULATOR_DT:g} s + actuators, unsteady aero", EMULATOR_DT,
+                         True, run_emulator, nominal.name, True, flight=flight,
+                         reference=vs_ref, note="times the emulator's own input handling too"))
+
+    _bar_total(progress, len(points) * repeats)
+    timings = interleaved_timing({pt.label: pt.run for pt in points}, repeats,
+                                 progress=progress)
+    rows = [{"label": pt.label, "family": pt.family, "setting": pt.setting, "dt": pt.dt,
+             "tol": pt.tol, "compiled": pt.compiled, "airframe": pt.airframe,
+             "min_ms": timings[pt.label].min_ms, "median_ms": timings[pt.label].median_ms,
+             "theta_rmse_vs_flight": pt.flight, "flight_mode": mode,
+             "theta_rmse_vs_reference": pt.reference, "in_table3": pt.in_table3,
+             "note": pt.note} for pt in points]
+    return {"sortie": sortie.name, "segment_s": duration,
+            "grid": (f"logged commands held over each {sample_dt:g} s log interval (ZOH on the "
+                     "log grid); a step longer than the interval samples the command at its "
+                     "own step start"),
+            "repeats": repeats, "harness": HARNESS.replace("N repeats", f"{repeats} repeats"),
+            "flight_mode": mode, "points": rows, "missing": missing,
+            "ratios": _ratios(points, timings, models)}
+
+
+def _ratios(points: list[_Point], timings: dict[str, Timing], models: Mapping) -> dict:
+    """The timing ratios quoted by the report, each ``{"median": .., "min": ..}`` from the one
+    harness run (``a / b`` of medians and of minima):
+
+    - ``vs_physics_same_dt``: every model point against each physics baseline at the same
+      ``dt`` (the nominal physics, and every model whose label contains ``"physics"``);
+    - ``vs_fine_rk4``: every model that is not a physics baseline against the nominal physics
+      at 0.001 s and 0.0005 s (the paper's comparison);
+    - ``vs_fastest_model``: every point against the model point with the smallest median
+      (named in ``reference``).
+    """
+    by = {(pt.family, pt.dt, pt.compiled): pt for pt in points}
+
+    def pair(a: _Point, b: _Point) -> dict:
+        ta, tb = timings[a.label], timings[b.label]
+        return {"median": ratio(ta, tb, "median"), "min": ratio(ta, tb, "min")}
+
+    physics = [NOMINAL] + [m for m in models if "physics" in m]
+    same, fine = [], []
+    model_points = [pt for pt in points if pt.family in models]
+    for pt in model_points:
+        for base in physics:
+            b = by.get((base, pt.dt, True))
+            if b is not None and b is not pt:
+                same.append({"model": pt.family, "dt": pt.dt, "baseline": b.label,
+                             **pair(pt, b)})
+        if "physics" not in pt.family:
+            for dt in (0.001, 0.0005):
+                b = by.get((NOMINAL, dt, True))
+                if b is not None:
+                    fine.append({"model": pt.label, "baseline": b.label, **pair(pt, b)})
+    out = {"definition": "time(a) / time(b) from the one interleaved run: 'median' of the "
+                         "medians, 'min' of the minima",
+           "vs_physics_same_dt": same, "vs_fine_rk4": fine}
+    if model_points:
+        fastest = min(model_points, key=lambda pt: timings[pt.label].median_s)
+        out["vs_fastest_model"] = {
+            "reference": {"label": fastest.label, "family": fastest.family, "dt": fastest.dt},
+            "points": [{"label": pt.label, **pair(pt, fastest)} for pt in points]}
+    return out
+
+
+# ----------------------------------------------------------------------------- figures
+
+
+def _families(study: dict) -> list[str]:
+    """Families in drawing order: nominal physics, the models, then the reference solvers."""
+    names = list(dict.fromkeys(p["family"] for p in study["points"]))
+    first = [f for f in (NOMINAL, NOMINAL_VM) if f in names]
+    last = [f for f in FAMILY_ORDER[2:] if f in names]
+    return first + [f for f in names if f not in first + last] + last
+
+
+def work_precision_figure(airframe_name: str, study: dict, out_dir: str | Path) -> str:
+    """The work-precision diagram of one :func:`cost_study`: pitch RMSE against median wall
+    time (log-log), one line per family (points ordered by time), two panels (against the
+    flight data; free run against the fine-step reference). The legend lists only families
+    with a drawable point in the figure; points without a finite positive error are counted
+    in a footnote.
+
+    Returns
+    -------
+    str
+        Path of ``work_precision_<airframe_name>.png`` in ``out_dir``.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    markers = "osD^v<>ph*Xd"
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5.2), sharex=True)
+    handles: dict[str, object] = {}
+    dropped = []
+    mode = study.get("flight_mode", "free_run").replace("_", " ")
+    for i, fam in enumerate(_families(study)):
+        pts = sorted((p for p in study["points"] if p["family"] == fam),
+                     key=lambda p: p["median_ms"])
+        style = {"color": f"C{i % 10}", "marker": markers[i % len(markers)], "ms": 5, "lw": 1.2}
+        for ax, key in zip(axes, ("theta_rmse_vs_flight", "theta_rmse_vs_reference")):
+            ok = [p for p in pts if p[key] is not None and math.isfinite(p[key]) and p[key] > 0]
+            dropped += [f"{p['label']} ({'flight' if 'flight' in key else 'reference'})"
+                        for p in pts if p not in ok]
+            if ok:
+                (line,) = ax.loglog([p["median_ms"] for p in ok], [p[key] for p in ok],
+                                    label=fam, **style)
+                handles.setdefault(fam, line)
+    axes[0].set_title(f"{airframe_name}: against the flight data (true states, {mode})",
+                      fontsize=9)
+    axes[1].set_title(f"{airframe_name}: free run against the nominal fine-step reference",
+                      fontsize=9)
+    for ax in axes:
+        ax.set_xlabel(f"median wall time of the {study['segment_s']:g} s segment (ms, "
+                      f"{study['repeats']} interleaved repeats)")
+        ax.set_ylabel("pitch RMSE (rad)")
+        ax.grid(alpha=0.3, which="both")
+    fig.legend(list(handles.values()), list(handles), loc="lower center",
+               bbox_to_anchor=(0.5, 0.025),
+               ncol=min(4, max(1, len(handles))), fontsize=8, frameon=False)
+    notes = "points along a line: step sizes or tolerances of one family, ordered by time"
+    if dropped:
+        notes += f"; not drawn (error zero or not finite): {', '.join(dropped)}"
+    fig.text(0.01, 0.005, notes, fontsize=6, wrap=True)
+    rows = math.ceil(len(handles) / 4)
+    fig.tight_layout(rect=(0, 0.04 + 0.045 * rows, 1, 1))
+    return _save(fig, Path(out_dir) / f"work_precision_{airframe_name}.png")
+
+
+def cost_figure(airframe_name: str, study: dict, out_dir: str | Path) -> str:
+    """Figure 5: Table 3 of one :func:`cost_study` as horizontal bars of the median wall time
+    (log scale) with the minimum as a marker, coloured by kind of solver, with a legend.
+
+    Returns
+    -------
+    str
+        Path of ``fig5_cost_<airframe_name>.png`` in ``out_dir``.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    rows = [p for p in study["points"] if p["in_table3"]]
+    kinds = {"nominal physics (RK4)": "C0", "other physics (RK4)": "C9",
+             "corrected models": "C3", "reference solvers": "C7",
+             "emulator (truth model)": "C2"}
+
+    def kind(p: dict) -> str:
+        if p["family"] in (NOMINAL, NOMINAL_VM):
+            return "nominal physics (RK4)"
+        if p["family"] == EMULATOR:
+            return "emulator (truth model)"
+        if p["family"] == CVODES or p["family"].startswith("scipy"):
+            return "reference solvers"
+        return "other physics (RK4)" if "physics" in p["family"] else "corrected models"
+
+    fig, ax = plt.subplots(figsize=(10, 0.38 * len(rows) + 2.4))
+    y = np.arange(len(rows))
+    labels = [p["label"] + (" in the CasADi VM" if p["family"] == CVODES else "")
+              for p in rows]
+    ax.barh(y, [p["median_ms"] for p in rows], color=[kinds[kind(p)] for p in rows],
+            alpha=0.8)
+    ax.plot([p["min_ms"] for p in rows], y, "k|", ms=12, mew=2)
+    ax.set_yticks(y, labels, fontsize=8)
+    ax.set_xscale("log")
+    ax.invert_yaxis()
+    ax.set_xlabel(f"wall time of the {study['segment_s']:g} s segment of {study['sortie']} (ms)")
+    ax.set_title(f"Fig. 5: cost, {airframe_name} ({study['harness']})", fontsize=9)
+    ax.grid(alpha=0.3, axis="x", which="both")
+    used = dict.fromkeys(kind(p) for p in rows)
+    legend = [Patch(color=kinds[k], alpha=0.8, label=f"{k}: median") for k in used]
+    legend.append(Line2D([], [], color="k", marker="|", ls="", ms=12, mew=2,
+                         label=f"minimum of {study['repeats']}"))
+    ax.legend(handles=legend, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.09),
+              ncol=3, frameon=False)
+    fig.tight_layout()
+    return _save(fig, Path(out_dir) / f"fig5_cost_{airframe_name}.png")
+
+
+def _save(fig, path: Path) -> str:
+    import matplotlib.pyplot as plt
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return str(path)
