@@ -98,8 +98,9 @@ def time_histories(airframe: Airframe, sortie, models: list, out: Path,
 def loss_history(airframe: Airframe, weight_files: dict, out: Path) -> str | None:
     """Figure 4: the correction's training history, like against like: (a) the validation
     1 s pitch RMSE at the end of every epoch against the identified physics' own on the same
-    sorties, (b) the training rollout loss (mean over the epoch's mini-batches, relative to
-    the physics: 1 = no improvement)."""
+    sorties, (b) the rollout loss (relative to the physics: 1 = no improvement) on fixed
+    training and validation windows after every epoch (older histories: the mean over each
+    epoch's mini-batches, training only)."""
     path = weight_files.get("corrected")
     hist_path = Path(path).with_name(Path(path).stem + "_history.json") if path else None
     if hist_path is None or not hist_path.exists():
@@ -108,7 +109,11 @@ def loss_history(airframe: Airframe, weight_files: dict, out: Path) -> str | Non
     val = [(h["epoch"], h["val_theta_rmse"]) for h in hist if h.get("val_theta_rmse")]
     physics = next((h["physics_val_theta_rmse"] for h in hist
                     if h.get("physics_val_theta_rmse")), None)
-    train = [(h["epoch"], h["train_loss"]) for h in hist if h.get("train_loss") is not None]
+    fixed = any("train_loss_fixed" in h for h in hist)
+    key = "train_loss_fixed" if fixed else "train_loss"
+    train = [(h["epoch"], h[key]) for h in hist if h.get(key) is not None]
+    val_loss = [(h["epoch"], h["val_loss_fixed"]) for h in hist
+                if h.get("val_loss_fixed") is not None]
     if not val:
         return None
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4))
@@ -119,10 +124,13 @@ def loss_history(airframe: Airframe, weight_files: dict, out: Path) -> str | Non
     ax.set_title(f"Fig. 4a: {airframe.name}, validation split, end of every epoch",
                  fontsize=9)
     if train:
-        ax2.plot(*zip(*train), "C0o-", label="training rollout loss")
+        ax2.plot(*zip(*train), "C0o-", label="training windows")
+        if val_loss:
+            ax2.plot(*zip(*val_loss), "C3s-", label="validation windows")
         ax2.axhline(1.0, color="C1", ls="--", label="physics (= 1)")
-    ax2.set_ylabel("training loss / physics loss")
-    ax2.set_title("Fig. 4b: training loss, mean over each epoch's mini-batches", fontsize=9)
+    ax2.set_ylabel("rollout loss / physics loss")
+    ax2.set_title("Fig. 4b: rollout loss on fixed windows after each epoch" if fixed else
+                  "Fig. 4b: training loss, mean over each epoch's mini-batches", fontsize=9)
     for a in (ax, ax2):
         a.set_xlabel("epoch")
         a.grid(alpha=0.3)

@@ -168,15 +168,19 @@ def _table1(af: dict) -> list[str]:
 
 
 def _table2(af: dict) -> list[str]:
-    lines = ["| model | training figure (definition) | first | final | validation figure "
-             "(definition) | physics | epoch 0 | best | epochs | best epoch | kept |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| model | training loss (definition) | epoch 0 or first | final | validation "
+             "loss, same definition: epoch 0, best | validation figure (definition) | physics "
+             "| epoch 0 | best | epochs | best epoch | kept |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in af["table2"]:
         if "note" in r:
-            lines.append(f"| {r['model']} ({r['weights']}) | {r['note']} | | | | | | | | | |")
+            lines.append(f"| {r['model']} ({r['weights']}) | {r['note']} | | | | | | | | | | |")
             continue
+        val_loss = (f"{_e(r.get('first_val_loss'))}, {_e(r.get('best_val_loss'))}"
+                    if r.get("val_loss_metric") else "not recorded")
         lines.append(f"| {r['model']} ({r['weights']}) | {r['train_metric']} | "
                      f"{_e(r['first_train_loss'])} | {_e(r['final_train_loss'])} | "
+                     f"{val_loss} | "
                      f"{r['val_metric']} | {_e(r['physics_val'])} | {_e(r['initial_val'])} | "
                      f"{_e(r['best_val'])} | {r['epochs']} | {r['best_epoch']} | "
                      f"{_e(r.get('kept'))} |")

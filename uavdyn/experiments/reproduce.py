@@ -318,17 +318,26 @@ def convergence_table(weight_files: dict) -> list[dict]:
         doc = json.loads(hist_path.read_text())
         hist = doc["history"]
         safe = "val_theta_rmse" in hist[-1]
-        train_key = ("train_loss" if safe else "train_total" if "train_total" in hist[-1]
-                     else "train_one_step")
+        fixed = safe and "train_loss_fixed" in hist[-1]
+        train_key = ("train_loss_fixed" if fixed else "train_loss" if safe
+                     else "train_total" if "train_total" in hist[-1] else "train_one_step")
         val_key = "val_theta_rmse" if safe else "val_total"
         val = [h.get(val_key) for h in hist if h.get(val_key) is not None]
         train = [h.get(train_key) for h in hist if h.get(train_key) is not None]
+        val_loss = [h["val_loss_fixed"] for h in hist if h.get("val_loss_fixed") is not None]
+        fixed_windows = range(doc.get("config", {}).get("eval_windows", 0) or 0)
         physics_val = next((h["physics_val_theta_rmse"] for h in hist
                             if h.get("physics_val_theta_rmse")), None)
         rows.append({
             "model": label, "weights": Path(path).name,
-            "train_metric": ("rollout loss / physics, mean over the epoch's mini-batches" if safe
-                             else f"{train_key} (earlier trainer)"),
+            "train_metric": (f"rollout loss / physics on {len(fixed_windows)} fixed training "
+                             "windows after each epoch" if fixed else
+                             "rollout loss / physics, mean over the epoch's mini-batches"
+                             if safe else f"{train_key} (earlier trainer)"),
+            "val_loss_metric": (f"the same loss on {len(fixed_windows)} fixed validation "
+                                "windows" if fixed else None),
+            "first_val_loss": val_loss[0] if val_loss else None,
+            "best_val_loss": min(val_loss) if val_loss else None,
             "val_metric": ("1 s pitch RMSE (rad), whole validation split, end of epoch"
                            if safe else f"{val_key} (earlier trainer)"),
             "physics_val": physics_val,

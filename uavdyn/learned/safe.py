@@ -61,6 +61,8 @@ class SafeConfig:
     selection_horizon_s: float = 1.0  # validation metric: pitch RMSE over this horizon
     batch_windows: int = 24
     batches_per_epoch: int = 6
+    eval_windows: int = 128           # fixed train and validation windows scored after every
+                                      # epoch with the same loss (Table 2, Fig. 4)
     epochs: int = 25
     lr: float = 3e-3
     lr_final: float = 3e-4
@@ -227,9 +229,24 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     # the physics' error on that window (a calm window weighs as much as a gusty one, so the
     # correction may not buy turbulent accuracy with calm-air errors), and pooled (the windows
     # where the physics is worst count by their size, as in the pooled RMSE users quote).
-    per_window = np.mean(np.mean((err_p / state_scale) ** 2, axis=2) / growth, axis=1)
-    per_window = np.maximum(per_window, 0.05 * np.median(per_window))
-    T["weight"] = _t(1.0 / per_window)
+    def window_weights(err: np.ndarray) -> torch.Tensor:
+        per_window = np.mean(np.mean((err / state_scale) ** 2, axis=2) / growth, axis=1)
+        return _t(1.0 / np.maximum(per_window, 0.05 * np.median(per_window)))
+
+    T["weight"] = window_weights(err_p)
+    V["weight"] = window_weights(va.physics - va.y)
+    # the same windows after every epoch: one definition for the training and validation
+    # loss columns of Table 2 (the running mini-batch mean mixes changing weights)
+    pick = np.random.default_rng([cfg.seed, 1])  # not the batches' generator
+    fixed = {name: torch.as_tensor(np.sort(pick.choice(len(D["z0"]), min(cfg.eval_windows,
+                                                                          len(D["z0"])),
+                                                       replace=False)))
+             for name, D in (("train", T), ("val", V))}
+
+    def fixed_losses() -> dict:
+        with torch.no_grad():
+            return {"train_loss_fixed": float(loss_of(T, fixed["train"])),
+                    "val_loss_fixed": float(loss_of(V, fixed["val"]))}
 
     def loss_of(D, idx=None) -> torch.Tensor:
         sel = (lambda a: a) if idx is None else (lambda a: a[idx])
@@ -273,7 +290,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     gamma = (cfg.lr_final / cfg.lr) ** (1.0 / max(1, cfg.epochs))
     sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma)
     sel0 = selection(V)
-    history = [{"epoch": 0, **sel0, "physics_val_theta_rmse": physics_val,
+    history = [{"epoch": 0, **sel0, **fixed_losses(), "physics_val_theta_rmse": physics_val,
                 "seconds": time.perf_counter() - start}]
     best = ((True, math.inf), 0, {k: v.clone() for k, v in model.state_dict().items()}, sel0)
     bar = tqdm(range(1, cfg.epochs + 1), desc=f"train {airframe.name} (safe)", unit="epoch",
@@ -292,8 +309,10 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
             sum_l, sum_s = sum_l + loss.item(), sum_s + float(pen.detach())
         sched.step()
         sel = selection(V)
+        fixed_now = fixed_losses()
         elapsed = time.perf_counter() - start
         history.append({"epoch": epoch, "train_loss": sum_l / cfg.batches_per_epoch,
+                        **fixed_now,
                         "stability_penalty": sum_s / cfg.batches_per_epoch, **sel,
                         "physics_val_theta_rmse": physics_val,
                         "lr": sched.get_last_lr()[0], "seconds": elapsed})
