@@ -6,9 +6,17 @@ import math
 import casadi as ca
 import numpy as np
 import pytest
+from scipy.integrate import quad
 
 from uavdyn.emulation import Emulator, dryden_gusts, open_loop_references, plan_mission
-from uavdyn.emulation.emulator import TRUTH_DEFAULTS, soft_clip
+from uavdyn.emulation.emulator import (
+    TRUTH_DEFAULTS,
+    emulator_rhs,
+    gust_span,
+    soft_clip,
+    wind_in_body,
+)
+from uavdyn.flightdata import check_values
 from uavdyn.integrate import rk4_step, simulate
 from uavdyn.integrate.inputs import control_sequence, doublet, multistep_3211
 from uavdyn.model import build_model
@@ -104,9 +112,13 @@ def test_turbulence_enters_and_is_seeded(aerosonde, aerosonde_trim):
     calm = em.fly(x0, ref, noise_scale=0.0)
     gusty = em.fly(x0, ref, g1, noise_scale=0.0)
     assert np.ptp(gusty.true_states[:, 3]) > 10 * max(np.ptp(calm.true_states[:, 3]), 1e-9)
-    # the gust moves the air-relative alpha, not (directly) the inertial w
-    alpha_inertial = np.arctan2(gusty.true_states[:, 1], gusty.true_states[:, 0])
+    # the gust moves the air-relative alpha, not (directly) the inertial w; the log holds the
+    # air-relative velocity, so its alpha is the wing's
+    inertial = gusty.aux["emulator_states"]
+    alpha_inertial = np.arctan2(inertial[:, 1], inertial[:, 0])
     assert np.max(np.abs(gusty.alpha_air - alpha_inertial)) > 0.01
+    alpha_logged = np.arctan2(gusty.true_states[:, 1], gusty.true_states[:, 0])
+    np.testing.assert_allclose(alpha_logged, gusty.alpha_air, rtol=0, atol=1e-12)
 
 
 def test_dryden_statistics():
@@ -165,3 +177,178 @@ def test_emulator_rejects_bad_settings(aerosonde):
         Emulator(aerosonde, truth={"tau_motor_up": 0.1})
     with pytest.raises(ValueError, match="references must be"):
         Emulator(aerosonde).fly(np.zeros(10), np.zeros((5, 3)))
+
+
+# ----------------------------------------------------------------------------- wind and gusts
+
+
+def test_wind_rotates_into_body_axes_with_pitch():
+    """Inertial wind [W_x, W_z] (x forward, z down) in body axes: u = cos W_x - sin W_z,
+    w = sin W_x + cos W_z; nose straight up (90 deg), a head wind appears entirely in w."""
+    head = -6.0
+    u_w, w_w = wind_in_body(0.0, head, 0.0, np)
+    assert (u_w, w_w) == (head, 0.0)
+    u_w, w_w = wind_in_body(math.pi / 2, head, 0.0, np)
+    assert abs(u_w) < 1e-15 and w_w == pytest.approx(head, abs=1e-15)
+    theta, wx, wz = 0.3, -4.0, 1.5
+    u_w, w_w = wind_in_body(theta, wx, wz, np)
+    assert u_w == pytest.approx(math.cos(theta) * wx - math.sin(theta) * wz, abs=1e-15)
+    assert w_w == pytest.approx(math.sin(theta) * wx + math.cos(theta) * wz, abs=1e-15)
+    assert math.hypot(u_w, w_w) == pytest.approx(math.hypot(wx, wz), abs=1e-14)
+
+
+@pytest.mark.parametrize("kind", ["fixed_wing", "multirotor"])
+def test_dynamics_see_the_wind_rotated_with_the_current_pitch(kind, aerosonde, f450):
+    """At any state, the emulator's dynamics with an inertial wind equal the dynamics with a
+    body-axis gust of exactly the rotated wind at that state's pitch (theta up to 90 deg)."""
+    af = aerosonde if kind == "fixed_wing" else f450
+    f_wind, f_gust = emulator_rhs(kind, with_wind=True), emulator_rhs(kind)
+    em = Emulator(af)
+    rng = np.random.default_rng(2)
+    cmd = np.array([0.0, 0.6]) if kind == "fixed_wing" else np.array([0.55, 0.0])
+    for theta in (0.0, 0.4, -0.3, math.pi / 2):
+        x = em.initial_state(np.array([22.0, 1.0, 0.05, theta]) if kind == "fixed_wing"
+                             else np.array([2.0, 0.3, 0.05, theta]), cmd, 100.0)
+        wind = rng.normal(size=2) * 4
+        u_w, w_w = wind_in_body(theta, wind[0], wind[1], np)
+        a = np.asarray(f_wind(x, np.r_[cmd, 0.0, 0.0, 0.0, wind], em.pe)).ravel()
+        b = np.asarray(f_gust(x, np.r_[cmd, u_w, w_w, 0.0], em.pe)).ravel()
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+        calm = np.asarray(f_gust(x, np.r_[cmd, 0.0, 0.0, 0.0], em.pe)).ravel()
+        assert np.max(np.abs(a - calm)) > 1e-3  # the wind does act
+
+
+def test_calm_flight_is_unchanged_by_the_wind_input(aerosonde, aerosonde_trim):
+    """No wind and no gust: the logged (air-relative) states are the inertial ones bit for bit,
+    and a zero wind is the same flight as no wind."""
+    em = Emulator(aerosonde)
+    plan = plan_mission("sysid_3211", aerosonde, 10.0, 100.0, np.random.default_rng(1))
+    x0 = em.initial_state(plan.x0, plan.u0, plan.altitude)
+    a = em.fly(x0, plan.references, noise_scale=0.0)
+    b = em.fly(x0, plan.references, noise_scale=0.0, wind=[0.0, 0.0])
+    np.testing.assert_array_equal(a.true_states, a.aux["emulator_states"][:, :4])
+    np.testing.assert_array_equal(a.true_states, b.true_states)
+    np.testing.assert_array_equal(a.controls, b.controls)
+    with pytest.raises(ValueError, match="wind must be"):
+        em.fly(x0, plan.references, wind=np.zeros((3, 2)))
+
+
+@pytest.mark.parametrize("head_wind", [6.0, -4.0])  # head wind, tail wind
+def test_logged_velocity_is_air_relative_in_steady_wind(aerosonde, aerosonde_trim, head_wind):
+    """A trim point flown in a steady horizontal wind, started in equilibrium with the air
+    mass: the logged airspeed sqrt(u^2 + w^2) and pitch stay at trim while the ground speed
+    (inertial) differs from the airspeed by the wind."""
+    em = Emulator(aerosonde)
+    wind = np.array([-head_wind, 0.0])
+    x0 = em.initial_state(aerosonde_trim.x, aerosonde_trim.u, 150.0, wind=wind)
+    ref = open_loop_references(np.tile(aerosonde_trim.u, (1001, 1)))
+    fl = em.fly(x0, ref, noise_scale=0.0, wind=wind)
+    v_trim = math.hypot(aerosonde_trim.x[0], aerosonde_trim.x[1])
+    airspeed = np.hypot(fl.true_states[:, 0], fl.true_states[:, 1])
+    np.testing.assert_allclose(airspeed, v_trim, atol=1e-6)
+    np.testing.assert_allclose(fl.true_states, np.tile(aerosonde_trim.x, (1001, 1)), atol=1e-6)
+    inertial = fl.aux["emulator_states"]
+    theta = inertial[:, 3]
+    ground_speed = inertial[:, 0] * np.cos(theta) + inertial[:, 1] * np.sin(theta)
+    air_speed_x = fl.true_states[:, 0] * np.cos(theta) + fl.true_states[:, 1] * np.sin(theta)
+    np.testing.assert_allclose(ground_speed - air_speed_x, -head_wind, atol=1e-9)
+    assert np.ptp(fl.aux["h"]) < 1e-4  # level: a horizontal wind does not make it climb
+    np.testing.assert_allclose(fl.aux["V_air"], airspeed, atol=1e-12)
+    # The same start without telling the emulator the wind is not an equilibrium in that wind
+    drift = em.fly(em.initial_state(aerosonde_trim.x, aerosonde_trim.u, 150.0), ref,
+                   noise_scale=0.0, wind=wind)
+    assert abs(np.hypot(*drift.true_states[0, :2]) - v_trim) > 0.9 * abs(head_wind)
+
+
+@pytest.mark.parametrize("airframe_name", ["aerosonde", "f450"])
+def test_turbulent_windy_sortie_log_is_consistent(airframe_name, request):
+    """A mission in a 6 m/s head wind with Dryden turbulence: the log passes the loader's
+    checks (d theta/dt ~ q included, q and theta being inertial) and its u, w are the
+    inertial velocities minus the pitch-rotated wind minus the gust."""
+    af = request.getfixturevalue(airframe_name)
+    rng = np.random.default_rng(4)
+    plan = plan_mission("sysid_doublet", af, 20.0, 100.0, rng)
+    n = plan.references.shape[0]
+    gusts = dryden_gusts(rng, n, 0.01, 25.0 if af.kind == "fixed_wing" else 6.0, 1.5,
+                         gust_span(af))
+    wind = np.array([-6.0, 0.0])
+    em = Emulator(af)
+    fl = em.fly(em.initial_state(plan.x0, plan.u0, plan.altitude, wind=wind), plan.references,
+                gusts, rng, wind=wind)
+    check_values(f"{airframe_name} windy", af.kind, fl.time, fl.measured_states, fl.controls,
+                 100.0)
+    check_values(f"{airframe_name} windy true", af.kind, fl.time, fl.true_states,
+                 fl.controls, 100.0)
+    X = fl.aux["emulator_states"]
+    u_w, w_w = wind_in_body(X[:, 3], wind[0], wind[1], np)
+    np.testing.assert_allclose(fl.true_states[:, 0], X[:, 0] - u_w - gusts[:, 0], atol=1e-12)
+    np.testing.assert_allclose(fl.true_states[:, 1], X[:, 1] - w_w - gusts[:, 1], atol=1e-12)
+    np.testing.assert_array_equal(fl.true_states[:, 2:], X[:, 2:4])
+    np.testing.assert_array_equal(fl.wind, np.tile(wind, (n, 1)))
+
+
+def _dryden_q_variance(airspeed, intensity, span, sigma_w=0.7, L_w=50.0):
+    """Variance of the MIL-F-8785C pitch-rate gust, integral of its PSD (white noise of
+    two-sided PSD pi: var = int_0^inf |H_q(i omega)|^2 d omega), H_q = (s/V)/(1 + 4b s/(pi V))
+    H_w, written here from the transfer functions (not from the code's state space)."""
+    V = airspeed
+    k2 = (sigma_w * intensity) ** 2 * 3 * V / (math.pi * L_w)
+    a, T = V / L_w, 4 * span / (math.pi * V)
+
+    def psd(w):
+        return (w / V) ** 2 / (1 + (T * w) ** 2) * k2 * (w**2 + a**2 / 3) / (w**2 + a**2) ** 2
+
+    return quad(psd, 0.0, np.inf, limit=500)[0]
+
+
+def test_dryden_pitch_rate_gust_has_the_analytic_variance_and_uses_the_span():
+    """200,000 samples (2,000 s at 0.01 s) of q_g for the Aerosonde span and a 0.45 m span:
+    each sample variance is within 4 batch-means standard errors (20 batches) and 3 % of the
+    analytic variance; the larger span filters more (lower variance); u_g, w_g do not depend
+    on the span (same seed, same values)."""
+    V, intensity = 25.0, 1.5
+    out = {}
+    for span in (2.8956, 0.45):
+        g = dryden_gusts(np.random.default_rng(4), 200_000, 0.01, V, intensity, span)
+        analytic = _dryden_q_variance(V, intensity, span)
+        sample = float(g[:, 2].var())
+        se = float(g[:, 2].reshape(20, -1).var(axis=1).std(ddof=1) / math.sqrt(20))
+        print(f"\nspan {span} m: q_g variance sample {sample:.5g}, analytic {analytic:.5g} "
+              f"(rad/s)^2, standard error {se:.2g}")
+        assert abs(sample - analytic) < 4 * se
+        assert abs(sample / analytic - 1) < 0.03
+        out[span] = (g, analytic)
+    assert out[2.8956][1] < 0.5 * out[0.45][1]
+    np.testing.assert_allclose(out[2.8956][0][:, :2], out[0.45][0][:, :2], rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="wingspan"):
+        dryden_gusts(np.random.default_rng(1), 10, 0.01, 25.0, 1.0, wingspan=0.0)
+
+
+def test_gust_span_comes_from_the_airframe(aerosonde, f450):
+    assert gust_span(aerosonde) == pytest.approx(2.8956)
+    assert gust_span(f450) == pytest.approx(2 * 0.225 * math.cos(math.pi / 4) + 0.254)
+
+
+@pytest.mark.parametrize("airframe_name", ["aerosonde", "f450"])
+def test_turbulent_datagen_sortie_flies_in_an_inertial_head_wind(airframe_name, request):
+    """The dataset generator's turbulent sortie: an inertial head wind (W_x < 0, W_z = 0), the
+    span of the airframe in the gusts, a fixed wing started trimmed in the moving air (logged
+    airspeed at t = 0 is the plan's trim airspeed), and a log of air-relative u, w."""
+    from uavdyn.emulation.datagen import Recipe, _fly_one
+
+    af = request.getfixturevalue(airframe_name)
+    recipe = Recipe(airframe=airframe_name, duration_s=10.0, mean_wind_mps=(4.0, 6.0))
+    item = {"index": 3, "mission": "sysid_doublet", "condition": "turbulent", "split": "test"}
+    flight, plan, intensity, wind, _ = _fly_one(recipe, af, Emulator(af), item, 0)
+    assert wind[0] <= -4.0 and wind[1] == 0.0 and intensity > 0
+    np.testing.assert_array_equal(flight.wind, np.tile(wind, (len(flight.time), 1)))
+    X = flight.aux["emulator_states"]
+    u_w, w_w = wind_in_body(X[:, 3], wind[0], wind[1], np)
+    np.testing.assert_allclose(flight.true_states[:, 0], X[:, 0] - u_w - flight.gusts[:, 0],
+                               atol=1e-12)
+    if af.kind == "fixed_wing":
+        v0 = math.hypot(plan.x0[0], plan.x0[1])
+        airspeed0 = math.hypot(*(flight.true_states[0, :2] + flight.gusts[0, :2]))
+        assert airspeed0 == pytest.approx(v0, abs=1e-9)
+    else:  # the multirotor starts at rest over the ground, so the wind blows through it
+        np.testing.assert_allclose(X[0, :2], plan.x0[:2], atol=1e-12)

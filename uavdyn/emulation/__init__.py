@@ -2,9 +2,17 @@
 seeded dataset generator."""
 
 from uavdyn.emulation.datagen import Recipe, generate_dataset, shipped_recipe
-from uavdyn.emulation.emulator import REFERENCE_NAMES, Emulator, dryden_gusts, open_loop_references
+from uavdyn.emulation.emulator import (
+    REFERENCE_NAMES,
+    WIND_NAMES,
+    Emulator,
+    dryden_gusts,
+    gust_span,
+    open_loop_references,
+    wind_in_body,
+)
 from uavdyn.emulation.missions import MISSIONS, MissionError, missions_for, plan_mission
 
-__all__ = ["Recipe", "generate_dataset", "shipped_recipe", "REFERENCE_NAMES", "Emulator",
-           "dryden_gusts", "open_loop_references", "MISSIONS", "MissionError", "missions_for",
-           "plan_mission"]
+__all__ = ["Recipe", "generate_dataset", "shipped_recipe", "REFERENCE_NAMES", "WIND_NAMES",
+           "Emulator", "dryden_gusts", "gust_span", "wind_in_body", "open_loop_references",
+           "MISSIONS", "MissionError", "missions_for", "plan_mission"]

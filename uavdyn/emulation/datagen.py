@@ -2,6 +2,13 @@
 turbulence, noise, split) in, a SPEC section 3 dataset folder out (manifest.json, one measured
 CSV and one noise-free ``*_true.csv`` per sortie).
 
+What the CSVs hold: ``u, w`` are air-relative body velocities (what the aerodynamics see:
+inertial minus mean wind minus gust), ``q, theta`` inertial (gyro, attitude); SPEC section 3.
+Turbulent sorties fly in a mean head wind, an inertial vector rotated into body axes with the
+current pitch inside the emulator, plus Dryden turbulence in body axes (pitch-rate gust with
+the airframe's span, :func:`uavdyn.emulation.emulator.gust_span`). The wind is not a CSV
+column; each sortie's manifest entry records it (``wind_inertial_mps``, ``[W_x, W_z]``).
+
 Every sortie draws from its own generator seeded by ``(seed, sortie index)``, so the files do not
 depend on the number of worker processes or their scheduling: the same recipe gives
 byte-identical files on the same platform (compiler and libm).
@@ -22,7 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from uavdyn.airframes import Airframe, load_airframe
-from uavdyn.emulation.emulator import Emulator, dryden_gusts, emulator_rollout
+from uavdyn.emulation.emulator import Emulator, dryden_gusts, emulator_rollout, gust_span
 from uavdyn.emulation.missions import missions_for, plan_mission
 from uavdyn.flightdata import (
     FlightDataError,
@@ -50,7 +57,7 @@ class Recipe:
     missions: list[str] = field(default_factory=list)  # empty: all missions of the kind
     turbulent_fraction: float = 0.5
     turbulence_intensity: tuple[float, float] = (0.5, 2.0)  # x light turbulence, uniform
-    mean_wind_mps: tuple[float, float] = (0.0, 6.0)         # head wind in turbulent sorties
+    mean_wind_mps: tuple[float, float] = (0.0, 6.0)  # inertial head wind, turbulent sorties
     noise_scale: float = 1.0
     split: dict[str, float] = field(
         default_factory=lambda: {"train": 0.7, "validation": 0.15, "test": 0.15})
@@ -158,23 +165,33 @@ def _fly_one(recipe: Recipe, airframe: Airframe, emulator: Emulator, item: dict,
     plan = plan_mission(item["mission"], airframe, recipe.duration_s, recipe.sample_rate_hz, rng)
     n = plan.references.shape[0]
     intensity = wind = 0.0
-    gusts = None
+    gusts = wind_vector = None
+    x0 = emulator.initial_state(plan.x0, plan.u0, plan.altitude)
     if item["condition"] == "turbulent":
         intensity = float(rng.uniform(*recipe.turbulence_intensity))
         wind = float(rng.uniform(*recipe.mean_wind_mps))
-        speed = float(np.abs(plan.references[:, 3]).mean())
-        convection = max(speed + wind, 5.0)  # frozen turbulence swept past at this speed
-        span = 2.9 if airframe.kind == "fixed_wing" else 0.45
-        gusts = dryden_gusts(rng, n, 1.0 / recipe.sample_rate_hz, convection, intensity, span)
-        gusts[:, 0] -= wind  # head wind: air moves towards -x
-    x0 = emulator.initial_state(plan.x0, plan.u0, plan.altitude)
-    flight = emulator.fly(x0, plan.references, gusts, rng, recipe.noise_scale)
+        wind_vector = np.array([-wind, 0.0])  # inertial head wind: the air moves towards -x
+        speed_ref = plan.references[:, 3]
+        # Frozen turbulence is carried by the mean wind, so the vehicle meets it at its
+        # airspeed: the fixed wing's speed reference is an airspeed (pitot loop), the
+        # multirotor's a ground speed (airspeed = ground speed + head wind).
+        airspeed = np.abs(speed_ref) if airframe.kind == "fixed_wing" else \
+            np.abs(speed_ref + wind)
+        convection = max(float(airspeed.mean()), 5.0)
+        gusts = dryden_gusts(rng, n, 1.0 / recipe.sample_rate_hz, convection, intensity,
+                             gust_span(airframe))
+        if airframe.kind == "fixed_wing":
+            # The plan's trim state is air-relative: start in equilibrium with the air mass
+            # (the multirotor's plan holds position over the ground and starts there).
+            x0 = emulator.initial_state(plan.x0, plan.u0, plan.altitude, wind=wind_vector)
+    flight = emulator.fly(x0, plan.references, gusts, rng, recipe.noise_scale,
+                          wind=wind_vector)
     if not (np.all(np.isfinite(flight.true_states)) and np.all(np.isfinite(flight.controls))):
         raise RuntimeError(f"sortie {i} ({item['mission']}) produced non-finite values")
     for states in (flight.true_states, flight.measured_states):
         check_values(f"sortie {i} ({item['mission']}, draw {attempt})", airframe.kind,
                      flight.time, states, flight.controls, recipe.sample_rate_hz)
-    return flight, plan, intensity, wind, seed
+    return flight, plan, intensity, wind_vector, seed
 
 
 def _generate_one(args: tuple[dict, dict, str]) -> dict:
@@ -189,6 +206,7 @@ def _generate_one(args: tuple[dict, dict, str]) -> dict:
         try:
             flight, plan, intensity, wind, seed = _fly_one(recipe, airframe, emulator, item,
                                                            attempt)
+            wind = np.zeros(2) if wind is None else wind
             break
         except FlightDataError as exc:  # e.g. a gust turned a zoom climb into a loop
             last_error = exc
@@ -206,7 +224,9 @@ def _generate_one(args: tuple[dict, dict, str]) -> dict:
         "file": f"{name}.csv", "true_file": f"{name}_true.csv", "mission": item["mission"],
         "duration_s": float(flight.time[-1] - flight.time[0]), "rows": int(len(flight.time)),
         "split": item["split"], "condition": item["condition"],
-        "turbulence_intensity": round(intensity, 6), "mean_wind_mps": round(wind, 6),
+        "turbulence_intensity": round(intensity, 6),
+        "mean_wind_mps": round(float(np.hypot(*wind)), 6),
+        "wind_inertial_mps": [round(float(v), 6) + 0.0 for v in wind],
         "seed": seed, "draws": attempt + 1, "max_alpha_air_deg": round(float(np.degrees(
             np.max(flight.alpha_air))), 3) if airframe.kind == "fixed_wing" else None,
         "mission_params": plan.params,
@@ -266,6 +286,10 @@ def _generate_into(recipe: Recipe, airframe: Airframe, out: Path, workers: int |
         sorties=entries, columns=list(csv_columns(airframe.kind)), splits=splits,
         true_states="each sortie's true_file holds the noise-free states, same header",
         controls="commanded inputs, held over each log interval (zero-order hold)",
+        velocities="u, w are air-relative body velocities (inertial minus mean wind minus "
+                   "gust); q, theta are inertial. Each sortie's wind_inertial_mps is the mean "
+                   "wind [W_x, W_z] in the inertial frame (x forward, z down; W_x < 0 is a "
+                   "head wind), rotated into body axes with the pitch angle in the emulator",
         emulator={"internal_dt_s": emulator.internal_dt, "truth_params": emulator.truth,
                   "sensor_noise_std": asdict(emulator.noise.scaled(recipe.noise_scale))},
         recipe=recipe_dict,

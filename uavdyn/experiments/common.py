@@ -6,7 +6,6 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from uavdyn.airframes import Airframe
 from uavdyn.evaluation import step_states
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import (
@@ -17,12 +16,10 @@ from uavdyn.integrate import (
     rollout,
     takes_time,
 )
-from uavdyn.learned import hybrid_step
 
 FORMULATIONS = ("improved", "paper")
-TARGETS = ("data", "reference")
-NOMINAL_PHYSICS = "RK4 nominal physics"
-IDENTIFIED_PHYSICS = "RK4 identified physics"
+NOMINAL_PHYSICS = "nominal physics"
+IDENTIFIED_PHYSICS = "identified physics"
 # What the pipeline identifies before it learns (aerodynamic/propulsive terms, not geometry);
 # the same lists as analysis/bench_identify.py measures.
 IDENTIFY_PARAMS = {
@@ -38,14 +35,6 @@ def target_states(sortie: Sortie) -> np.ndarray:
 
 def condition(sortie: Sortie) -> str:
     return str(sortie.meta.get("condition", "") or "unknown")
-
-
-def hybrid_steps(airframe: Airframe, nets: dict, target: str = "data", suffix: str = "") -> dict:
-    """``{"hybrid <formulation><suffix>": step}`` for every formulation with weights for
-    ``target`` (uncompiled SX steps: exact derivatives, compiled where a rollout is timed)."""
-
-    return {f"hybrid {f}{suffix}": hybrid_step(nets[(f, target)], airframe, compile=False)
-            for f in FORMULATIONS if nets.get((f, target)) is not None}
 
 
 def identification_sorties(sorties: list[Sortie], minimum: int = 3) -> tuple[list[Sortie], str]:

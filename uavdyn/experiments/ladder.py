@@ -25,13 +25,18 @@ from uavdyn.evaluation import (
     pooled_with_interval,
     squared_error,
 )
-from uavdyn.experiments.common import condition, target_states
+from uavdyn.experiments.common import (
+    IDENTIFIED_PHYSICS,
+    NOMINAL_PHYSICS,
+    condition,
+    target_states,
+)
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import physics_step
 from uavdyn.learned import hybrid_step, load_weights
 from uavdyn.model import sortie_params, structure_of
 
-LADDER = ("nominal physics", "identified physics", "corrected")
+LADDER = (NOMINAL_PHYSICS, IDENTIFIED_PHYSICS, "corrected")
 CONDITIONS = ("calm", "turbulent")
 HEADLINE_MODES = {"horizon_1s": "1 s", "free_run": "free run"}
 HORIZONS_S = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)

@@ -20,7 +20,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import AirframeError
-from uavdyn.emulation import dryden_gusts
+from uavdyn.emulation import dryden_gusts, gust_span
 from uavdyn.learned.hybrid import layout_states
 from uavdyn.linear import TrimError, point_params, trim, trim_state
 from uavdyn.montecarlo.batch import N_GUST, SIGNALS, STAT_NAMES, batch_function, run_function
@@ -176,7 +176,7 @@ def evaluate_chunk(spec: StudySpec, index: int, threads: int = 1) -> ChunkResult
             m = spec.gust_stride
             gusts = dryden_gusts(rng, -(-spec.n_steps // m), m * spec.dt,
                                  max(speed, GUST_SPEED_FLOOR), draw.gust_intensity,
-                                 **spec.dispersions.gust_scales)
+                                 wingspan=gust_span(airframe), **spec.dispersions.gust_scales)
             G[:, j * spec.n_steps:(j + 1) * spec.n_steps] = np.repeat(gusts, m, 0)[
                 :spec.n_steps].T
     batch = compiled_batch(spec, n, threads)
