@@ -102,8 +102,14 @@ def run_airframe(name: str, args) -> dict:
     t_ident = time.perf_counter() - t0
     cfg = SafeConfig(epochs=args.epochs, progress=not args.quiet, max_seconds=args.max_seconds)
     t0 = time.perf_counter()
-    if args.reuse and saved.exists():  # the weights of an earlier run on the same data
-        doc = json.loads(saved.with_name(saved.stem + "_history.json").read_text())
+    history = saved.with_name(saved.stem + "_history.json")
+    if args.reuse and not saved.exists() and history.exists():  # a run that kept nothing
+        doc = json.loads(history.read_text())
+        result = SafeResult(None, False, doc["reason"], doc["history"], cfg, doc["best_epoch"],
+                            doc["seconds"], doc["validation"])
+        stability = doc.get("stability")
+    elif args.reuse and saved.exists():  # the weights of an earlier run on the same data
+        doc = json.loads(history.read_text())
         net = load_weights(saved, fitted)
         result = SafeResult(net, True, doc["reason"], doc["history"], cfg, doc["best_epoch"],
                             doc["seconds"], doc["validation"])
@@ -118,7 +124,7 @@ def run_airframe(name: str, args) -> dict:
                  "kept": result.kept, "reason": result.reason,
                  "validation": result.validation,
                  "stability": stability}
-    if args.weights_dir and not (args.reuse and saved.exists()):
+    if args.weights_dir and not args.reuse:  # --reuse reads the folder, never writes it
         folder = Path(args.weights_dir)
         folder.mkdir(parents=True, exist_ok=True)
         (folder / f"{nominal.name}_identified.toml").write_text(airframe_toml(

@@ -28,6 +28,7 @@ from uavdyn.experiments.reproduce import (
     identify_physics,
     obtain_weights,
 )
+from uavdyn.integrate import cache_dir
 
 PRESETS = {"fixed_wing": "aerosonde", "quadrotor": "f450"}
 
@@ -59,7 +60,15 @@ def ship(out: Path, kinds: list[str], progress: bool = True, quick: bool = False
             if src.exists():
                 shutil.copyfile(src, dst)
                 written.append(dst)
+        _drop_machine_paths(out / f"{nominal.name}_identified.toml")
     return written
+
+
+def _drop_machine_paths(path: Path) -> None:
+    """The shipped airframe file names its dataset by cache key, not by this machine's path."""
+    if path.exists():
+        text = path.read_text().replace(str(cache_dir()).rstrip("/") + "/", "<uavdyn cache>/")
+        path.write_text(text)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -53,8 +53,8 @@ class Rung:
 
 
 def ladder_rungs(nominal: Airframe, identified: Airframe | None,
-                 correction: str | Path | None, dt: float | None = None
-                 ) -> tuple[list[Rung], dict[str, str]]:
+                 correction: str | Path | None, dt: float | None = None,
+                 why_no_correction: str | None = None) -> tuple[list[Rung], dict[str, str]]:
     """The three models at one step size (the correction's trained step; ``dt`` when there is
     no correction), and why any rung is missing.
 
@@ -73,7 +73,8 @@ def ladder_rungs(nominal: Airframe, identified: Airframe | None,
         net = load_weights(correction, identified)
         dt = net.dt
     elif correction is None:
-        missing["corrected"] = "no correction (none shipped, or training did not keep one)"
+        missing["corrected"] = why_no_correction or "no correction (none shipped, or " \
+                                                    "training did not keep one)"
     else:
         missing["corrected"] = "no identified physics for the correction to run on"
     dt = float(dt if dt is not None else 0.01)

@@ -52,8 +52,10 @@ from uavdyn.learned import (
     WeightFileError,
     hybrid_step,
     load_weights,
+    not_kept_reason,
     save_weights,
     shipped_correction,
+    shipped_identified,
     shipped_weights,
 )
 from uavdyn.model import sortie_params, structure_of
@@ -456,14 +458,20 @@ def correction_inputs(airframe: Airframe, ds: Dataset, config: ReproduceConfig, 
                                         "training kept no correction (see the history)")
         return identified, path, identification
     try:
-        path, identified = shipped_correction(airframe.name)
+        identified = shipped_identified(airframe.name)
     except WeightFileError as exc:
         return None, None, {"missing": str(exc)}
+    try:
+        path, _ = shipped_correction(airframe.name)
+    except WeightFileError:
+        path = None
     names = list(IDENTIFY_PARAMS[airframe.kind])
     return identified, path, {
         "source": "shipped with the package (python -m training.ship_safe on this dataset "
                   "recipe: identified on the calm train sorties, correction trained on top)",
-        "file": str(identified.origin), "params": names, "correction": str(path),
+        "file": str(identified.origin), "params": names,
+        "correction": str(path) if path else (
+            f"none shipped: {not_kept_reason(airframe.name) or 'no weights'}"),
         "estimates": [{"name": n, "nominal": getattr(airframe.params, n),
                        "value": getattr(identified.params, n)} for n in names]}
 
@@ -532,7 +540,8 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
     ds = dataset_for(name, config)
     test = ds.test
     identified, correction, identification = correction_inputs(airframe, ds, config, log)
-    rungs, ladder_missing = ladder_rungs(airframe, identified, correction)
+    rungs, ladder_missing = ladder_rungs(airframe, identified, correction,
+                                         why_no_correction=identification.get("correction"))
     bar = _bar(config, len(test) * len(rungs), f"[{airframe.name}] ladder per sortie")
     predictions: dict = {}
     rows = per_sortie_rows(rungs, test, progress=bar.update, keep=predictions)

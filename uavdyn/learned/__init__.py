@@ -8,8 +8,10 @@ from uavdyn.learned.hybrid import (
            hybrid_expression,
            hybrid_jacobian,
            hybrid_step,
+           not_kept_reason,
            shipped_correction,
            shipped_corrections,
+           shipped_identified,
            shipped_weights,
 )
 from uavdyn.learned.mlp import ACTIVATIONS, mlp_forward
@@ -17,6 +19,6 @@ from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights,
 
 __all__ = ["DEFAULT_FORMULATION", "FORMULATIONS", "Formulation", "formulation", "HybridStep",
            "hybrid_expression", "hybrid_jacobian", "hybrid_step", "shipped_correction",
-           "shipped_corrections", "shipped_weights",
+           "shipped_corrections", "shipped_identified", "shipped_weights", "not_kept_reason",
            "ACTIVATIONS", "mlp_forward", "CorrectionNet", "WeightFileError", "load_weights",
            "save_weights"]

@@ -10,6 +10,7 @@ library) refuses a use outside them.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from functools import partial
 from importlib import resources
@@ -88,6 +89,21 @@ def shipped_weights(airframe_name: str, formulation: str = "improved",
     return path
 
 
+def shipped_identified(airframe_name: str) -> Airframe:
+    """The airframe identified from the preset's emulated dataset (shipped beside its
+    correction, and shipped alone when the correction trained on it was not kept).
+
+    Raises
+    ------
+    WeightFileError
+        If the package ships no identified airframe for ``airframe_name``.
+    """
+    toml = Path(str(resources.files(SHIPPED).joinpath(f"{airframe_name}_identified.toml")))
+    if not toml.is_file():
+        raise WeightFileError(f"no shipped identified airframe for '{airframe_name}'")
+    return load_airframe(toml)
+
+
 def shipped_correction(airframe_name: str) -> tuple[Path, Airframe]:
     """The default correction shipped for a preset: the safe weight file and the identified
     airframe it was trained on (the weights are tied to that airframe's parameter hash, so the
@@ -96,16 +112,35 @@ def shipped_correction(airframe_name: str) -> tuple[Path, Airframe]:
     Raises
     ------
     WeightFileError
-        If the package ships no safe correction for ``airframe_name``.
+        If the package ships no safe correction for ``airframe_name``; when its training ran
+        but did not keep a correction, the message gives the trainer's reason.
     """
     base = resources.files(SHIPPED)
     weights = Path(str(base.joinpath(f"{airframe_name}_safe.npz")))
     toml = Path(str(base.joinpath(f"{airframe_name}_identified.toml")))
-    if not (weights.is_file() and toml.is_file()):
-        raise WeightFileError(f"no shipped safe correction for airframe '{airframe_name}' "
-                              f"(shipped: {', '.join(shipped_corrections()) or 'none'}); give "
-                              "--weights FILE")
-    return weights, load_airframe(toml)
+    if weights.is_file() and toml.is_file():
+        return weights, load_airframe(toml)
+    reason = not_kept_reason(airframe_name)
+    if reason:
+        raise WeightFileError(f"no correction ships for '{airframe_name}': its training did "
+                              f"not keep one ({reason}); the identified physics ships alone "
+                              f"({toml.name}); give --weights FILE for another correction")
+    raise WeightFileError(f"no shipped safe correction for airframe '{airframe_name}' "
+                          f"(shipped: {', '.join(shipped_corrections()) or 'none'}); give "
+                          "--weights FILE")
+
+
+def not_kept_reason(airframe_name: str) -> str | None:
+    """Why the shipped training run of a preset kept no correction (None if it kept one or
+    never ran): the reason recorded in its shipped history."""
+    history = Path(str(resources.files(SHIPPED).joinpath(f"{airframe_name}_safe_history.json")))
+    if not history.is_file():
+        return None
+    try:
+        doc = json.loads(history.read_text())
+    except (OSError, ValueError):
+        return None
+    return None if doc.get("kept", True) else str(doc.get("reason", "not kept"))
 
 
 def shipped_corrections() -> list[str]:
