@@ -101,11 +101,13 @@ def loss_history(airframe: Airframe, weight_files: dict, out: Path) -> str | Non
     sorties, (b) the rollout loss (relative to the physics: 1 = no improvement) on fixed
     training and validation windows after every epoch (older histories: the mean over each
     epoch's mini-batches, training only)."""
-    path = weight_files.get("corrected")
-    hist_path = Path(path).with_name(Path(path).stem + "_history.json") if path else None
+    path = weight_files.get("corrected")  # the weights, or the history of a run that kept none
+    hist_path = (None if not path else Path(path) if str(path).endswith("_history.json")
+                 else Path(path).with_name(Path(path).stem + "_history.json"))
     if hist_path is None or not hist_path.exists():
         return None
-    hist = json.loads(hist_path.read_text())["history"]
+    doc = json.loads(hist_path.read_text())
+    hist, kept = doc["history"], doc.get("kept", True)
     val = [(h["epoch"], h["val_theta_rmse"]) for h in hist if h.get("val_theta_rmse")]
     physics = next((h["physics_val_theta_rmse"] for h in hist
                     if h.get("physics_val_theta_rmse")), None)
@@ -117,7 +119,8 @@ def loss_history(airframe: Airframe, weight_files: dict, out: Path) -> str | Non
     if not val:
         return None
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4))
-    ax.plot(*zip(*val), "C3o-", label="corrected (end of epoch)")
+    ax.plot(*zip(*val), "C3o-", label="corrected (end of epoch)" + ("" if kept else
+                                                                   ": not kept"))
     if physics:
         ax.axhline(physics, color="C1", ls="--", label="identified physics")
     ax.set_ylabel("validation 1 s pitch RMSE (rad)")

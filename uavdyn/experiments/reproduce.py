@@ -55,6 +55,7 @@ from uavdyn.learned import (
     not_kept_reason,
     save_weights,
     shipped_correction,
+    shipped_history,
     shipped_identified,
     shipped_weights,
 )
@@ -302,17 +303,19 @@ def _save_trajectories(folder: Path, airframe: str, group: str, solver: str, sav
 
 
 def convergence_table(weight_files: dict) -> list[dict]:
-    """Table 2 from the saved training histories beside the weights (``{label: path}``), one
-    definition per column, stated in the row (``definitions``): the safe correction's
-    validation figure is the 1 s pitch RMSE on the whole validation split at the end of each
-    epoch; its training figure is the mean rollout loss over the epoch's mini-batches
-    (relative to the physics, which scores 1), taken while the weights change. The earlier
-    trainers' columns are their own (named in the row)."""
+    """Table 2 from the saved training histories (``{label: path}``: the weights, beside which
+    the history lies, or the history itself for a run that kept no weights), one definition
+    per column, stated in the row: the safe correction's validation figure is the 1 s pitch
+    RMSE on the whole validation split at the end of each epoch; its losses are the rollout
+    loss (relative to the physics, which scores 1) on the same fixed training and validation
+    windows after every epoch (older histories: the mean over the epoch's mini-batches). The
+    earlier trainers' columns are their own (named in the row)."""
     rows = []
     for label, path in weight_files.items():
         if path is None:
             continue
-        hist_path = Path(path).with_name(Path(path).stem + "_history.json")
+        hist_path = (Path(path) if str(path).endswith("_history.json") else
+                     Path(path).with_name(Path(path).stem + "_history.json"))
         if not hist_path.exists():
             rows.append({"model": label, "weights": Path(path).name,
                          "note": "no training history saved"})
@@ -454,6 +457,8 @@ def correction_inputs(airframe: Airframe, ds: Dataset, config: ReproduceConfig, 
         if identified is None:
             return None, None, identification
         path = obtain_weights(identified, ds, "improved", "data", config, log)
+        identification["history"] = str(Path(config.out) / "weights" /
+                                        f"{identified.name}_improved_history.json")
         identification["correction"] = (str(path) if path else
                                         "training kept no correction (see the history)")
         return identified, path, identification
@@ -466,7 +471,9 @@ def correction_inputs(airframe: Airframe, ds: Dataset, config: ReproduceConfig, 
     except WeightFileError:
         path = None
     names = list(IDENTIFY_PARAMS[airframe.kind])
+    history = shipped_history(airframe.name)
     return identified, path, {
+        "history": str(history) if history else None,
         "source": "shipped with the package (python -m training.ship_safe on this dataset "
                   "recipe: identified on the calm train sorties, correction trained on top)",
         "file": str(identified.origin), "params": names,
@@ -556,7 +563,8 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
                              out / "trajectories" if config.save_trajectories else None,
                              bar.update, known)
     bar.close()
-    weight_files = {"corrected": correction, **{k: v[2] for k, v in legacy.items()}}
+    weight_files = {"corrected": correction or identification.get("history"),
+                    **{k: v[2] for k, v in legacy.items()}}
     table2 = convergence_table(weight_files)
     calm = [s for s in test if condition(s) == "calm"] or test
     models = {r.label: (r.solver.step, r.airframe) for r in rungs[1:]}

@@ -11,6 +11,7 @@ from uavdyn.learned.hybrid import (
            not_kept_reason,
            shipped_correction,
            shipped_corrections,
+           shipped_history,
            shipped_identified,
            shipped_weights,
 )
@@ -19,6 +20,7 @@ from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights,
 
 __all__ = ["DEFAULT_FORMULATION", "FORMULATIONS", "Formulation", "formulation", "HybridStep",
            "hybrid_expression", "hybrid_jacobian", "hybrid_step", "shipped_correction",
-           "shipped_corrections", "shipped_identified", "shipped_weights", "not_kept_reason",
+           "shipped_corrections", "shipped_history", "shipped_identified", "shipped_weights",
+           "not_kept_reason",
            "ACTIVATIONS", "mlp_forward", "CorrectionNet", "WeightFileError", "load_weights",
            "save_weights"]

@@ -130,11 +130,17 @@ def shipped_correction(airframe_name: str) -> tuple[Path, Airframe]:
                           "--weights FILE")
 
 
+def shipped_history(airframe_name: str) -> Path | None:
+    """The shipped training history of a preset's safe correction (None if none ships)."""
+    path = Path(str(resources.files(SHIPPED).joinpath(f"{airframe_name}_safe_history.json")))
+    return path if path.is_file() else None
+
+
 def not_kept_reason(airframe_name: str) -> str | None:
     """Why the shipped training run of a preset kept no correction (None if it kept one or
     never ran): the reason recorded in its shipped history."""
-    history = Path(str(resources.files(SHIPPED).joinpath(f"{airframe_name}_safe_history.json")))
-    if not history.is_file():
+    history = shipped_history(airframe_name)
+    if history is None:
         return None
     try:
         doc = json.loads(history.read_text())
