@@ -1,8 +1,10 @@
 """Closed-loop MPC demo: the tracking MPC flies the calm emulator (the "real aircraft") through
-a pitch step and a climb, once with the hybrid step and once with physics-only RK4 as the
-prediction model. Prints JSON (tracking RMSE, solve times) and saves a PNG.
+every scenario of the airframe's kind (pitch step, climb, speed step), once with the hybrid
+prediction and once with physics RK4, and saves one PNG (reference vs response, solve times)
+and a JSON summary.
 
-Usage: ``python analysis/mpc_demo.py [--horizon 20] [--dt 0.05] [--out results/mpc]``
+Usage: ``python analysis/mpc_demo.py [--airframe aerosonde] [--horizon 20] [--sqp]
+[--out docs/mpc]``
 """
 
 from __future__ import annotations
@@ -17,34 +19,38 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from uavdyn.airframes import load_airframe  # noqa: E402
-from uavdyn.linear import trim  # noqa: E402
-from uavdyn.mpc import RELU_SMOOTHING, SCENARIOS  # noqa: E402
+from uavdyn.mpc import SCENARIO_NAMES, MPCConfig  # noqa: E402
 from uavdyn.mpc.study import fly_all, prediction_models, summarise  # noqa: E402
 
 
-def plot(results: dict, path: Path) -> None:
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
-    for col, sc in enumerate(SCENARIOS):
+def plot(results: dict, path: Path, title: str) -> None:
+    fig, axes = plt.subplots(2, len(SCENARIO_NAMES), figsize=(14, 7))
+    for col, name in enumerate(SCENARIO_NAMES):
+        sc = None
         for model, style in (("hybrid", "r-"), ("physics", "b--")):
-            res = results[(sc.name, model)][1]
-            if sc.tracked == "theta":
-                axes[0, col].plot(res.time, np.degrees(res.states[:, 3]), style, label=model)
-            else:
-                axes[0, col].plot(res.time, res.states[:, 4], style, label=model)
-            axes[1, col].plot(res.time[:-1], res.solve_times_s * 1e3, style, label=model)
-        res = results[(sc.name, "physics")][1]
-        ref = np.degrees(res.theta_ref) if sc.tracked == "theta" else res.h_ref
+            if (name, model) not in results:  # no correction ships for this preset
+                continue
+            sc, res = results[(name, model)]
+            y = {"theta": np.degrees(res.states[:, 3]), "h": res.states[:, 4],
+                 "speed": res.speed}[sc.tracked]
+            axes[0, col].plot(res.time, y, style, label=f"{model} prediction")
+            ok = res.success
+            axes[1, col].plot(res.time[:-1][ok], res.solve_times_s[ok] * 1e3, style[0] + ".",
+                              ms=2, label=f"{model} ({ok.mean():.0%} solved)")
+        ref = {"theta": np.degrees(res.theta_ref), "h": res.h_ref,
+               "speed": res.speed_ref}[sc.tracked]
         axes[0, col].plot(res.time[1:], ref, "k:", label="reference")
-        axes[0, col].set_ylabel("pitch (deg)" if sc.tracked == "theta" else "altitude (m)")
-        axes[0, col].set_title(sc.name)
+        axes[0, col].set_ylabel({"theta": "pitch (deg)", "h": "altitude (m)",
+                                 "speed": "speed (m/s)"}[sc.tracked])
+        axes[0, col].set_title(name)
         axes[1, col].set_ylabel("solve time (ms)")
         axes[1, col].set_xlabel("time (s)")
         for ax in axes[:, col]:
             ax.grid(alpha=0.3)
-            ax.legend(fontsize=8)
+            ax.legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
@@ -53,24 +59,27 @@ def main() -> None:
     parser.add_argument("--airframe", default="aerosonde")
     parser.add_argument("--weights", default=None)
     parser.add_argument("--horizon", type=int, default=20)
-    parser.add_argument("--dt", type=float, default=0.05)
+    parser.add_argument("--sqp", action="store_true", help="full SQP instead of RTI")
     parser.add_argument("--out", default="results/mpc")
     args = parser.parse_args()
-    af = load_airframe(args.airframe)
-    point = trim(af)
+    mode = "sqp" if args.sqp else "rti"
+    setup = prediction_models(args.airframe, args.weights, mode)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    results = fly_all(af, point, prediction_models(af, args.weights), args.horizon, args.dt)
-    summary = {"airframe": af.name, "horizon": args.horizon, "dt": args.dt,
-               "plant": "calm emulator (actuator lag, unsteady aero), full-state feedback",
-               "hybrid_prediction": "shipped weights, ReLU smoothed to softplus k="
-                                    f"{RELU_SMOOTHING:g}",
+    results = fly_all(setup, MPCConfig(horizon=args.horizon, mode=mode))
+    stem = f"mpc_demo_{setup.plant_airframe.name}_{mode}_h{args.horizon}"
+    summary = {"airframe": setup.plant_airframe.name, "mode": mode, "horizon": args.horizon,
+               "plant": f"calm emulator of {setup.plant_airframe.name}",
+               "prediction": {k: m.description for k, m in setup.models.items()},
+               "missing": setup.missing,
                "scenarios": summarise(results)}
-    plot(results, out / "mpc_demo.png")
-    text = json.dumps(summary, indent=2)
-    (out / "mpc_demo.json").write_text(text + "\n")
-    print(text)
-    print(f"wrote {out / 'mpc_demo.png'} and {out / 'mpc_demo.json'}")
+    note = "; no hybrid: no correction ships" if setup.missing else ""
+    plot(results, out / f"{stem}.png",
+         f"{setup.plant_airframe.name}: {mode.upper()} horizon {args.horizon}, dt 0.05 s, calm "
+         f"emulator{note}")
+    (out / f"{stem}.json").write_text(json.dumps(summary, indent=2) + "\n")
+    print(json.dumps(summary, indent=2))
+    print(f"wrote {out / (stem + '.png')} and {out / (stem + '.json')}")
 
 
 if __name__ == "__main__":

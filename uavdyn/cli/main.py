@@ -18,6 +18,7 @@ import numpy as np
 from uavdyn import __version__
 from uavdyn.airframes import AirframeError, list_presets, load_airframe
 from uavdyn.cli.montecarlo import add_parser as add_montecarlo_parser
+from uavdyn.cli.mpc import add_parser as add_mpc_parser
 from uavdyn.deploy import airframe_bundle_spec, export_bundle
 from uavdyn.emulation.datagen import Recipe, generate_dataset
 from uavdyn.emulation.fingerprint import (
@@ -685,6 +686,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)
     add_montecarlo_parser(sub)
+    add_mpc_parser(sub)
     return parser
 
 

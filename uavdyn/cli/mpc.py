@@ -1,0 +1,184 @@
+"""The ``uavdyn mpc`` command: argparse wiring and one thin function over :mod:`uavdyn.mpc`
+that flies one closed-loop scenario on the calm emulator and writes its time histories (CSV),
+solve-time statistics (JSON) and a figure (PNG).
+
+Errors are ``ValueError`` subclasses (:class:`MPCCommandError`, weight-file and output-folder
+errors), which ``uavdyn.cli.main`` prints as one line with exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from uavdyn.airframes import list_presets
+from uavdyn.mpc import SCENARIO_NAMES, MPCConfig, scenario
+from uavdyn.mpc.study import fly_all, prediction_models, solve_statistics, startup_seconds
+from uavdyn.outputs import check_output_folder, output_folder
+
+COMMAND = "mpc"
+MAX_HORIZON = 200
+HISTORY_COLUMNS = ("time", "u", "w", "q", "theta", "h", "speed", "theta_ref", "h_ref",
+                   "speed_ref", "control_1", "control_2", "solve_ms", "success", "source")
+
+
+class MPCCommandError(ValueError):
+    """A bad option of ``uavdyn mpc`` (one line naming it)."""
+
+
+def add_parser(sub) -> argparse.ArgumentParser:
+    """Register ``mpc`` on the ``uavdyn`` sub-parsers ``sub``; returns its parser."""
+    p = sub.add_parser(
+        COMMAND, help="fly a closed-loop tracking MPC (hybrid or physics prediction, full SQP "
+        "or real-time iteration) on the calm emulator; write histories, solve statistics, PNG",
+        description="Fly one scenario (pitch step, climb or speed step) with the tracking MPC "
+        "on the calm emulator of the airframe (the 'real aircraft'). The hybrid prediction is "
+        "the preset's shipped safe correction on the identified airframe it was trained on, "
+        "or --weights trained on --airframe; the physics prediction is the RK4 step of the "
+        "same airframe without the correction. A failed solve is never applied (shifted "
+        "previous plan, then the last control; counted). Writes history_<model>.csv, "
+        "stats.json and mpc.png under --out.")
+    p.add_argument("--airframe", default="aerosonde",
+                   help=f"preset name ({', '.join(list_presets())}) or path of an airframe "
+                        "file (default aerosonde)")
+    p.add_argument("--weights", default=None,
+                   help="weight file trained on --airframe (default: the preset's shipped safe "
+                        "correction)")
+    p.add_argument("--scenario", required=True, choices=SCENARIO_NAMES,
+                   help="closed-loop test (references: docs/mpc.md)")
+    p.add_argument("--horizon", type=int, default=20, help="prediction intervals (default 20)")
+    p.add_argument("--dt", type=float, default=0.05,
+                   help="MPC interval in s, a multiple of 0.01 (default 0.05)")
+    p.add_argument("--rti", action="store_true",
+                   help="real-time iteration (one QP per step, compiled and cached) instead "
+                        "of the full SQP")
+    p.add_argument("--model", choices=("hybrid", "physics", "both"), default="both",
+                   help="prediction model(s) to fly (default both, for the comparison)")
+    p.add_argument("--force", action="store_true",
+                   help="write into a non-empty folder that is not this command's output")
+    p.add_argument("--out", required=True, help="output folder")
+    p.set_defaults(func=cmd_mpc)
+    return p
+
+
+def _check(args: argparse.Namespace) -> None:
+    if not 1 <= args.horizon <= MAX_HORIZON:
+        raise MPCCommandError(f"--horizon must be 1..{MAX_HORIZON}, got {args.horizon}")
+    if not (math.isfinite(args.dt) and args.dt > 0):
+        raise MPCCommandError(f"--dt must be a positive number of seconds, got {args.dt}")
+    if abs(round(args.dt / 0.01) * 0.01 - args.dt) > 1e-9:
+        raise MPCCommandError(f"--dt must be a multiple of the emulator's 0.01 s log interval, "
+                              f"got {args.dt}")
+    if args.weights is not None and not Path(args.weights).is_file():
+        raise MPCCommandError(f"no weight file {args.weights}; give --weights FILE")
+
+
+def _write_history(path: Path, res) -> None:
+    n = len(res.controls)
+    with path.open("w", newline="") as fh:
+        out = csv.writer(fh)
+        out.writerow(HISTORY_COLUMNS)
+        for k in range(n + 1):
+            last = k == n  # the final state has no control or solve after it
+            row = [res.time[k], *res.states[k], res.speed[k]]
+            row += (["", "", ""] if k == 0 else
+                    [res.theta_ref[k - 1], res.h_ref[k - 1], res.speed_ref[k - 1]])
+            row += (["", "", "", "", ""] if last else
+                    [*res.controls[k], res.solve_times_s[k] * 1e3, int(res.success[k]),
+                     res.source[k]])
+            out.writerow([f"{v:.10g}" if isinstance(v, (float, np.floating)) else v
+                          for v in row])
+
+
+def _plot(path: Path, sc, results: dict, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    idx = {"theta": 3, "h": 4}
+    fig, (ax, bx) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    styles = {"hybrid": "r-", "physics": "b--"}
+    ref = None
+    for name, res in results.items():
+        y = res.speed if sc.tracked == "speed" else res.states[:, idx[sc.tracked]]
+        ref = {"theta": res.theta_ref, "h": res.h_ref, "speed": res.speed_ref}[sc.tracked]
+        scale = math.degrees(1.0) if sc.tracked == "theta" else 1.0
+        ax.plot(res.time, y * scale, styles.get(name, "g-"), label=f"{name} prediction")
+        ok = res.success
+        bx.plot(res.time[:-1][ok], res.solve_times_s[ok] * 1e3, styles.get(name, "g-")[0] + ".",
+                ms=3, label=f"{name} ({ok.mean():.1%} solved)")
+        if (~ok).any():
+            bx.plot(res.time[:-1][~ok], res.solve_times_s[~ok] * 1e3, "kx", ms=5,
+                    label=f"{name}: failed (fallback applied)")
+    if ref is not None:
+        scale = math.degrees(1.0) if sc.tracked == "theta" else 1.0
+        ax.plot(res.time[1:], ref * scale, "k:", label="reference")
+    ax.set_ylabel({"theta": "pitch (deg)", "h": "altitude (m)", "speed": "speed (m/s)"}
+                  [sc.tracked])
+    ax.set_title(title, fontsize=9)
+    bx.set_ylabel("solve time (ms)")
+    bx.set_xlabel("time (s)")
+    for a in (ax, bx):
+        a.grid(alpha=0.3)
+        a.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def cmd_mpc(args: argparse.Namespace) -> int:
+    """Fly one scenario closed loop and write its outputs (see the module docstring)."""
+    _check(args)
+    check_output_folder(args.out, COMMAND, args.force)  # before any work
+    mode = "rti" if args.rti else "sqp"
+    models = ("hybrid", "physics") if args.model == "both" else (args.model,)
+    setup = prediction_models(args.airframe, args.weights, mode, models)
+    config = MPCConfig(horizon=args.horizon, dt=args.dt, mode=mode)
+    sc = scenario(setup.plant_airframe.kind, args.scenario)
+    print(f"(prediction: {'; '.join(m.description for m in setup.models.values())}; plant: "
+          f"calm emulator of {setup.plant_airframe.name})", file=sys.stderr)
+    for name, why in setup.missing.items():
+        print(f"(no {name} prediction: {why})", file=sys.stderr)
+    models = tuple(m for m in models if m in setup.models)
+    runs = fly_all(setup, config, (args.scenario,),
+                   progress=lambda msg: print(f"flying {msg} ...", file=sys.stderr))
+    results = {m: runs[(args.scenario, m)][1] for m in models}
+    stats = {
+        "command": "uavdyn mpc", "airframe": setup.plant_airframe.name,
+        "scenario": args.scenario, "tracked": sc.tracked, "unit": sc.unit,
+        "mode": mode, "horizon": args.horizon, "dt": args.dt,
+        "qp_solver": config.qp_solver if mode == "rti" else "sqpmethod + qrqp",
+        "plant": f"calm emulator of {setup.plant_airframe.name}",
+        "missing": setup.missing, "models": {}}
+    for name, res in results.items():
+        finite = bool(np.all(np.isfinite(res.states)))
+        stats["models"][name] = {
+            "prediction": setup.models[name].description,
+            "tracking_rmse": res.rmse(sc.tracked, sc.start) if finite else None,
+            "finite_flight": finite, **solve_statistics(res)}
+        if mode == "rti":  # the library is in the cache now: a second start loads it
+            stats["models"][name]["startup_s_cached"] = startup_seconds(setup.models[name],
+                                                                        config)
+    title = (f"{setup.plant_airframe.name} {args.scenario}, {mode.upper()} horizon "
+             f"{args.horizon}, dt {args.dt:g} s")
+    with output_folder(args.out, COMMAND, args.force) as tmp:
+        for name, res in results.items():
+            _write_history(tmp / f"history_{name}.csv", res)
+        (tmp / "stats.json").write_text(json.dumps(stats, indent=2) + "\n")
+        _plot(tmp / "mpc.png", sc, results, title)
+    for name, s in stats["models"].items():
+        rmse = "diverged" if s["tracking_rmse"] is None else f"{s['tracking_rmse']:.4g} {sc.unit}"
+        med = "-" if s["solve_ms_median"] is None else f"{s['solve_ms_median']:.3g}"
+        mx = "-" if s["solve_ms_max"] is None else f"{s['solve_ms_max']:.3g}"
+        print(f"  {name}: tracking RMSE {rmse}; solves {s['success_rate']:.1%} succeeded "
+              f"(median {med} ms, max {mx} ms); fallbacks {s['fallback_shifted']} shifted, "
+              f"{s['fallback_held']} held")
+    print(f"wrote {args.out}/ (history_*.csv, stats.json, mpc.png)")
+    return 0
