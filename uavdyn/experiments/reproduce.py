@@ -569,9 +569,10 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
     calm = [s for s in test if condition(s) == "calm"] or test
     models = {r.label: (r.solver.step, r.airframe) for r in rungs[1:]}
     models.update({k: (v[0], v[1]) for k, v in legacy.items()})
-    log(f"[{airframe.name}] cost: one interleaved timing harness ...")
+    bar = _bar(config, 1, f"[{airframe.name}] cost (interleaved timing)")  # sized by the study
     timing = cost.cost_study(airframe, calm[0], models, repeats=config.cost_repeats,
-                             segment_s=config.cost_segment_s)
+                             segment_s=config.cost_segment_s, progress=bar.update)
+    bar.close()
     log(f"[{airframe.name}] Table 4 ...")
     table4 = robustness_table(airframe, ds, rungs, config, predictions)
     result = {"airframe": airframe.name, "kind": airframe.kind,
