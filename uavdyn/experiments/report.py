@@ -5,8 +5,11 @@ results, then Tables 1-4, the work-precision summary and the figures.
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
+
+from uavdyn.experiments.ladder import per_sortie_rmse
 
 
 def _e(value) -> str:
@@ -94,6 +97,8 @@ def first_paragraph(results: dict) -> str:
 
 
 def _per_sortie(af: dict) -> list[str]:
+    """Per-sortie pitch RMSE of every model at 1 s and over the free run, and the ratio of
+    the corrected model to the identified physics (flagged where it is worse)."""
     lad = af.get("ladder")
     if not lad:
         return []
@@ -102,30 +107,22 @@ def _per_sortie(af: dict) -> list[str]:
         f"1 s: {m}" for m in models) + " | " + " | ".join(f"free run: {m}" for m in models)
         + " | corrected / identified (1 s, free run) |",
         "|" + "---|" * (3 + 2 * len(models) + 1)]
-    by = {}
-    for r in lad["per_sortie"]:
-        by.setdefault((r["sortie"], r["mission"], r["condition"]), {})[r["model"]] = r
-
-    def rmse(row, mode):
-        cell = (row or {}).get(mode)
-        if not cell:
-            return None
-        return (cell["sse"] / cell["n"]) ** 0.5 if cell["sse"] == cell["sse"] and \
-            cell["sse"] != float("inf") else float("inf")
-
-    for (sortie, mission, cond), rows in by.items():
-        vals = {(m, mode): rmse(rows.get(m), mode) for m in models
-                for mode in ("horizon_1s", "free_run")}
+    modes = ("horizon_1s", "free_run")
+    rmse = {mode: per_sortie_rmse(lad["per_sortie"], mode) for mode in modes}
+    seen = dict.fromkeys((r["sortie"], r["mission"], r["condition"]) for r in lad["per_sortie"])
+    for sortie, mission, cond in seen:
+        vals = {(m, mode): rmse[mode].get(sortie, {}).get(m) for m in models for mode in modes}
         ratios = []
-        for mode in ("horizon_1s", "free_run"):
+        for mode in modes:
             a, b = vals.get(("identified physics", mode)), vals.get(("corrected", mode))
-            ratios.append(_e(b / a) if a and b is not None and a != float("inf") else "n/a")
-        flag = " **worse**" if any(r not in ("n/a", "diverged") and float(r) > 1.0
-                                   for r in ratios) else ""
+            ratios.append(b / a if a and b is not None and math.isfinite(a) else None)
+        flag = " **worse**" if any(r is not None and r > 1.0 for r in ratios) else ""
         lines.append(f"| {sortie} | {mission} | {cond} | "
                      + " | ".join(_e(vals[(m, "horizon_1s")]) for m in models) + " | "
                      + " | ".join(_e(vals[(m, "free_run")]) for m in models)
-                     + f" | {ratios[0]}, {ratios[1]}{flag} |")
+                     + " | " + ", ".join("n/a" if r is None else "diverged"
+                                         if not math.isfinite(r) else f"{r:.4g}"
+                                         for r in ratios) + f"{flag} |")
     return lines + [""]
 
 
