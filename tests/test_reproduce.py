@@ -279,6 +279,16 @@ def test_train_and_evaluate_on_a_hand_written_dataset(tmp_path, capsys):
     assert safety[0]["worse_at_1s"] == sum("horizon_1s" in r["worse"]
                                            for r in safety[0]["sorties"])
     assert "Per sortie" in out.with_suffix(".md").read_text()
+    # the report's ladder on the user's data: the headline from the per-sortie rows
+    ladder = metrics["ladder"]
+    assert ladder["models"] == ["nominal physics", "corrected"]
+    assert ladder["missing"]["identified physics"].startswith("no --identified")
+    assert {r["sortie"] for r in ladder["per_sortie"]} == {"flight_5"}
+    entry = next(e for e in ladder["headline"] if e.get("mode") == "horizon_1s")
+    assert entry["condition"] == "unknown" and entry["sorties"] == 1
+    assert set(entry["models"]) == {"nominal physics", "corrected"}
+    md = out.with_suffix(".md").read_text()
+    assert "## Headline" in md and "- **aerosonde, unknown, 1 s** (1 test sortie)" in md
     assert metrics["table4"] and all(finite(r["max_error_rad"]) for r in metrics["table4"]
                                      if r["sorties"])
 

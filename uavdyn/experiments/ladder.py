@@ -154,7 +154,18 @@ def _sortie_errors(rows: list[dict], model: str, mode: str, horizon: str | None 
     return out
 
 
-def headline(rows: list[dict], conditions=CONDITIONS) -> list[dict]:
+def _conditions(rows: list[dict], conditions) -> tuple[str, ...]:
+    """The groups to report: ``conditions`` if given; else calm and turbulent (each reported,
+    missing or not) when the data are labelled so, plus any other label present."""
+    if conditions is not None:
+        return tuple(conditions)
+    present = tuple(dict.fromkeys(r["condition"] for r in rows))
+    if any(c in CONDITIONS for c in present):
+        return CONDITIONS + tuple(c for c in present if c not in CONDITIONS)
+    return present
+
+
+def headline(rows: list[dict], conditions=None) -> list[dict]:
     """Per condition and headline mode: each model's pooled pitch RMSE with its 95 % bootstrap
     interval over sorties, and the corrected model against the identified physics sortie by
     sortie (sorties worse, worse by more than 10 %, free runs diverging only when corrected).
@@ -162,7 +173,7 @@ def headline(rows: list[dict], conditions=CONDITIONS) -> list[dict]:
     listed with ``missing``."""
     models = [m for m in LADDER if any(r["model"] == m for r in rows)]
     out = []
-    for cond in conditions:
+    for cond in _conditions(rows, conditions):
         members = [r for r in rows if r["condition"] == cond]
         sorties = sorted({r["sortie"] for r in members})
         if not sorties:
@@ -189,12 +200,12 @@ def headline(rows: list[dict], conditions=CONDITIONS) -> list[dict]:
     return out
 
 
-def horizon_curves(rows: list[dict], conditions=CONDITIONS) -> dict:
+def horizon_curves(rows: list[dict], conditions=None) -> dict:
     """Pooled pitch RMSE and the per-sortie spread (min, quartiles, max of per-sortie RMSE)
     per condition, model and horizon: the data of the error-against-horizon figure."""
     out: dict = {}
     horizons = sorted({h for r in rows for h in r.get("horizons", {})}, key=float)
-    for cond in conditions:
+    for cond in _conditions(rows, conditions):
         members = [r for r in rows if r["condition"] == cond]
         for model in LADDER:
             points = []

@@ -52,7 +52,8 @@ def headline_lines(af: dict) -> list[str]:
         models = entry["models"]
         chain = " -> ".join(f"{m} {_ci(v)}" for m, v in models.items())
         text = (f"- **{name}, {entry['condition']}, {entry['label']}** "
-                f"({entry['sorties']} test sorties), pitch RMSE in rad, pooled "
+                f"({entry['sorties']} test sortie{'s' if entry['sorties'] != 1 else ''}), "
+                "pitch RMSE in rad, pooled "
                 f"[95 % bootstrap over sorties]: {chain}.")
         if entry["mode"] == "free_run":
             gone = [f"{m} {v['departed']}/{entry['sorties']}" for m, v in models.items()

@@ -38,11 +38,25 @@ from uavdyn.experiments.common import (
     condition,
     identification_sorties,
     provenance,
+    refusal,
     target_states,
     usable,
 )
-from uavdyn.experiments.ladder import headline, horizon_curves, ladder_rungs, per_sortie_rows
-from uavdyn.experiments.report import _table1, _table4, write_report
+from uavdyn.experiments.ladder import (
+    Rung,
+    headline,
+    horizon_curves,
+    ladder_rungs,
+    per_sortie_rows,
+)
+from uavdyn.experiments.report import (
+    _horizons,
+    _per_sortie,
+    _table1,
+    _table4,
+    headline_lines,
+    write_report,
+)
 from uavdyn.flightdata import Dataset, Sortie, load_dataset
 from uavdyn.integrate import (
     cache_dir,
@@ -701,6 +715,7 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
     table1 = accuracy_tables(airframe, sorties, {"data": solvers, "reference": [
         c for c in solvers if c.physics == "nominal"]})
     safety = per_sortie_safety(solvers, sorties, [load_weights(w) for w in weights])
+    ladder = _evaluation_ladder(airframe, identified, weights, sorties)
     alpha_max = {s.name: float(np.degrees(np.max(np.arctan2(target_states(s)[:, 1],
                                                             target_states(s)[:, 0]))))
                  for s in sorties}
@@ -738,7 +753,42 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
                                                     "split: they may include fitted ones)",
             "identified": identified.origin if identified is not None else None,
             "weights": [str(w) for w in weights], "table1": table1, "table4": table4,
-            "per_sortie": safety}
+            "per_sortie": safety, "ladder": ladder}
+
+
+def _evaluation_ladder(airframe: Airframe, identified: Airframe | None, weights: list,
+                       sorties: list[Sortie]) -> dict:
+    """The report's ladder on a user's dataset, at the log interval: nominal physics,
+    identified physics and the first weight file ("corrected", on the airframe it was
+    trained on), per sortie, against horizon, and the headline with bootstrap intervals."""
+    dt = float(np.median(np.diff(sorties[0].time)))
+    rungs = [Rung(NOMINAL_PHYSICS, Solver(NOMINAL_PHYSICS, physics_step(airframe), dt,
+                                          structure_of(airframe)), airframe)]
+    missing = {}
+    if identified is not None:
+        rungs.append(Rung(IDENTIFIED_PHYSICS, Solver(IDENTIFIED_PHYSICS, physics_step(identified),
+                                                     dt, structure_of(identified)), identified))
+    else:
+        missing[IDENTIFIED_PHYSICS] = "no --identified airframe given"
+    if weights:
+        net = load_weights(weights[0])
+        owner = next(af for af in (identified, airframe)
+                     if af is not None and af.param_hash() == net.airframe_hash)
+        step = hybrid_step(net, owner, compile=False)
+        why = refusal(step, dt)
+        if why is None:
+            rungs.append(Rung("corrected", Solver("corrected", step, dt, structure_of(owner)),
+                              owner))
+        else:
+            missing["corrected"] = why
+        if len(weights) > 1:
+            missing["other weights"] = ("the ladder takes the first weight file; the others "
+                                        "are in Table 1 and the per-sortie comparison")
+    else:
+        missing["corrected"] = "no --weights given"
+    rows = per_sortie_rows(rungs, sorties)
+    return {"dt": dt, "models": [r.label for r in rungs], "missing": missing,
+            "per_sortie": rows, "headline": headline(rows), "horizons": horizon_curves(rows)}
 
 
 def _pitch_rmse(res: dict, mode: str) -> float | None:
@@ -800,7 +850,14 @@ def evaluation_markdown(result: dict) -> str:
 
     lines = [f"# Evaluation of {result['airframe']} on {result['dataset']}", "",
              f"{len(result['sorties'])} sorties ({result['split']}); weights: "
-             + (", ".join(result["weights"]) or "none"), "", "## Table 1: accuracy", ""]
+             + (", ".join(result["weights"]) or "none"), ""]
+    if result.get("ladder"):
+        lines += ["## Headline", "", "Pitch RMSE in rad at the log interval, pooled over the "
+                  "sorties of a group [95 % bootstrap over sorties].", ""]
+        lines += headline_lines(result) + ["", "## Error against horizon", ""]
+        lines += _horizons(result) + ["## Per sortie (pitch RMSE, rad)", ""]
+        lines += _per_sortie(result)
+    lines += ["## Table 1: accuracy", ""]
     lines += _table1(result) + ["## Table 4: robustness (free run, dt = 0.005 s)", ""]
     lines += _table4(result)
     for entry in result.get("per_sortie", []):
