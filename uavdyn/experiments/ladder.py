@@ -23,6 +23,7 @@ from uavdyn.evaluation import (
     evaluate_trajectory,
     horizon_predictions,
     pooled_with_interval,
+    sortie_altitude,
     squared_error,
 )
 from uavdyn.experiments.common import (
@@ -93,11 +94,6 @@ def ladder_rungs(nominal: Airframe, identified: Airframe | None,
     return rungs, missing
 
 
-def _altitude(sortie: Sortie) -> float | None:
-    value = sortie.meta.get("manifest_entry", {}).get("altitude_m")
-    return None if value is None else float(value)
-
-
 def _error(pair) -> dict:
     sse, n = squared_error(*pair)
     return {"sse": sse, "n": n}
@@ -114,7 +110,7 @@ def per_sortie_rows(rungs: list[Rung], sorties: list[Sortie], horizons_s=HORIZON
     for s in sorties:
         truth = target_states(s)
         for rung in rungs:
-            p = sortie_params(rung.airframe, _altitude(s))
+            p = sortie_params(rung.airframe, sortie_altitude(s))
             res = evaluate_trajectory(rung.solver, s.time, truth, s.controls, p)
             if keep is not None:
                 keep[(rung.label, s.name)] = res

@@ -30,6 +30,7 @@ from uavdyn.evaluation import (
     evaluate_trajectory,
     fine_reference,
     pooled_stats,
+    sortie_altitude,
 )
 from uavdyn.experiments.common import (
     IDENTIFIED_PHYSICS,
@@ -228,12 +229,6 @@ def obtain_weights(airframe: Airframe, ds: Dataset, formulation: str, target: st
 # ----------------------------------------------------------------------------- Table 1
 
 
-def altitude(sortie: Sortie) -> float | None:
-    """The sortie's manifest ``altitude_m`` (None if the manifest does not give it)."""
-    value = sortie.meta.get("manifest_entry", {}).get("altitude_m")
-    return None if value is None else float(value)
-
-
 @dataclass(frozen=True)
 class Candidate:
     """A solver of the comparison with the airframe whose parameters it runs on and the rung of
@@ -274,7 +269,7 @@ def accuracy_tables(airframe: Airframe, sorties: list[Sortie], solvers: dict,
                 res = (known or {}).get((solver.name, s.name)) if tgt == "data" else None
                 if res is None:
                     res = evaluate_trajectory(solver, s.time, states, s.controls,
-                                              sortie_params(cand.airframe, altitude(s)))
+                                              sortie_params(cand.airframe, sortie_altitude(s)))
                 for m in MODES:
                     if m in res:
                         pairs[m].append(res[m])
@@ -411,7 +406,7 @@ def robustness_table(airframe: Airframe, ds: Dataset, rungs, config: ReproduceCo
                 if res is None:
                     res = evaluate_trajectory(rung.solver, s.time, target_states(s),
                                               s.controls, sortie_params(rung.airframe,
-                                                                        altitude(s)))
+                                                                        sortie_altitude(s)))
                 if "free_run" not in res:  # outside what the step was trained for
                     refused = res.get("refused", {}).get("free_run", "not evaluated")
                     break
@@ -730,7 +725,7 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
             if solver.dt != 0.005:
                 continue
             runs = [evaluate_trajectory(solver, s.time, target_states(s), s.controls,
-                                        sortie_params(cand.airframe, altitude(s)))
+                                        sortie_params(cand.airframe, sortie_altitude(s)))
                     for s in members]
             refused = next((r["refused"]["free_run"] for r in runs
                             if "free_run" not in r and "refused" in r), None)
@@ -819,7 +814,7 @@ def per_sortie_safety(candidates: list[Candidate], sorties: list[Sortie], nets: 
                     and cand.solver.name.startswith(f"hybrid {n.formulation}")), None)
         rows = []
         for s in sorties:
-            p = sortie_params(cand.airframe, altitude(s))
+            p = sortie_params(cand.airframe, sortie_altitude(s))
             truth = target_states(s)
             rh = evaluate_trajectory(cand.solver, s.time, truth, s.controls, p)
             rp = evaluate_trajectory(physics.solver, s.time, truth, s.controls, p)
