@@ -18,10 +18,9 @@ from uavdyn.experiments.cost import (
     RK4_DTS,
     SCIPY_RUNS,
     VM_DTS,
-    cost_figure,
     cost_study,
-    work_precision_figure,
 )
+from uavdyn.experiments.figures import cost_figure, work_precision_figure
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import physics_step, rk4_step, simulate
 from uavdyn.learned.hybrid import HybridStep

@@ -7,7 +7,8 @@ the logged commands held over each log interval (zero-order hold on the log grid
 converted to CasADi once, outside the timed region). Accuracy is computed once, outside the
 timing, on the same segment: pitch RMSE against the flight data (free run for a fixed wing,
 1 s predictions restarted from the recorded state for a multirotor: :func:`flight_mode`) and
-free-run pitch RMSE against the nominal model's fine-step reference.
+free-run pitch RMSE against the nominal model's fine-step reference. The figures are drawn by
+:mod:`uavdyn.experiments.figures` with the other figures of the report.
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -385,131 +385,3 @@ def _ratios(points: list[_Point], timings: dict[str, Timing], models: Mapping) -
             "reference": {"label": fastest.label, "family": fastest.family, "dt": fastest.dt},
             "points": [{"label": pt.label, **pair(pt, fastest)} for pt in points]}
     return out
-
-
-# ----------------------------------------------------------------------------- figures
-
-
-def _families(study: dict) -> list[str]:
-    """Families in drawing order: nominal physics, the models, then the reference solvers."""
-    names = list(dict.fromkeys(p["family"] for p in study["points"]))
-    first = [f for f in (NOMINAL, NOMINAL_VM) if f in names]
-    last = [f for f in FAMILY_ORDER[2:] if f in names]
-    return first + [f for f in names if f not in first + last] + last
-
-
-def work_precision_figure(airframe_name: str, study: dict, out_dir: str | Path) -> str:
-    """The work-precision diagram of one :func:`cost_study`: pitch RMSE against median wall
-    time (log-log), one line per family (points ordered by time), two panels (against the
-    flight data; free run against the fine-step reference). The legend lists only families
-    with a drawable point in the figure; points without a finite positive error are counted
-    in a footnote.
-
-    Returns
-    -------
-    str
-        Path of ``work_precision_<airframe_name>.png`` in ``out_dir``.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    markers = "osD^v<>ph*Xd"
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5.2), sharex=True)
-    handles: dict[str, object] = {}
-    dropped = []
-    mode = study.get("flight_mode", "free_run").replace("_", " ")
-    for i, fam in enumerate(_families(study)):
-        pts = sorted((p for p in study["points"] if p["family"] == fam),
-                     key=lambda p: p["median_ms"])
-        style = {"color": f"C{i % 10}", "marker": markers[i % len(markers)], "ms": 5, "lw": 1.2}
-        for ax, key in zip(axes, ("theta_rmse_vs_flight", "theta_rmse_vs_reference")):
-            ok = [p for p in pts if p[key] is not None and math.isfinite(p[key]) and p[key] > 0]
-            dropped += [f"{p['label']} ({'flight' if 'flight' in key else 'reference'})"
-                        for p in pts if p not in ok]
-            if ok:
-                (line,) = ax.loglog([p["median_ms"] for p in ok], [p[key] for p in ok],
-                                    label=fam, **style)
-                handles.setdefault(fam, line)
-    axes[0].set_title(f"{airframe_name}: against the flight data (true states, {mode})",
-                      fontsize=9)
-    axes[1].set_title(f"{airframe_name}: free run against the nominal fine-step reference",
-                      fontsize=9)
-    for ax in axes:
-        ax.set_xlabel(f"median wall time of the {study['segment_s']:g} s segment (ms, "
-                      f"{study['repeats']} interleaved repeats)")
-        ax.set_ylabel("pitch RMSE (rad)")
-        ax.grid(alpha=0.3, which="both")
-    fig.legend(list(handles.values()), list(handles), loc="lower center",
-               bbox_to_anchor=(0.5, 0.025),
-               ncol=min(4, max(1, len(handles))), fontsize=8, frameon=False)
-    notes = "points along a line: step sizes or tolerances of one family, ordered by time"
-    if dropped:
-        notes += f"; not drawn (error zero or not finite): {', '.join(dropped)}"
-    fig.text(0.01, 0.005, notes, fontsize=6, wrap=True)
-    rows = math.ceil(len(handles) / 4)
-    fig.tight_layout(rect=(0, 0.04 + 0.045 * rows, 1, 1))
-    return _save(fig, Path(out_dir) / f"work_precision_{airframe_name}.png")
-
-
-def cost_figure(airframe_name: str, study: dict, out_dir: str | Path) -> str:
-    """Figure 5: Table 3 of one :func:`cost_study` as horizontal bars of the median wall time
-    (log scale) with the minimum as a marker, coloured by kind of solver, with a legend.
-
-    Returns
-    -------
-    str
-        Path of ``fig5_cost_<airframe_name>.png`` in ``out_dir``.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
-
-    rows = [p for p in study["points"] if p["in_table3"]]
-    kinds = {"nominal physics (RK4)": "C0", "other physics (RK4)": "C9",
-             "corrected models": "C3", "reference solvers": "C7",
-             "emulator (truth model)": "C2"}
-
-    def kind(p: dict) -> str:
-        if p["family"] in (NOMINAL, NOMINAL_VM):
-            return "nominal physics (RK4)"
-        if p["family"] == EMULATOR:
-            return "emulator (truth model)"
-        if p["family"] == CVODES or p["family"].startswith("scipy"):
-            return "reference solvers"
-        return "other physics (RK4)" if "physics" in p["family"] else "corrected models"
-
-    fig, ax = plt.subplots(figsize=(10, 0.38 * len(rows) + 2.4))
-    y = np.arange(len(rows))
-    labels = [p["label"] + (" in the CasADi VM" if p["family"] == CVODES else "")
-              for p in rows]
-    ax.barh(y, [p["median_ms"] for p in rows], color=[kinds[kind(p)] for p in rows],
-            alpha=0.8)
-    ax.plot([p["min_ms"] for p in rows], y, "k|", ms=12, mew=2)
-    ax.set_yticks(y, labels, fontsize=8)
-    ax.set_xscale("log")
-    ax.invert_yaxis()
-    ax.set_xlabel(f"wall time of the {study['segment_s']:g} s segment of {study['sortie']} (ms)")
-    ax.set_title(f"Fig. 5: cost, {airframe_name} ({study['harness']})", fontsize=9)
-    ax.grid(alpha=0.3, axis="x", which="both")
-    used = dict.fromkeys(kind(p) for p in rows)
-    legend = [Patch(color=kinds[k], alpha=0.8, label=f"{k}: median") for k in used]
-    legend.append(Line2D([], [], color="k", marker="|", ls="", ms=12, mew=2,
-                         label=f"minimum of {study['repeats']}"))
-    ax.legend(handles=legend, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.09),
-              ncol=3, frameon=False)
-    fig.tight_layout()
-    return _save(fig, Path(out_dir) / f"fig5_cost_{airframe_name}.png")
-
-
-def _save(fig, path: Path) -> str:
-    import matplotlib.pyplot as plt
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return str(path)

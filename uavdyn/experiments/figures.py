@@ -5,6 +5,7 @@ drawn from measured results with matplotlib's non-interactive backend.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import matplotlib
@@ -12,10 +13,19 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Patch  # noqa: E402
 
 from uavdyn.airframes import Airframe  # noqa: E402
 from uavdyn.evaluation import Solver, evaluate_trajectory  # noqa: E402
 from uavdyn.experiments.common import condition, target_states  # noqa: E402
+from uavdyn.experiments.cost import (  # noqa: E402
+    CVODES,
+    EMULATOR,
+    FAMILY_ORDER,
+    NOMINAL,
+    NOMINAL_VM,
+)
 from uavdyn.integrate import StepUseError, check_use  # noqa: E402
 
 STYLES = {"nominal physics": "C0--", "identified physics": "C1-", "corrected": "C3-",
@@ -42,9 +52,11 @@ def _solvers(rungs, legacy: dict) -> list[tuple[Solver, str, np.ndarray]]:
     return out
 
 
-def _save(fig, path: Path) -> str:
+def _save(fig, path: Path, layout: bool = True) -> str:
+    """Write ``fig`` as PNG (``layout``: tight layout first) and close it."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
+    if layout:
+        fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return str(path)
@@ -211,12 +223,115 @@ def error_distribution(airframe: Airframe, sorties: list, models: list, out: Pat
     return _save(fig, out / f"fig6_{airframe.name}.png")
 
 
+def _families(study: dict) -> list[str]:
+    """Families in drawing order: nominal physics, the models, then the reference solvers."""
+    names = list(dict.fromkeys(p["family"] for p in study["points"]))
+    first = [f for f in (NOMINAL, NOMINAL_VM) if f in names]
+    last = [f for f in FAMILY_ORDER[2:] if f in names]
+    return first + [f for f in names if f not in first + last] + last
+
+
+def work_precision_figure(airframe_name: str, study: dict, out_dir: str | Path) -> str:
+    """The work-precision diagram of one :func:`uavdyn.experiments.cost.cost_study`: pitch
+    RMSE against median wall time (log-log), one line per family (points ordered by time),
+    two panels (against the flight data; free run against the fine-step reference). The
+    legend lists only families with a drawable point in the figure; points without a finite
+    positive error are counted in a footnote.
+
+    Returns
+    -------
+    str
+        Path of ``work_precision_<airframe_name>.png`` in ``out_dir``.
+    """
+    markers = "osD^v<>ph*Xd"
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5.2), sharex=True)
+    handles: dict[str, object] = {}
+    dropped = []
+    mode = study.get("flight_mode", "free_run").replace("_", " ")
+    for i, fam in enumerate(_families(study)):
+        pts = sorted((p for p in study["points"] if p["family"] == fam),
+                     key=lambda p: p["median_ms"])
+        style = {"color": f"C{i % 10}", "marker": markers[i % len(markers)], "ms": 5, "lw": 1.2}
+        for ax, key in zip(axes, ("theta_rmse_vs_flight", "theta_rmse_vs_reference")):
+            ok = [p for p in pts if p[key] is not None and math.isfinite(p[key]) and p[key] > 0]
+            dropped += [f"{p['label']} ({'flight' if 'flight' in key else 'reference'})"
+                        for p in pts if p not in ok]
+            if ok:
+                (line,) = ax.loglog([p["median_ms"] for p in ok], [p[key] for p in ok],
+                                    label=fam, **style)
+                handles.setdefault(fam, line)
+    axes[0].set_title(f"{airframe_name}: against the flight data (true states, {mode})",
+                      fontsize=9)
+    axes[1].set_title(f"{airframe_name}: free run against the nominal fine-step reference",
+                      fontsize=9)
+    for ax in axes:
+        ax.set_xlabel(f"median wall time of the {study['segment_s']:g} s segment (ms, "
+                      f"{study['repeats']} interleaved repeats)")
+        ax.set_ylabel("pitch RMSE (rad)")
+        ax.grid(alpha=0.3, which="both")
+    fig.legend(list(handles.values()), list(handles), loc="lower center",
+               bbox_to_anchor=(0.5, 0.025),
+               ncol=min(4, max(1, len(handles))), fontsize=8, frameon=False)
+    notes = "points along a line: step sizes or tolerances of one family, ordered by time"
+    if dropped:
+        notes += f"; not drawn (error zero or not finite): {', '.join(dropped)}"
+    fig.text(0.01, 0.005, notes, fontsize=6, wrap=True)
+    rows = math.ceil(len(handles) / 4)
+    fig.tight_layout(rect=(0, 0.04 + 0.045 * rows, 1, 1))
+    return _save(fig, Path(out_dir) / f"work_precision_{airframe_name}.png", layout=False)
+
+
+def cost_figure(airframe_name: str, study: dict, out_dir: str | Path) -> str:
+    """Figure 5: Table 3 of one :func:`uavdyn.experiments.cost.cost_study` as horizontal bars
+    of the median wall time (log scale) with the minimum as a marker, coloured by kind of
+    solver, with a legend.
+
+    Returns
+    -------
+    str
+        Path of ``fig5_cost_<airframe_name>.png`` in ``out_dir``.
+    """
+    rows = [p for p in study["points"] if p["in_table3"]]
+    kinds = {"nominal physics (RK4)": "C0", "other physics (RK4)": "C9",
+             "corrected models": "C3", "reference solvers": "C7",
+             "emulator (truth model)": "C2"}
+
+    def kind(p: dict) -> str:
+        if p["family"] in (NOMINAL, NOMINAL_VM):
+            return "nominal physics (RK4)"
+        if p["family"] == EMULATOR:
+            return "emulator (truth model)"
+        if p["family"] == CVODES or p["family"].startswith("scipy"):
+            return "reference solvers"
+        return "other physics (RK4)" if "physics" in p["family"] else "corrected models"
+
+    fig, ax = plt.subplots(figsize=(10, 0.38 * len(rows) + 2.4))
+    y = np.arange(len(rows))
+    labels = [p["label"] + (" in the CasADi VM" if p["family"] == CVODES else "")
+              for p in rows]
+    ax.barh(y, [p["median_ms"] for p in rows], color=[kinds[kind(p)] for p in rows],
+            alpha=0.8)
+    ax.plot([p["min_ms"] for p in rows], y, "k|", ms=12, mew=2)
+    ax.set_yticks(y, labels, fontsize=8)
+    ax.set_xscale("log")
+    ax.invert_yaxis()
+    ax.set_xlabel(f"wall time of the {study['segment_s']:g} s segment of {study['sortie']} (ms)")
+    ax.set_title(f"Fig. 5: cost, {airframe_name} ({study['harness']})", fontsize=9)
+    ax.grid(alpha=0.3, axis="x", which="both")
+    used = dict.fromkeys(kind(p) for p in rows)
+    legend = [Patch(color=kinds[k], alpha=0.8, label=f"{k}: median") for k in used]
+    legend.append(Line2D([], [], color="k", marker="|", ls="", ms=12, mew=2,
+                         label=f"minimum of {study['repeats']}"))
+    ax.legend(handles=legend, fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.09),
+              ncol=3, frameon=False)
+    fig.tight_layout()
+    return _save(fig, Path(out_dir) / f"fig5_cost_{airframe_name}.png", layout=False)
+
+
 def make_all(airframe: Airframe, ds, rungs, legacy: dict, result: dict, out: Path,
              known: dict | None = None) -> dict[str, str]:
     """Every figure for one airframe; returns name -> PNG path. ``known``: predictions the
     pipeline already made, ``{(model, sortie): result}``, reused instead of recomputed."""
-    from uavdyn.experiments import cost
-
     out = Path(out)
     test = ds.test
     models = _solvers(rungs, legacy)
@@ -229,7 +344,7 @@ def make_all(airframe: Airframe, ds, rungs, legacy: dict, result: dict, out: Pat
     fig4 = loss_history(airframe, result["weights"], out)
     if fig4:
         paths["fig4"] = fig4
-    paths["fig5"] = cost.cost_figure(airframe.name, result["cost"], out)
+    paths["fig5"] = cost_figure(airframe.name, result["cost"], out)
     paths["fig6"] = error_distribution(airframe, test, models, out, known)
-    paths["work_precision"] = cost.work_precision_figure(airframe.name, result["cost"], out)
+    paths["work_precision"] = work_precision_figure(airframe.name, result["cost"], out)
     return paths
