@@ -3,9 +3,9 @@ physics vs identified physics, pitch RMSE on the TEST split, calm and turbulent 
 1 s predictions restarted from recorded states and for whole-sortie free runs; with the wall
 time of each identification.
 
-Two fits per airframe: today's aerodynamic/propulsive coefficients (``physics``), and the same
-plus the actuator lag and integer transport delays the kind has (``physics+actuators``: fixed
-wing ``tau_elevator``, ``delay_elevator``; quadrotor ``tau_rotor``, ``delay_collective``,
+Two fits per airframe: the pipeline's list (``physics``: :data:`IDENTIFY_PARAMS`, coefficients,
+lags and the kind's unsteady/rotor terms), and the same plus the integer transport delays the
+kind has (``physics+actuators``: fixed wing ``delay_elevator``; quadrotor ``delay_collective``,
 ``delay_pitch_cmd``); each on all train sorties and on the calm ones only (the model has no
 gusts: turbulent sorties pull the estimates). Every model is scored by its own discrete step
 (RK4, 2 sub-steps per 100 Hz sample, i.e. dt = 0.005 s; lags and delay buffers as augmented
@@ -31,16 +31,14 @@ from pathlib import Path
 import numpy as np
 
 from uavdyn.airframes import load_airframe
+from uavdyn.experiments.common import IDENTIFY_PARAMS
 from uavdyn.experiments.reproduce import ReproduceConfig, dataset_for
 from uavdyn.identify import free_run_sortie, identify, make_windows, predict_windows
 
-PARAMS = {  # what is identified per airframe kind (aerodynamic/propulsive, not geometry)
-    "fixed_wing": ["C_m_alpha", "C_m_q", "C_m_0", "C_m_delta_e", "C_L_alpha", "C_D_0"],
-    "multirotor": ["pitch_mix", "pitch_damping", "drag_linear", "CdA_x", "CdA_z", "c_T"],
-}
-ACTUATORS = {  # the lag and delays each kind has in the model structure
-    "fixed_wing": ["tau_elevator", "delay_elevator"],
-    "multirotor": ["tau_rotor", "delay_collective", "delay_pitch_cmd"],
+PARAMS = {kind: list(names) for kind, names in IDENTIFY_PARAMS.items()}  # the pipeline's lists
+ACTUATORS = {  # the transport delays each kind has in the model structure
+    "fixed_wing": ["delay_elevator"],
+    "multirotor": ["delay_collective", "delay_pitch_cmd"],
 }
 SUBSTEPS = 2   # RK4 steps per log sample (dt = 0.005 s at 100 Hz)
 HORIZON_S = 1.0

@@ -116,3 +116,15 @@ def test_recovers_an_alpha_dot_derivative_from_a_zero_nominal(aerosonde):
     fitted = {e.name: e.value for e in result.estimates}
     assert abs(fitted["C_m_alpha_dot"] + 8.0) < 1e-4
     assert abs(fitted["C_m_q"] - aerosonde.params.C_m_q) < 1e-4 * abs(aerosonde.params.C_m_q)
+
+
+def test_bound_flag_marks_estimates_on_a_bound_not_small_interior_ones():
+    """An estimate IPOPT left a hair inside its bound is flagged; a small estimate of a
+    zero-nominal parameter with a wide physical range (0..1e3 in units of 1) is not."""
+    from uavdyn.identify.output_error import _at_bound
+
+    assert _at_bound(6e-4, 0.0, 1e3) == ""
+    assert _at_bound(1e-9, 0.0, 1e3) == "lower"
+    assert _at_bound(-0.9 + 1e-8, -0.9, 0.9) == "lower"
+    assert _at_bound(0.9 - 1e-7, -0.9, 0.9) == "upper"
+    assert _at_bound(0.3, -0.9, 0.9) == ""

@@ -244,3 +244,17 @@ def test_window_start_states_equal_the_steps_own_actuator_history(aerosonde):
     np.testing.assert_allclose(actuator_states(structure, controls, airframe.p, T),
                                actuator_history(structure, controls, airframe.p, T),
                                rtol=0, atol=1e-15)
+
+
+def test_recovers_rotor_craft_moments_and_inflow_from_zero_nominals(f450):
+    """The speed-stability moment ``M_u``, a constant moment ``M_0`` and the axial-inflow loss
+    ``k_inflow`` (all absent from the preset) are recovered beside the mixer gain from
+    closed-loop flights, where the pitch loop's steady command holds the unmodelled moments."""
+    truth = f450.replace(M_u=0.012, M_0=-0.003, k_inflow=6e-4,
+                         pitch_mix=1.2 * f450.params.pitch_mix)
+    assert f450.params.M_u == f450.params.M_0 == f450.params.k_inflow == 0.0
+    names = ["M_u", "M_0", "k_inflow", "pitch_mix"]
+    result = identify(f450, _quadrotor_sorties(truth, 3, 7), [], names, progress=False)
+    for e in result.estimates:
+        true = _true_value(truth, e.name)
+        assert abs(e.value - true) <= 5e-3 * abs(true), (e.name, e.value, true)

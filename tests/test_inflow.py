@@ -1,4 +1,5 @@
-"""Multirotor rotor thrust lost to axial inflow (optional ``k_inflow``).
+"""Multirotor rotor thrust lost to axial inflow (optional ``k_inflow``) and the rotor-craft
+pitching moments (optional ``M_u``, ``M_0``).
 
 Per rotor ``omega = max(C_R sigma + omega_b, 0)`` and
 ``T = max(c_T omega^2 - k_inflow omega v_axial, 0)`` with the climb speed through the disc
@@ -135,3 +136,25 @@ def test_inflow_is_the_same_in_numpy_torch_casadi(f450):
     assert np.abs(f_t - f_np).max() <= 1e-12 * scale
     assert np.abs(f_ca - f_np).max() <= 1e-12 * scale
     assert np.abs(f_np - make_rhs("multirotor", ops=NUMPY_OPS)(x, u, f450.p)).max() > 0.1
+
+
+def test_rotor_craft_moments_add_exactly_their_pitch_acceleration(f450):
+    """``M_u`` and ``M_0`` add ``(M_0 + M_u u) / J_y`` to ``q_dot`` and nothing else, in NumPy,
+    torch and CasADi; at their default 0 the preset's hash is the one recorded before they
+    existed."""
+    torch = pytest.importorskip("torch")
+    from uavdyn.model import torch_ops
+
+    assert f450.replace(M_u=0.0, M_0=0.0).param_hash() == PRESET_HASH["f450"]
+    airframe = f450.replace(M_u=0.012, M_0=-0.003)
+    x, u = _states(1000, 5)
+    base = make_rhs("multirotor", ops=NUMPY_OPS)(x, u, f450.p)
+    expected = base.copy()
+    expected[2] += (-0.003 + 0.012 * x[0]) / f450.params.Jy
+    f_np = make_rhs("multirotor", ops=NUMPY_OPS)(x, u, airframe.p)
+    f_t = make_rhs("multirotor", ops=torch_ops())(torch.as_tensor(x), torch.as_tensor(u),
+                                                  torch.as_tensor(airframe.p)).numpy()
+    f_ca = np.array(build_model(airframe).f.map(1000)(x, u, airframe.p))
+    scale = np.abs(expected).max()
+    for got in (f_np, f_t, f_ca):
+        assert np.abs(got - expected).max() <= 1e-12 * scale

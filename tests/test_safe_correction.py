@@ -291,9 +291,28 @@ def test_safe_training_keeps_a_correction_only_under_its_rules():
         assert all(r <= cfg.worst_sortie_ratio for r in v["sortie_ratios"].values())
         assert v["corrected_theta_rmse"] < v["physics_theta_rmse"]
         assert result.net.info["output_scale"] == v["output_scale"]
+        chosen = v["shrink_tried"][-1]
+        assert chosen["scale"] == v["output_scale"] and chosen["free_run_ok"]
+        assert chosen["free_run_new_departures"] == 0
     else:
         assert result.net is None
         assert "physics is kept" in result.reason or "destabilises" in result.reason
+
+
+def test_free_run_rule_counts_new_departures_and_ratios_only_where_the_physics_follows():
+    """The validation free-run rule: ratios only over sorties whose physics run stayed with the
+    data, a departure of the corrected run where the physics' did not always fails."""
+    from uavdyn.learned.safe import free_run_verdict
+
+    physics = [(0.10, False), (0.20, False), (3.0, True)]
+    ok = free_run_verdict(physics, [(0.105, False), (0.15, False), (math.inf, True)], 1.1)
+    assert ok["free_run_ok"] and ok["free_run_scored"] == 2
+    assert ok["free_run_worst"] == pytest.approx(1.05)
+    worse = free_run_verdict(physics, [(0.12, False), (0.15, False), (0.1, False)], 1.1)
+    assert not worse["free_run_ok"] and worse["free_run_worst"] == pytest.approx(1.2)
+    left = free_run_verdict(physics, [(0.05, False), (0.9, True), (3.0, True)], 1.1)
+    assert not left["free_run_ok"] and left["free_run_new_departures"] == 1
+    assert left["free_run_worst"] == pytest.approx(0.5)
 
 
 @pytest.mark.parametrize("name", ["aerosonde", "f450"])

@@ -33,7 +33,11 @@ Fixed wing also: ``tau_elevator``, ``tau_throttle`` (s, first-order actuator lag
 lag is the engine's power lag in front of the thrust model or table). Multirotor: ``tau_rotor``
 (s, rotor-speed lag of both commands: rotor speed is linear in them) and ``k_inflow`` (thrust loss
 ``k_inflow * omega * v_axial`` with the climb speed through the disc). A time constant of 0 means
-no lag and no actuator state.
+no lag and no actuator state. Multirotor pitching moments a rotor craft has besides the rotors'
+thrust difference: ``M_u`` (N m per m/s, the speed-stability derivative: blade flapping tilts
+the rotor discs back in forward flight, a nose-up moment ``M_u * u``) and ``M_0`` (N m, a constant
+moment, e.g. a centre of gravity off the rotors' centre); the autopilot holds them with a
+steady pitch command, which a model without them reads as missing control authority.
 
 Optional model structure (absent: none of it)::
 
@@ -186,6 +190,8 @@ class MultirotorParams:
     # Optional (default = absent = no effect); see OPTIONAL_PARAMS.
     tau_rotor: float = 0.0
     k_inflow: float = 0.0
+    M_u: float = 0.0
+    M_0: float = 0.0
 
 
 ParamsType = Union[FixedWingParams, MultirotorParams]  # noqa: UP007 (runtime alias, py3.10)
@@ -291,6 +297,10 @@ BOUNDS: dict[str, dict[str, Bound]] = {
         "tau_rotor": _TAU,
         "k_inflow": _b(0, 1e3, "N s^2/(rad m)", "thrust loss per rotor speed and axial inflow "
                                                   "speed, >= 0", low_open=False),
+        "M_u": _b(-1e3, 1e3, "N s", "speed-stability pitching moment per forward airspeed "
+                                    "(blade flapping; > 0 nose-up)", high_open=True),
+        "M_0": _b(-1e4, 1e4, "N m", "constant pitching moment (e.g. centre-of-gravity offset)",
+                  high_open=True),
     },
 }
 

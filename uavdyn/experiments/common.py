@@ -20,11 +20,18 @@ from uavdyn.integrate import (
 FORMULATIONS = ("improved", "paper")
 NOMINAL_PHYSICS = "nominal physics"
 IDENTIFIED_PHYSICS = "identified physics"
-# What the pipeline identifies before it learns (aerodynamic/propulsive terms, not geometry);
-# the same lists as analysis/bench_identify.py measures.
+# What the pipeline identifies before it learns: aerodynamic/propulsive terms (not geometry),
+# the actuator lags and the unsteady or rotor-craft terms every real airframe of the kind has
+# (alpha-dot moment; rotor lag, speed-stability moment, a constant moment, axial inflow). Each
+# of these, left out, is absorbed by the others: without ``M_u`` and ``M_0`` the steady pitch
+# command an autopilot holds against them reads as missing authority (``pitch_mix`` ran to its
+# bound), without the lags the control derivatives shrink. The same lists as
+# analysis/bench_identify.py measures.
 IDENTIFY_PARAMS = {
-    "fixed_wing": ("C_m_alpha", "C_m_q", "C_m_0", "C_m_delta_e", "C_L_alpha", "C_D_0"),
-    "multirotor": ("pitch_mix", "pitch_damping", "drag_linear", "CdA_x", "CdA_z", "c_T"),
+    "fixed_wing": ("C_m_alpha", "C_m_q", "C_m_0", "C_m_delta_e", "C_L_alpha", "C_D_0",
+                   "tau_elevator", "tau_throttle", "C_m_alpha_dot"),
+    "multirotor": ("pitch_mix", "pitch_damping", "drag_linear", "CdA_x", "CdA_z", "c_T",
+                   "tau_rotor", "M_u", "M_0", "k_inflow"),
 }
 
 

@@ -533,8 +533,11 @@ def _covariance(r: np.ndarray, J, n_theta: int, n_dx: int, names: list[str]
 
 
 def _at_bound(value: float, low: float, high: float) -> str:
-    """Which bound an estimate ended on (within 1e-4 of the allowed range), if any."""
-    span = 1e-4 * max(high - low if math.isfinite(high - low) else 1.0, 1e-300)
+    """Which bound an estimate ended on, if any: within 1e-4 of the allowed range in the fit's
+    units (the nominal value's magnitude; 1 for a parameter whose nominal value is 0), a range
+    counted as at most 2 units so a zero-nominal parameter's wide physical range (e.g. 0..1e3)
+    does not flag a small but clearly interior estimate."""
+    span = 1e-4 * max(min(high - low, 2.0) if math.isfinite(high - low) else 1.0, 1e-300)
     return "lower" if value - low <= span else "upper" if high - value <= span else ""
 
 

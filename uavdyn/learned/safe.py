@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
-from uavdyn.integrate import compile_function, physics_step, rollout
+from uavdyn.integrate import compile_function, free_run, physics_step, rollout
 from uavdyn.learned.envelope import Envelope
 from uavdyn.learned.formulations import CorrectionLayout
 from uavdyn.learned.hybrid import correction_structure, hybrid_step, layout_states
@@ -43,6 +43,7 @@ from uavdyn.learned.weights import CorrectionNet
 from uavdyn.model import sortie_params
 
 THETA = 3
+FREE_RUN_DEPARTURE = 0.5  # rad of pitch error: a free run past it has left the data
 
 
 class SafeTrainingError(ValueError):
@@ -53,7 +54,7 @@ class SafeTrainingError(ValueError):
 class SafeConfig:
     """Everything that defines a safe-correction training run (saved with the weights)."""
 
-    hidden: int = 16
+    hidden: int = 8                   # 3 x 8 ReLU: width sets the step cost (bench_hybrid)
     activation: str = "relu"
     memory_tau: tuple[float, ...] | None = None  # None: (0.05, 0.2) s without actuator states
     horizon_s: float = 2.0            # rollout windows from recorded states, this long
@@ -75,6 +76,8 @@ class SafeConfig:
     bound_factor: float = 2.0
     shrink: tuple[float, ...] = (1.0, 0.75, 0.5, 0.35, 0.25)  # output scales tried at the end
     worst_sortie_ratio: float = 1.1  # every validation sortie: corrected/physics at 1 s <= this
+    free_run_guard: bool = True      # ... and over its whole free run, where the physics' stays
+                                     # within FREE_RUN_DEPARTURE of the data; no new departures
     seed: int = 0
     threads: int = 1
     max_seconds: float = 3600.0       # a safety net: epochs and patience end a run, so
@@ -147,6 +150,39 @@ def _rollout(model: TorchCorrection, z0, u, p, dt: float) -> torch.Tensor:
 
 def _theta_rmse(pred: np.ndarray, y: np.ndarray, H: int) -> float:
     return float(np.sqrt(np.mean((pred[:, :H, THETA] - y[:, :H, THETA]) ** 2)))
+
+
+def _free_run_errors(step, start, sorties: list[Sortie], airframe: Airframe, sample_dt: float
+                     ) -> list[tuple[float, bool]]:
+    """Per sortie: pitch RMSE of the open-loop replay of its commands from its first recorded
+    state (``start(states, controls, p, dt)`` builds the step's state), and whether the pitch
+    error ever passed :data:`FREE_RUN_DEPARTURE` (or the state stopped being finite)."""
+    out = []
+    for s in sorties:
+        p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
+        z0 = start(s.states[:1], s.controls[:1], p, sample_dt)[0]
+        traj = free_run(step, z0, s.controls[:-1], p, sample_dt, compile=False, check=False)
+        with np.errstate(all="ignore"):
+            err = np.abs(traj[:, THETA] - s.states[:, THETA])
+            departed = bool(np.any(~np.isfinite(err) | (err > FREE_RUN_DEPARTURE)))
+            rmse = float(np.sqrt(np.mean(err**2))) if np.all(np.isfinite(err)) else math.inf
+        out.append((rmse, departed))
+    return out
+
+
+def free_run_verdict(physics: list[tuple[float, bool]], corrected: list[tuple[float, bool]],
+                     worst_ratio: float) -> dict:
+    """The free-run rule over validation sorties: no corrected run departs where the physics'
+    did not, and where the physics' stayed with the data the corrected pitch RMSE is at most
+    ``worst_ratio`` times the physics'. Sorties where the physics departed only count for
+    departures (their RMSE says nothing)."""
+    ratios = [c[0] / p[0] for p, c in zip(physics, corrected)
+              if not p[1] and p[0] > 0 and not c[1]]
+    new_departures = sum(1 for p, c in zip(physics, corrected) if c[1] and not p[1])
+    worst = max(ratios) if ratios else None
+    return {"free_run_worst": worst, "free_run_new_departures": new_departures,
+            "free_run_scored": len(ratios),
+            "free_run_ok": new_departures == 0 and (worst is None or worst <= worst_ratio)}
 
 
 def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
@@ -350,7 +386,10 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                 "trims": [t.describe() for t in trims], "trims_skipped": skipped,
                 "memory_tau": list(taus), "train_seconds": time.perf_counter() - start}
 
-    chosen, tried, report = None, [], None
+    def physics_start(states, controls, p, d):
+        return layout_states(layout0, states, controls, p, d)[:, :layout0.n_physics]
+
+    chosen, tried, report, physics_free = None, [], None, None
     for alpha in cfg.shrink:
         scaled(alpha)
         sel = selection(V)
@@ -360,8 +399,17 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                 and sel["val_ratio_geomean"] < 1.0 and sel["val_theta_rmse"] < physics_val):
             continue
         net = model.export(airframe.param_hash(), info(alpha, sel, tried))
-        report = check_map_stability(hybrid_step(net, airframe, compile=False), phys, trims, dt,
-                                     cfg.stability_margin, skipped)
+        step = hybrid_step(net, airframe, compile=False)
+        if cfg.free_run_guard:
+            if physics_free is None:
+                physics_free = _free_run_errors(phys, physics_start, val_sorties, airframe,
+                                                sample_dt)
+            start_of = step.start_states or (lambda st, u, p, d: st)
+            row.update(free_run_verdict(physics_free, _free_run_errors(
+                step, start_of, val_sorties, airframe, sample_dt), cfg.worst_sortie_ratio))
+            if not row["free_run_ok"]:
+                continue
+        report = check_map_stability(step, phys, trims, dt, cfg.stability_margin, skipped)
         row["stable"] = report.ok
         if report.ok:
             chosen = (alpha, sel, net)
@@ -386,10 +434,18 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                   "output_scale": alpha, "shrink_tried": tried}
     seconds = time.perf_counter() - start
     if chosen is not None:
+        free = tried[-1]
+        free_text = ""
+        if "free_run_ok" in free:
+            worst_free = free["free_run_worst"]
+            free_text = (f"; free runs: worst ratio "
+                         f"{'n/a' if worst_free is None else f'{worst_free:.3g}'} over "
+                         f"{free['free_run_scored']} sorties the physics follows, no new "
+                         "departure")
         return SafeResult(net, True, f"validation pitch RMSE at {horizon_sel:g} s "
                           f"{physics_val:.4g} -> {final['val_theta_rmse']:.4g} rad (per-sortie "
                           f"ratio geometric mean {final['val_ratio_geomean']:.3g}, worst "
-                          f"{final['val_ratio_worst']:.3g}, output scale {alpha:g}); "
+                          f"{final['val_ratio_worst']:.3g}, output scale {alpha:g}){free_text}; "
                           f"{report.describe()}", history, cfg, best[1], seconds, validation,
                           report)
     if any(r.get("stable") is False for r in tried):  # beat the physics, failed the check
@@ -397,6 +453,18 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                           f"{cfg.stability_weight:g}) or --stability-margin (now "
                           f"{cfg.stability_margin:g}) and retrain", history, cfg, best[1],
                           seconds, validation, report)
+    free_fails = [r for r in tried if r.get("free_run_ok") is False]
+    if free_fails:  # beat the physics at the selection horizon, not over whole free runs
+        r = free_fails[-1]
+        why = [f"{r['free_run_new_departures']} run(s) leave the data where the physics' do "
+               "not"] if r["free_run_new_departures"] else []
+        if r["free_run_worst"] is not None and r["free_run_worst"] > cfg.worst_sortie_ratio:
+            why.append(f"worst free-run ratio {r['free_run_worst']:.3g} > "
+                       f"{cfg.worst_sortie_ratio:g}")
+        return SafeResult(None, False, f"every output scale that beats the physics at "
+                          f"{horizon_sel:g} s makes validation free runs worse (smallest, "
+                          f"{r['scale']:g}: {'; '.join(why)}): the physics is kept", history,
+                          cfg, best[1], seconds, validation, report)
     closest = min(tried, key=lambda r: r["val_ratio_worst"])
     return SafeResult(None, False, f"the correction does not beat the physics on every "
                       f"validation sortie at {horizon_sel:g} s at any output scale tried "

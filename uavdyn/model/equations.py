@@ -190,7 +190,8 @@ def multirotor_forces(x, u, p, ops=CASADI_OPS, structure: ModelStructure | None 
                       with_position: bool = False):
     """Body-axis force X, Z (N) and moment M (N m) of an X-frame quadrotor in the pitch plane:
     front pair and rear pair of rotors (thrust lost to axial inflow), body drag (linear rotor
-    drag + quadratic parasite)."""
+    drag + quadratic parasite), pitch damping, a speed-stability moment ``M_u u`` and a constant
+    moment ``M_0``."""
     P = symbolic_params("multirotor", p)
     if structure is not None:
         P = SimpleNamespace(**{**vars(P), "rho": air_density(P, x, structure, with_position,
@@ -204,7 +205,7 @@ def multirotor_forces(x, u, p, ops=CASADI_OPS, structure: ModelStructure | None 
     lever = P.arm * ops.sqrt(0.5)
     X = -P.drag_linear * ub - 0.5 * P.rho * P.CdA_x * ops.fabs(ub) * ub
     Z = -thrust - 0.5 * P.rho * P.CdA_z * ops.fabs(wb) * wb
-    M = 2 * (t_front - t_rear) * lever - P.pitch_damping * q
+    M = 2 * (t_front - t_rear) * lever - P.pitch_damping * q + P.M_0 + P.M_u * ub
     V = ops.sqrt(ub**2 + wb**2)
     alpha = ops.atan2(wb, ub)
     return X, Z, M, alpha, V, thrust
