@@ -34,7 +34,8 @@ DURATION = 3.0
 @pytest.fixture(scope="module")
 def sortie_and_models():
     """A 3 s 'flight' of a fixed wing whose derivatives are 10 % off the model (states from
-    RK4 at 1 ms), an 'identified' airframe and a stand-in correction bound to dt 0.01 s."""
+    RK4 at 1 ms), an 'identified' airframe (with an actuator lag state) and a stand-in
+    correction bound to dt 0.01 s."""
     af = load_airframe("aerosonde")
     flown = perturb(af, 1.10)
     point = trim(af)
@@ -48,7 +49,10 @@ def sortie_and_models():
     sortie = Sortie("synthetic", "fixed_wing", t, states, U, mission="doublet",
                     meta={"condition": "calm"}, true_states=states)
     bound = HybridStep(physics_step(flown), trained_dt=0.01, t_range=None)
-    models = {"identified physics": (physics_step(flown), flown), "corrected": (bound, flown)}
+    # identified with an elevator lag: its step runs on the augmented state (actuators at rest
+    # on the first command), as an identified airframe's does
+    ident = flown.replace(tau_elevator=0.005)
+    models = {"identified physics": (physics_step(ident), ident), "corrected": (bound, flown)}
     return af, sortie, models
 
 
@@ -134,3 +138,16 @@ def test_figures_are_written_as_png(study, tmp_path):
     for path in (wp, bars):
         with open(path, "rb") as fh:
             assert fh.read(8) == PNG_MAGIC
+
+
+def test_headline_cost_ratio_is_the_one_at_the_ladders_step():
+    """The report's headline cost is the corrected/identified ratio at the step the ladder
+    scores the correction at, not the first step size the study happened to time."""
+    from uavdyn.experiments.report import corrected_cost_ratio
+
+    rows = [{"model": "corrected", "dt": dt, "baseline": f"identified physics @ {dt:g} s",
+             "median": m, "min": m} for dt, m in ((0.02, 1.2), (0.01, 1.4), (0.005, 1.5))]
+    af = {"cost": {"ratios": {"vs_physics_same_dt": rows}}, "ladder": {"dt": 0.01 - 2e-16}}
+    assert corrected_cost_ratio(af)["median"] == 1.4
+    af["ladder"]["dt"] = 0.0025
+    assert corrected_cost_ratio(af) is None

@@ -105,19 +105,20 @@ def usable(step, dt: float) -> bool:
 
 
 def free_run_runner(step, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
-                    sample_dt: float, dt: float, compiled: bool = True):
+                    sample_dt: float, dt: float, compiled: bool = True, structure=None):
     """A callable running one whole-sortie free run of ``step`` (``controls`` one row per log
     interval) and returning the body states at the log times (every ``dt/sample_dt``-th one
     when ``dt`` exceeds the log interval): what is timed (inputs converted once, outside the
     callable). A step on an augmented state starts from the state its own ``start_states``
-    builds from ``x0`` and the first command."""
+    builds from ``x0`` and the first command; a physics step on one (lags, delay buffers)
+    from its actuators at rest on that command (``structure``: its layout)."""
     g = EvalGrid(sample_dt, dt)
     check_use(step, dt, 0.0, len(controls) * sample_dt)
     controls = controls[::g.stride]  # a step longer than the log interval samples its start
     func = rollout(step, len(controls), g.substeps)
     func = compile_function(func) if compiled else func
     z0 = (x0 if step.size1_in(0) == len(x0)
-          else step_states(step, None, x0[None, :], controls[:1], p, g)[0])
+          else step_states(step, structure, x0[None, :], controls[:1], p, g)[0])
     args = [ca.DM(z0), ca.DM(np.ascontiguousarray(controls.T)), ca.DM(p), dt]
     if takes_time(step):
         args.append(0.0)

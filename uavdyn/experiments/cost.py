@@ -151,15 +151,17 @@ def _scipy_simulator(rhs, p: np.ndarray, sample_dt: float, method: str, rtol: fl
 
 
 def _model_runner(step: ca.Function, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
-                  sample_dt: float, dt: float, compiled: bool) -> Callable[[], np.ndarray]:
+                  sample_dt: float, dt: float, compiled: bool, structure=None
+                  ) -> Callable[[], np.ndarray]:
     """:func:`free_run_runner` on the solver's own grid: for ``dt`` a multiple of the log
     interval the solver samples the logged command at its own step start (as
     :func:`uavdyn.evaluation.evaluate_trajectory` does)."""
     g = EvalGrid(sample_dt, dt)
     if g.stride > 1:
         n = len(controls) - len(controls) % g.stride
-        return free_run_runner(step, x0, controls[:n:g.stride], p, dt, dt, compiled)
-    return free_run_runner(step, x0, controls, p, sample_dt, dt, compiled)
+        return free_run_runner(step, x0, controls[:n:g.stride], p, dt, dt, compiled,
+                               structure)
+    return free_run_runner(step, x0, controls, p, sample_dt, dt, compiled, structure)
 
 
 def _bar_total(progress, n: int) -> None:
@@ -252,7 +254,7 @@ def cost_study(nominal: Airframe, sortie: Sortie,
             if why is None:
                 try:
                     EvalGrid(sample_dt, dt)
-                    run = _model_runner(step, x0, ctrl, p, sample_dt, dt, compiled)
+                    run = _model_runner(step, x0, ctrl, p, sample_dt, dt, compiled, structure)
                 except (GridError, StepUseError, ValueError) as exc:
                     why = str(exc)
             if why is not None:  # reported missing with the reason, never dropped

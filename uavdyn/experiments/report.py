@@ -28,11 +28,14 @@ def _ci(m: dict) -> str:
 
 
 def corrected_cost_ratio(af: dict) -> dict | None:
-    """The corrected step's time over the identified physics step's at the same step size,
-    from the cost study's one harness run (None if either was not timed)."""
+    """The corrected step's time over the identified physics step's at the ladder's step size
+    (the log interval the correction is scored at), from the cost study's one harness run
+    (None if either was not timed there)."""
     same = ((af.get("cost") or {}).get("ratios") or {}).get("vs_physics_same_dt", [])
+    dt = (af.get("ladder") or {}).get("dt")
     return next((r for r in same if r["model"] == "corrected"
-                 and r["baseline"].startswith("identified physics")), None)
+                 and r["baseline"].startswith("identified physics")
+                 and (dt is None or abs(r["dt"] - dt) <= 1e-9 * max(1.0, dt))), None)
 
 
 def headline_lines(af: dict) -> list[str]:

@@ -75,6 +75,7 @@ class SafeConfig:
     envelope_fade: float = 0.25
     bound_factor: float = 2.0
     shrink: tuple[float, ...] = (1.0, 0.75, 0.5, 0.35, 0.25)  # output scales tried at the end
+    candidate_epochs: int = 5        # the best epochs (by rank) the final checks go through
     worst_sortie_ratio: float = 1.1  # every validation sortie: corrected/physics at 1 s <= this
     free_run_guard: bool = True      # ... and over its whole free run, where the physics' stays
                                      # within FREE_RUN_DEPARTURE of the data; no new departures
@@ -329,6 +330,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     history = [{"epoch": 0, **sel0, **fixed_losses(), "physics_val_theta_rmse": physics_val,
                 "seconds": time.perf_counter() - start}]
     best = ((True, math.inf), 0, {k: v.clone() for k, v in model.state_dict().items()}, sel0)
+    snapshots = []  # every trained epoch: the candidates of the final checks
     bar = tqdm(range(1, cfg.epochs + 1), desc=f"train {airframe.name} (safe)", unit="epoch",
                disable=not cfg.progress)
     n_w = len(tr.z0)
@@ -356,17 +358,21 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                         val=f"{sel['val_theta_rmse']:.3g}", physics=f"{physics_val:.3g}",
                         ratio=f"{sel['val_ratio_geomean']:.3g}",
                         worst=f"{sel['val_ratio_worst']:.3g}")
+        if math.isfinite(sel["val_theta_rmse"]):
+            snapshots.append((rank(sel), epoch,
+                              {k: v.clone() for k, v in model.state_dict().items()}, sel))
         if rank(sel) < best[0] and math.isfinite(sel["val_theta_rmse"]):
-            best = (rank(sel), epoch, {k: v.clone() for k, v in model.state_dict().items()}, sel)
+            best = snapshots[-1]
         elif epoch - best[1] >= cfg.patience:
             break
         if elapsed > cfg.max_seconds:
             break
     bar.close()
     model.load_state_dict(best[2])
-    # the largest output scale at which no validation sortie is worse than the physics and
-    # the map keeps the stability rule: a post-hoc guard on every sortie and trim, not only on
-    # the pooled figure
+    # Through the best epochs by rank, the largest output scale at which no validation sortie
+    # is worse than the physics (at the selection horizon and over free runs) and the map keeps
+    # the stability rule: post-hoc guards on every sortie and trim, not only on the pooled
+    # figure; the first epoch and scale passing all of them is kept.
     out_scale0, bound0 = model.out_scale.clone(), np.asarray(layout.bound, float)
 
     def scaled(alpha: float) -> None:
@@ -374,8 +380,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
             model.out_scale.copy_(out_scale0 * alpha)
         model.layout = replace(layout, bound=bound0 * alpha)
 
-    def info(alpha: float, final: dict, tried: list) -> dict:
-        return {"config": asdict(cfg), "airframe": airframe.name, "best_epoch": best[1],
+    def info(alpha: float, final: dict, tried: list, epoch: int) -> dict:
+        return {"config": asdict(cfg), "airframe": airframe.name, "best_epoch": epoch,
                 "output_scale": alpha, "shrink_tried": tried,
                 "val_theta_rmse": final["val_theta_rmse"],
                 "val_ratio_geomean": final["val_ratio_geomean"],
@@ -390,39 +396,46 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         return layout_states(layout0, states, controls, p, d)[:, :layout0.n_physics]
 
     chosen, tried, report, physics_free = None, [], None, None
-    for alpha in cfg.shrink:
-        scaled(alpha)
-        sel = selection(V)
-        row = {"scale": alpha, **{k: v for k, v in sel.items() if k != "val_sortie_ratios"}}
-        tried.append(row)
-        if not (sel["val_ratio_worst"] <= cfg.worst_sortie_ratio
-                and sel["val_ratio_geomean"] < 1.0 and sel["val_theta_rmse"] < physics_val):
-            continue
-        net = model.export(airframe.param_hash(), info(alpha, sel, tried))
-        step = hybrid_step(net, airframe, compile=False)
-        if cfg.free_run_guard:
-            if physics_free is None:
-                physics_free = _free_run_errors(phys, physics_start, val_sorties, airframe,
-                                                sample_dt)
-            start_of = step.start_states or (lambda st, u, p, d: st)
-            row.update(free_run_verdict(physics_free, _free_run_errors(
-                step, start_of, val_sorties, airframe, sample_dt), cfg.worst_sortie_ratio))
-            if not row["free_run_ok"]:
+    candidates = sorted(snapshots, key=lambda c: (c[0], c[1]))[:max(1, cfg.candidate_epochs)]
+    for _, epoch_c, state, _ in candidates:
+        model.load_state_dict(state)
+        for alpha in cfg.shrink:
+            scaled(alpha)
+            sel = selection(V)
+            row = {"epoch": epoch_c, "scale": alpha,
+                   **{k: v for k, v in sel.items() if k != "val_sortie_ratios"}}
+            tried.append(row)
+            if not (sel["val_ratio_worst"] <= cfg.worst_sortie_ratio
+                    and sel["val_ratio_geomean"] < 1.0 and sel["val_theta_rmse"] < physics_val):
                 continue
-        report = check_map_stability(step, phys, trims, dt, cfg.stability_margin, skipped)
-        row["stable"] = report.ok
-        if report.ok:
-            chosen = (alpha, sel, net)
+            net = model.export(airframe.param_hash(), info(alpha, sel, tried, epoch_c))
+            step = hybrid_step(net, airframe, compile=False)
+            if cfg.free_run_guard:
+                if physics_free is None:
+                    physics_free = _free_run_errors(phys, physics_start, val_sorties,
+                                                    airframe, sample_dt)
+                start_of = step.start_states or (lambda st, u, p, d: st)
+                row.update(free_run_verdict(physics_free, _free_run_errors(
+                    step, start_of, val_sorties, airframe, sample_dt), cfg.worst_sortie_ratio))
+                if not row["free_run_ok"]:
+                    continue
+            report = check_map_stability(step, phys, trims, dt, cfg.stability_margin, skipped)
+            row["stable"] = report.ok
+            if report.ok:
+                chosen = (alpha, sel, net, epoch_c)
+                break
+        if chosen is not None:
             break
     if chosen is None:
+        model.load_state_dict(best[2])
         scaled(cfg.shrink[0])
-        alpha, final = cfg.shrink[0], best[3]
-        net = model.export(airframe.param_hash(), info(alpha, final, tried))
+        alpha, final, epoch_c = cfg.shrink[0], best[3], best[1]
+        net = model.export(airframe.param_hash(), info(alpha, final, tried, epoch_c))
         if report is None:
             report = check_map_stability(hybrid_step(net, airframe, compile=False), phys,
                                          trims, dt, cfg.stability_margin, skipped)
     else:
-        alpha, final, net = chosen
+        alpha, final, net, epoch_c = chosen
     validation = {"selection_horizon_s": horizon_sel, "physics_theta_rmse": physics_val,
                   "corrected_theta_rmse": final["val_theta_rmse"],
                   "ratio": (final["val_theta_rmse"] / physics_val if physics_val > 0
@@ -446,12 +459,12 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                           f"{physics_val:.4g} -> {final['val_theta_rmse']:.4g} rad (per-sortie "
                           f"ratio geometric mean {final['val_ratio_geomean']:.3g}, worst "
                           f"{final['val_ratio_worst']:.3g}, output scale {alpha:g}){free_text}; "
-                          f"{report.describe()}", history, cfg, best[1], seconds, validation,
+                          f"{report.describe()}", history, cfg, epoch_c, seconds, validation,
                           report)
     if any(r.get("stable") is False for r in tried):  # beat the physics, failed the check
         return SafeResult(None, False, report.describe() + "; raise --stability-weight (now "
                           f"{cfg.stability_weight:g}) or --stability-margin (now "
-                          f"{cfg.stability_margin:g}) and retrain", history, cfg, best[1],
+                          f"{cfg.stability_margin:g}) and retrain", history, cfg, epoch_c,
                           seconds, validation, report)
     free_fails = [r for r in tried if r.get("free_run_ok") is False]
     if free_fails:  # beat the physics at the selection horizon, not over whole free runs
@@ -464,14 +477,14 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         return SafeResult(None, False, f"every output scale that beats the physics at "
                           f"{horizon_sel:g} s makes validation free runs worse (smallest, "
                           f"{r['scale']:g}: {'; '.join(why)}): the physics is kept", history,
-                          cfg, best[1], seconds, validation, report)
+                          cfg, epoch_c, seconds, validation, report)
     closest = min(tried, key=lambda r: r["val_ratio_worst"])
     return SafeResult(None, False, f"the correction does not beat the physics on every "
                       f"validation sortie at {horizon_sel:g} s at any output scale tried "
                       f"({', '.join(f'{a:g}' for a in cfg.shrink)}; best worst-sortie ratio "
                       f"{closest['val_ratio_worst']:.3g} at scale {closest['scale']:g}, pooled "
                       f"{best[3]['val_theta_rmse']:.4g} vs {physics_val:.4g} rad): the physics "
-                      "is kept", history, cfg, best[1], seconds, validation, report)
+                      "is kept", history, cfg, epoch_c, seconds, validation, report)
 
 
 def write_safe_history(result: SafeResult, path) -> tuple:
