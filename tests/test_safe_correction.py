@@ -290,6 +290,7 @@ def test_safe_training_keeps_a_correction_only_under_its_rules():
         assert v["sortie_ratio_worst"] <= cfg.worst_sortie_ratio
         assert all(r <= cfg.worst_sortie_ratio for r in v["sortie_ratios"].values())
         assert v["corrected_theta_rmse"] < v["physics_theta_rmse"]
+        assert chosen_state_ok(v, cfg)
         assert result.net.info["output_scale"] == v["output_scale"]
         chosen = v["shrink_tried"][-1]
         assert chosen["scale"] == v["output_scale"] and chosen["free_run_ok"]
@@ -297,6 +298,14 @@ def test_safe_training_keeps_a_correction_only_under_its_rules():
     else:
         assert result.net is None
         assert "physics is kept" in result.reason or "destabilises" in result.reason
+
+
+def chosen_state_ok(validation: dict, cfg) -> bool:
+    """The kept scale's pooled 1 s error of every body state is within the state limit."""
+    row = validation["shrink_tried"][-1]
+    return (len(row["val_state_ratios"]) == 4
+            and max(row["val_state_ratios"]) == row["val_state_ratio_worst"]
+            and row["val_state_ratio_worst"] <= cfg.state_ratio_limit)
 
 
 def test_free_run_rule_counts_new_departures_and_ratios_only_where_the_physics_follows():

@@ -77,6 +77,8 @@ class SafeConfig:
     shrink: tuple[float, ...] = (1.0, 0.75, 0.5, 0.35, 0.25)  # output scales tried at the end
     candidate_epochs: int = 5        # the best epochs (by rank) the final checks go through
     worst_sortie_ratio: float = 1.1  # every validation sortie: corrected/physics at 1 s <= this
+    state_ratio_limit: float = 1.02  # every body state (u, w, q, theta): pooled validation
+                                     # error at the selection horizon, corrected/physics <= this
     free_run_guard: bool = True      # ... and over its whole free run, where the physics' stays
                                      # within FREE_RUN_DEPARTURE of the data; no new departures
     seed: int = 0
@@ -298,20 +300,31 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                             if np.any(va.sortie == i) else math.nan for i in range(n_val)])
     scored = np.isfinite(phys_sortie) & (phys_sortie > 0)
 
+    phys_states = np.sqrt(np.mean((va.physics[:, :H_sel] - va.y[:, :H_sel, :4]) ** 2,
+                                  axis=(0, 1)))
+    phys_states = np.where(phys_states > 0, phys_states, np.inf)
+
     def selection(D) -> dict:
-        """Validation pitch RMSE at the selection horizon (pooled), and per validation sortie
-        the ratio corrected / physics: their geometric mean selects, the worst one guards."""
+        """Validation pitch RMSE at the selection horizon (pooled), per validation sortie the
+        ratio corrected / physics (their geometric mean selects, the worst one guards) and per
+        body state the pooled ratio (guards: a correction may not buy pitch accuracy with
+        airspeed or climb-rate errors, which a speed or altitude controller would pay for)."""
         with torch.no_grad():
             pred = _rollout(model, D["z0"], D["u"][:, :H_sel], D["p"].T, dt).numpy()
         err = (pred[:, :, THETA] - va.y[:, :H_sel, THETA]) ** 2
         with np.errstate(over="ignore", invalid="ignore"):
+            states = np.sqrt(np.mean((pred - va.y[:, :H_sel, :4]) ** 2, axis=(0, 1)))
+            state_ratios = states / phys_states
             ratios = np.array([math.sqrt(float(np.mean(err[va.sortie == i]))) / phys_sortie[i]
                                if scored[i] else math.nan for i in range(n_val)])
             r = ratios[scored]
             geo = float(np.exp(np.mean(np.log(r)))) if len(r) else math.inf
             worst = float(np.max(r)) if len(r) else math.inf
         finite = math.isfinite(geo) and math.isfinite(worst)
+        worst_state = float(np.max(state_ratios))
         return {"val_theta_rmse": float(np.sqrt(np.mean(err))),
+                "val_state_ratios": [float(v) for v in state_ratios],
+                "val_state_ratio_worst": worst_state if math.isfinite(worst_state) else math.inf,
                 "val_ratio_geomean": geo if finite else math.inf,
                 "val_ratio_worst": worst if finite else math.inf,
                 "val_sortie_ratios": [None if not math.isfinite(v) else float(v)
@@ -406,7 +419,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                    **{k: v for k, v in sel.items() if k != "val_sortie_ratios"}}
             tried.append(row)
             if not (sel["val_ratio_worst"] <= cfg.worst_sortie_ratio
-                    and sel["val_ratio_geomean"] < 1.0 and sel["val_theta_rmse"] < physics_val):
+                    and sel["val_ratio_geomean"] < 1.0 and sel["val_theta_rmse"] < physics_val
+                    and sel["val_state_ratio_worst"] <= cfg.state_ratio_limit):
                 continue
             net = model.export(airframe.param_hash(), info(alpha, sel, tried, epoch_c))
             step = hybrid_step(net, airframe, compile=False)
@@ -442,6 +456,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                             else math.inf),
                   "sortie_ratio_geomean": final["val_ratio_geomean"],
                   "sortie_ratio_worst": final["val_ratio_worst"],
+                  "state_ratios": dict(zip(("u", "w", "q", "theta"),
+                                           final.get("val_state_ratios", []))),
                   "sortie_ratios": dict(zip([s.name for s in val_sorties],
                                             final["val_sortie_ratios"])),
                   "output_scale": alpha, "shrink_tried": tried}
@@ -458,12 +474,27 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         return SafeResult(net, True, f"validation pitch RMSE at {horizon_sel:g} s "
                           f"{physics_val:.4g} -> {final['val_theta_rmse']:.4g} rad (per-sortie "
                           f"ratio geometric mean {final['val_ratio_geomean']:.3g}, worst "
-                          f"{final['val_ratio_worst']:.3g}, output scale {alpha:g}){free_text}; "
+                          f"{final['val_ratio_worst']:.3g}, output scale {alpha:g}; every body "
+                          f"state's error at most {final['val_state_ratio_worst']:.3g}x the "
+                          f"physics'){free_text}; "
                           f"{report.describe()}", history, cfg, epoch_c, seconds, validation,
                           report)
+    # not kept: how every candidate (epoch, output scale) failed, then the closest reason
+    beat = [r for r in tried if r["val_ratio_worst"] <= cfg.worst_sortie_ratio
+            and r["val_ratio_geomean"] < 1.0 and r["val_theta_rmse"] < physics_val]
+    states_worse = [r["val_state_ratio_worst"] for r in beat
+                    if r["val_state_ratio_worst"] > cfg.state_ratio_limit]
+    tally = (f"of {len(tried)} candidates (epoch, output scale): {len(tried) - len(beat)} do not "
+             f"beat the physics in pitch on every validation sortie at {horizon_sel:g} s, "
+             f"{len(states_worse)} make a body state's error grow beyond "
+             f"{cfg.state_ratio_limit:g}x"
+             + (f" (least {min(states_worse):.4g}x)" if states_worse else "")
+             + f", {sum(r.get('free_run_ok') is False for r in tried)} fail the free-run guard, "
+             f"{sum(r.get('stable') is False for r in tried)} the stability check; ")
     if any(r.get("stable") is False for r in tried):  # beat the physics, failed the check
-        return SafeResult(None, False, report.describe() + "; raise --stability-weight (now "
-                          f"{cfg.stability_weight:g}) or --stability-margin (now "
+        return SafeResult(None, False, tally + report.describe() + "; raise "
+                          f"--stability-weight (now {cfg.stability_weight:g}) or "
+                          "--stability-margin (now "
                           f"{cfg.stability_margin:g}) and retrain", history, cfg, epoch_c,
                           seconds, validation, report)
     free_fails = [r for r in tried if r.get("free_run_ok") is False]
@@ -474,15 +505,20 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         if r["free_run_worst"] is not None and r["free_run_worst"] > cfg.worst_sortie_ratio:
             why.append(f"worst free-run ratio {r['free_run_worst']:.3g} > "
                        f"{cfg.worst_sortie_ratio:g}")
-        return SafeResult(None, False, f"every output scale that beats the physics at "
+        return SafeResult(None, False, tally + f"every output scale that beats the physics at "
                           f"{horizon_sel:g} s makes validation free runs worse (smallest, "
                           f"{r['scale']:g}: {'; '.join(why)}): the physics is kept", history,
                           cfg, epoch_c, seconds, validation, report)
-    closest = min(tried, key=lambda r: r["val_ratio_worst"])
-    return SafeResult(None, False, f"the correction does not beat the physics on every "
-                      f"validation sortie at {horizon_sel:g} s at any output scale tried "
-                      f"({', '.join(f'{a:g}' for a in cfg.shrink)}; best worst-sortie ratio "
-                      f"{closest['val_ratio_worst']:.3g} at scale {closest['scale']:g}, pooled "
+    closest = min(tried, key=lambda r: max(r["val_ratio_worst"] / cfg.worst_sortie_ratio,
+                                           r["val_state_ratio_worst"] / cfg.state_ratio_limit))
+    return SafeResult(None, False, tally + f"the correction does not beat the physics on every "
+                      f"validation sortie at {horizon_sel:g} s without a body state's error "
+                      f"growing (limits {cfg.worst_sortie_ratio:g}x per sortie in pitch, "
+                      f"{cfg.state_ratio_limit:g}x per state) at any epoch and output scale "
+                      f"tried ({', '.join(f'{a:g}' for a in cfg.shrink)}; closest: epoch "
+                      f"{closest['epoch']}, scale {closest['scale']:g}, worst sortie "
+                      f"{closest['val_ratio_worst']:.3g}x, worst state "
+                      f"{closest['val_state_ratio_worst']:.3g}x; pooled pitch "
                       f"{best[3]['val_theta_rmse']:.4g} vs {physics_val:.4g} rad): the physics "
                       "is kept", history, cfg, epoch_c, seconds, validation, report)
 
