@@ -409,7 +409,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         return layout_states(layout0, states, controls, p, d)[:, :layout0.n_physics]
 
     chosen, tried, report, physics_free = None, [], None, None
-    candidates = sorted(snapshots, key=lambda c: (c[0], c[1]))[:max(1, cfg.candidate_epochs)]
+    candidates = (sorted(snapshots, key=lambda c: (c[0], c[1]))[:max(1, cfg.candidate_epochs)]
+                  or [best])  # no finite epoch: the untrained (zero) network, never kept
     for _, epoch_c, state, _ in candidates:
         model.load_state_dict(state)
         for alpha in cfg.shrink:
