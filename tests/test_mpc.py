@@ -264,15 +264,21 @@ def test_predictions_are_finite_everywhere_and_exact_in_the_envelope(aerosonde, 
 
 
 def test_hybrid_prediction_model_solves(aerosonde_trim):
-    """The shipped safe correction (command-memory states carried by the controller) inside
-    the real-time iteration: every solve succeeds and the pitch settles on the emulator."""
+    """The shipped safe correction on its augmented state (the identified airframe's actuator
+    lags, or a command memory; carried by the controller) inside the real-time iteration: every
+    solve succeeds, the pitch settles on the emulator, and the carried states are the exact
+    first-order filters of the commands applied."""
     from uavdyn.mpc.study import prediction_models
 
     setup = prediction_models("aerosonde", mode="rti", models=("hybrid",))
     model = setup.models["hybrid"]
-    assert model.memory_tau and model.step.size1_in(0) == 4 + 2 * len(model.memory_tau)
+    P = model.airframe.params
+    taus = [t for t in (P.tau_elevator, P.tau_throttle)] if P.tau_elevator > 0 else []
+    assert len(taus) + len(model.memory_tau) > 0  # the step carries states besides the body
+    n_carried = (len(taus) if taus else 0) + 2 * len(model.memory_tau)
+    assert model.step.size1_in(0) == 4 + n_carried
     mpc = model.controller(MPCConfig(horizon=10, dt=0.05, mode="rti", compile=False))
-    assert mpc.nx == 5 + 2 * len(model.memory_tau)
+    assert mpc.nx == 5 + n_carried
     emulator = Emulator(setup.plant_airframe)
     pt = setup.plant_trim
     x0 = emulator.initial_state(pt.x, pt.u, 100.0)
@@ -281,7 +287,13 @@ def test_hybrid_prediction_model_solves(aerosonde_trim):
                              lambda t: np.full_like(t, 100.0), 25.0, weights=(100.0, 0.0, 1.0))
     assert result.success.all()
     assert abs(result.states[-1, 3] - result.theta_ref[-1]) < math.radians(0.3)
-    # the carried memory is the exact filter of the commands applied
-    from uavdyn.learned.hybrid import command_memory
-    expected = command_memory(np.vstack([pt.u, result.controls]), model.memory_tau, 0.05)
-    np.testing.assert_allclose(mpc.last_actuators, expected[-1], rtol=0, atol=1e-12)
+    # the carried states: exact first-order filters of the commands applied, at rest on the
+    # trim command (written out here: a <- u + (a - u) exp(-dt / tau) per control)
+    applied = np.vstack([pt.u, result.controls])
+    expected = []
+    for tau_list in ([taus] if taus else []) + [[t, t] for t in model.memory_tau]:
+        a = applied[0].copy()
+        for u in applied[:-1]:
+            a = u + (a - u) * np.exp(-0.05 / np.array(tau_list))
+        expected.extend(a)
+    np.testing.assert_allclose(mpc.last_actuators, expected, rtol=0, atol=1e-12)

@@ -73,14 +73,15 @@ def test_cli_defaults_match_train_config():
 
     args = build_parser().parse_args(["train"])
     d = asdict(TrainConfig())
-    for key in ("formulation", "target", "activation", "hidden", "dt", "rollout_horizon",
+    for key in ("formulation", "target", "activation", "dt", "rollout_horizon",
                 "rollout_weight", "lr", "seed", "threads"):
         assert getattr(args, key) == d[key], key
     # options whose default differs between the trainers are left to each trainer's config
     safe = asdict(SafeConfig())
-    for key in ("epochs", "patience", "max_seconds", "stability_weight"):
+    assert safe["hidden"] != d["hidden"]
+    for key in ("epochs", "patience", "max_seconds", "stability_weight", "hidden"):
         assert getattr(args, key) is None, key
-    for key in ("hidden", "lr", "seed", "threads", "stability_margin"):
+    for key in ("lr", "seed", "threads", "stability_margin"):
         assert getattr(args, key) == safe[key], key
     assert args.horizon == safe["horizon_s"]
 

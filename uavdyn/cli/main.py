@@ -649,7 +649,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--activation", default="relu", choices=["relu", "tanh"],
                    help="hidden-layer activation (default relu: cheapest in C; tanh is smooth "
                         "and bounded)")
-    p.add_argument("--hidden", type=int, default=16, help="hidden-layer width (default 16)")
+    p.add_argument("--hidden", type=int, default=None,
+                   help="hidden-layer width (default 8 for the safe correction, 16 for the "
+                        "legacy formulations)")
     p.add_argument("--dt", type=float, default=0.005,
                    help="hybrid step in s (default 0.005; the improved correction on flight "
                         "data steps once per log sample)")

@@ -352,13 +352,15 @@ def _check_replaceable(weights: Path, history: Path, force: bool) -> None:
 def run(args: argparse.Namespace) -> dict:
     """Train from parsed options; write weights, history JSON and PNG; return a summary."""
     airframe = load_airframe(args.airframe)
-    if args.hidden < 1 or (args.epochs is not None and args.epochs < 1):
+    if (args.hidden is not None and args.hidden < 1) or (args.epochs is not None
+                                                         and args.epochs < 1):
         raise ValueError("--hidden and --epochs must be >= 1")
     safe = args.formulation == "improved" and args.target == "data"
     if not safe:  # the legacy trainer's own defaults where an option was not given
         args = argparse.Namespace(**{**vars(args), **{
             k: (TrainConfig.__dataclass_fields__[k].default if getattr(args, k) is None
-                else getattr(args, k)) for k in ("epochs", "patience", "max_seconds")}})
+                else getattr(args, k)) for k in ("epochs", "patience", "max_seconds",
+                                                 "hidden")}})
     cfg = TrainConfig(formulation=args.formulation, target=args.target,
                       rollout_batch=getattr(args, "rollout_batch", TrainConfig.rollout_batch),
                       activation=args.activation, hidden=args.hidden, dt=args.dt,
@@ -395,8 +397,9 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
     from uavdyn.learned.safe import SafeConfig, train_safe, write_safe_history
 
     given = {k: getattr(args, k) for k in ("epochs", "patience", "max_seconds",
-                                           "stability_weight") if getattr(args, k) is not None}
-    cfg = SafeConfig(hidden=args.hidden, activation=args.activation, lr=args.lr,
+                                           "stability_weight", "hidden")
+             if getattr(args, k) is not None}
+    cfg = SafeConfig(activation=args.activation, lr=args.lr,
                      seed=args.seed, threads=args.threads, progress=not args.quiet,
                      stability_margin=args.stability_margin, horizon_s=args.horizon,
                      memory_tau=(tuple(args.memory_tau) if args.memory_tau is not None
