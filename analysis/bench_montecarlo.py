@@ -11,7 +11,9 @@ Every study is timed as the command runs it (``run_study`` into a fresh output f
 files, table, envelopes, figures, summary), with the compile cache already filled (the compile
 time is measured once, apart). The sequential loop is timed on ``--loop-runs`` runs and
 extrapolated linearly to ``--runs`` (its per-run cost does not depend on the run count); its
-statistics are checked against the batched runs'.
+statistics are checked against the batched runs'. Each configuration also records where its
+wall time went: until the first chunk was stored, from the first to the last, and after the last
+(statistics and files).
 """
 
 from __future__ import annotations
@@ -46,18 +48,29 @@ def _load() -> list[float]:
 def _study(spec, workers: int, threads: int, tmp: Path, label: str) -> dict:
     load_before = _load()
     out = tmp / label
+    arrivals: list[float] = []
     t0, cpu0 = time.perf_counter(), time.process_time()
-    result = run_study(spec, out=out, workers=workers, threads=threads, progress=False)
+    result = run_study(spec, out=out, workers=workers, threads=threads, progress=False,
+                       on_chunk=lambda _: arrivals.append(time.perf_counter()))
     wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
     table = result.table
+    chunk_wall = [w for w, _ in _chunk_seconds(out)]
     return {
         "workers": workers, "threads": threads,
         "engine": "Dask LocalCluster" if workers > 1 else "this process",
         "wall_s": round(wall, 2), "runs_per_s": round(spec.runs / wall, 1),
         "us_per_run_step": round(wall / (spec.runs * spec.n_steps) * 1e6, 4),
-        "chunk_wall_s_sum": round(sum(w for w, _ in _chunk_seconds(out)), 2),
+        "chunk_wall_s_sum": round(sum(chunk_wall), 2),
         "chunk_cpu_s_sum": round(sum(c for _, c in _chunk_seconds(out)), 2),
         "cpu_s_this_process": round(cpu, 2),
+        # where the wall time goes: up to the first stored chunk (start-up, Dask cluster and
+        # worker imports included, plus that chunk), between the first and the last, and after
+        # the last (statistics, table, figures, summary: serial)
+        "first_chunk_stored_after_s": round(arrivals[0] - t0, 2),
+        "first_to_last_chunk_s": round(arrivals[-1] - arrivals[0], 2),
+        "after_last_chunk_s": round(t0 + wall - arrivals[-1], 2),
+        "serial_s_beyond_chunk_compute": round(wall - sum(chunk_wall), 2)
+        if workers == 1 and threads == 1 else None,
         "diverged": int(np.sum(table["diverged"] == 1)),
         "trim_failed": int(np.sum(table["trim_ok"] == 0)),
         "max_abs_pitch_deg_p50_p95": [round(float(np.percentile(

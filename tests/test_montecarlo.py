@@ -30,10 +30,12 @@ from uavdyn.learned import shipped_weights
 from uavdyn.linear import trim
 from uavdyn.model import build_model, structure_of
 from uavdyn.montecarlo import (
+    SIGNALS,
     DispersionError,
     Distribution,
     MonteCarloError,
     build_spec,
+    envelopes,
     load_dispersions,
     parse_dispersions,
     run_function,
@@ -88,11 +90,19 @@ def test_identical_on_one_worker_two_threads_and_dask(tmp_path, aerosonde):
     spec = build_spec(aerosonde, disp, runs=45, duration=3.0, dt=0.01, chunk_size=15)
     one = run_study(spec, progress=False)
     threads = run_study(spec, threads=2, progress=False)
-    dask = run_study(spec, workers=2, progress=False)
+    files = []
+    dask = run_study(spec, out=tmp_path / "dask", workers=2, progress=False,
+                     on_chunk=lambda r: files.append(r.file))
     assert one.table.data.shape == (45, len(one.table.columns))
     assert np.all(one.table["trim_ok"] == 1) and not np.any(one.table["diverged"] == 1)
     assert np.all(np.isfinite(one.history))
     assert _same(one, threads) and _same(one, dask)  # bitwise
+    # the LocalCluster's workers wrote their chunk files themselves, and those verify: a
+    # resume in this process reuses every one of them
+    assert sorted(files) == [str(chunk_path((tmp_path / "dask").resolve(), c))
+                             for c in range(3)]
+    resumed = run_study(spec, out=tmp_path / "dask", progress=False)
+    assert resumed.computed == () and resumed.reused == (0, 1, 2) and _same(one, resumed)
     # every run depends on (seed, run) only: another chunking gives the same rows
     rechunked = run_study(build_spec(aerosonde, disp, runs=45, duration=3.0, dt=0.01,
                                      chunk_size=7), progress=False)
@@ -100,6 +110,41 @@ def test_identical_on_one_worker_two_threads_and_dask(tmp_path, aerosonde):
     # and the gusts, parameters and initial states really vary from run to run
     assert np.unique(one.table["params.mass"]).size == 45
     assert np.ptp(one.table["max_abs_pitch_deg"]) > 0.1
+
+
+def test_scheduler_address_client_or_worker_writes(tmp_path, aerosonde):
+    """On a cluster given by its address the client writes the chunk files (the workers may
+    not see the folder) unless told the workers do; either way they verify on resume."""
+    distributed = pytest.importorskip("distributed")
+    spec = build_spec(aerosonde, _dispersions(tmp_path, GUSTY, aerosonde), runs=20,
+                      duration=1.0, dt=0.01, chunk_size=10)
+    reference = run_study(spec, progress=False)
+    # a worker thread of this process, two threads: chunks take turns (CasADi graph building
+    # is not thread-safe)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cl:
+        for workers_write in (None, True):
+            out, stored = tmp_path / f"mc_{workers_write}", []
+            found = run_study(spec, out=out, scheduler=cl.scheduler_address,
+                              workers_write=workers_write, progress=False,
+                              on_chunk=stored.append)
+            assert _same(found, reference)
+            by_worker = [r.file is not None for r in stored]
+            assert by_worker == [bool(workers_write)] * 2
+            assert run_study(spec, out=out, progress=False).reused == (0, 1)
+
+
+def test_envelopes_the_same_on_threads():
+    rng = np.random.default_rng(1)
+    history = rng.standard_normal((301, len(SIGNALS), 97)).astype(np.float32)
+    history[3, :, 50:] = np.nan  # a diverged run: NaN from then on
+    time = np.arange(97) * 0.1
+    for keep in (np.ones(301, bool), rng.random(301) < 0.7):
+        one, three = envelopes(history, time, keep), envelopes(history, time, keep, threads=3)
+        assert np.array_equal(one.values, three.values, equal_nan=True)  # bitwise
+        rows = history[keep, 2, :].astype(float) * (180 / np.pi)
+        assert np.array_equal(one.band("alpha"), np.percentile(rows, (5, 50, 95), axis=0),
+                              equal_nan=True)
 
 
 def test_without_dask_a_clear_error(tmp_path, aerosonde, monkeypatch):
@@ -379,6 +424,9 @@ def test_cli_command_writes_results_and_resumes(tmp_path, capsys):
         args.func(args)
     with pytest.raises(SystemExit):  # --workers and --scheduler exclude each other
         parser.parse_args([*argv, "--workers", "2", "--scheduler", "tcp://x:1"])
+    args = parser.parse_args([*argv, "--workers-write"])  # meant for --scheduler only
+    with pytest.raises(MonteCarloError, match="--workers-write applies to --scheduler"):
+        args.func(args)
     foreign = tmp_path / "foreign"
     foreign.mkdir()
     (foreign / "mine.txt").write_text("user data")

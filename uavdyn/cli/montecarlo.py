@@ -65,6 +65,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="run the chunks on an existing Dask cluster (e.g. "
                             "tcp://host:8786)")
+    p.add_argument("--workers-write", action="store_true",
+                   help="with --scheduler: the cluster's workers see --out at the same path "
+                        "(shared file system) and write their chunk files themselves; by "
+                        "default the client writes them (a LocalCluster's workers always do)")
     p.add_argument("--threads", type=int, default=1,
                    help="CasADi threads per chunk (default 1)")
     p.add_argument("--chunk-size", type=int, default=200,
@@ -85,6 +89,9 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and value < 1:
             raise MonteCarloError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+    if args.workers_write and args.scheduler is None:
+        raise MonteCarloError("--workers-write applies to --scheduler (a LocalCluster's "
+                              "workers write their chunk files anyway)")
     if args.seed is not None and args.seed < 0:
         raise MonteCarloError(f"--seed must be >= 0, got {args.seed}")
     check_output_folder(args.out, COMMAND, args.force)  # before any work
@@ -99,7 +106,8 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     try:
         result = run_study(spec, out=args.out, workers=args.workers, threads=args.threads,
                            scheduler=args.scheduler, progress=not args.no_progress,
-                           force=args.force)
+                           force=args.force,
+                           workers_write=True if args.workers_write else None)
     except KeyboardInterrupt:
         print(f"finished chunks are kept in {args.out}/chunks; run the same command again to "
               "resume", file=sys.stderr)

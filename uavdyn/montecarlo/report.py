@@ -90,6 +90,15 @@ def summary_markdown(result: MonteCarloResult) -> str:
     return "\n".join(lines)
 
 
+def prepare_figures() -> None:
+    """Import matplotlib now (e.g. in a thread while the last chunks run); errors are left to
+    the figure functions."""
+    try:
+        _pyplot()
+    except Exception:  # pragma: no cover - reported when a figure is drawn
+        pass
+
+
 def _pyplot():
     import matplotlib
 
@@ -99,9 +108,11 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: Path) -> None:
+def _save(fig, path: Path, margins: dict[str, float]) -> None:
+    """Save with fixed margins (figure fractions): ``tight_layout`` measured every tick label
+    and took as long as drawing the figure."""
     plt = _pyplot()
-    fig.tight_layout()
+    fig.subplots_adjust(**margins)
     with atomic_file(path) as tmp, open(tmp, "wb") as fh:
         fig.savefig(fh, dpi=100, format="png")
     plt.close(fig)
@@ -135,7 +146,8 @@ def envelope_figure(result: MonteCarloResult, path: Path) -> Path:
     axes[0].set_title(f"{result.spec.airframe.name}: {env.n_runs} runs, {result.spec.model}",
                       fontsize=9)
     axes[-1].set_xlabel("time (s)")
-    _save(fig, path)
+    _save(fig, path, {"left": 0.11, "right": 0.98, "bottom": 0.05, "top": 0.97,
+                      "hspace": 0.12})
     return path
 
 
@@ -157,7 +169,8 @@ def distribution_figure(result: MonteCarloResult, path: Path) -> Path:
         ax.set_xlabel(column)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("runs")
-    _save(fig, path)
+    _save(fig, path, {"left": 0.045, "right": 0.99, "bottom": 0.17, "top": 0.96,
+                      "wspace": 0.22})
     return path
 
 

@@ -4,6 +4,9 @@ deviations of a mission, an input profile or a recorded control CSV.
 
 The key hashes everything that decides a run's numbers (but not the number of runs, so a study
 can be extended); chunk files carry it, and a resumed study reuses only chunks made with it.
+
+The emulator and the flight-data reader are imported only where a mission or a CSV is turned
+into command deviations: a Dask worker that unpickles a spec does not pay for them.
 """
 
 from __future__ import annotations
@@ -19,8 +22,6 @@ import numpy as np
 
 from uavdyn import __version__
 from uavdyn.airframes import Airframe
-from uavdyn.emulation import MISSIONS, Emulator, plan_mission
-from uavdyn.flightdata import read_csv
 from uavdyn.integrate import check_use, physics_step, takes_time
 from uavdyn.integrate.inputs import PROFILES, control_sequence
 from uavdyn.learned import CorrectionNet, hybrid_step, load_weights, shipped_weights
@@ -222,7 +223,13 @@ def resolve_limits(dispersions: Dispersions, airframe: Airframe
 
 def input_names(kind: str) -> list[str]:
     """Names ``--mission`` accepts for an airframe kind (a CSV path is accepted too)."""
-    return list(PROFILES) + [n for n, (_, kinds) in MISSIONS.items() if kind in kinds]
+    return list(PROFILES) + [n for n, (_, kinds) in _missions().items() if kind in kinds]
+
+
+def _missions() -> dict:
+    from uavdyn.emulation import MISSIONS
+
+    return MISSIONS
 
 
 def command_deviations(source: str, airframe: Airframe, n_steps: int, dt: float,
@@ -256,7 +263,9 @@ def command_deviations(source: str, airframe: Airframe, n_steps: int, dt: float,
     if source in PROFILES:
         channel, amplitude = PROFILE_INPUT[airframe.kind]
         return control_sequence(source, t, np.zeros(nu), amplitude, channel=channel)
-    if source in MISSIONS:
+    if source in _missions():
+        from uavdyn.emulation import Emulator, plan_mission
+
         plan = plan_mission(source, airframe, n_steps * dt, MISSION_LOG_RATE_HZ,
                             np.random.default_rng(seed))
         emulator = Emulator(airframe, sample_rate_hz=MISSION_LOG_RATE_HZ)
@@ -265,6 +274,8 @@ def command_deviations(source: str, airframe: Airframe, n_steps: int, dt: float,
         return _resample(flight.time, flight.controls, t, source)
     path = Path(source)
     if path.suffix.lower() == ".csv" or path.exists():
+        from uavdyn.flightdata import read_csv
+
         sortie = read_csv(path, kind=airframe.kind)
         return _resample(sortie.time - sortie.time[0], sortie.controls, t, str(path))
     raise MonteCarloError(f"unknown input '{source}': expected a mission or profile "
@@ -372,7 +383,7 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
     deviations = command_deviations(mission, airframe, n_steps, dt, seed)
     stride = max(1, int(round(history_dt / dt)))
     # a CSV is known by its name (its content is in the key through the deviations)
-    name = mission if mission in PROFILES or mission in MISSIONS else f"csv:{Path(mission).name}"
+    name = mission if mission in PROFILES or mission in _missions() else f"csv:{Path(mission).name}"
     return StudySpec(airframe=airframe, dispersions=dispersions, net=net, model=model,
                      runs=runs, dt=float(dt), n_steps=n_steps, stride=min(stride, n_steps),
                      seed=int(seed), chunk_size=chunk_size, airspeed=speed,

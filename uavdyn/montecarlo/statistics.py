@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -138,16 +139,49 @@ class Envelopes:
 
 
 def envelopes(history: np.ndarray, time: np.ndarray, keep: np.ndarray,
-              percentiles: tuple[float, ...] = ENVELOPE_PERCENTILES) -> Envelopes:
+              percentiles: tuple[float, ...] = ENVELOPE_PERCENTILES, threads: int = 1
+              ) -> Envelopes:
     """Percentiles over runs of ``history`` (``runs x signals x time``, SI units) for the runs
-    in the boolean mask ``keep``; NaN where no run is kept."""
+    in the boolean mask ``keep``; NaN where no run is kept.
+
+    Parameters
+    ----------
+    history : numpy.ndarray
+        ``runs x len(SIGNALS) x len(time)``.
+    time : numpy.ndarray
+        Sample times (s).
+    keep : numpy.ndarray
+        Boolean mask of the runs to take.
+    percentiles : tuple of float
+        In [0, 100].
+    threads : int
+        Threads sharing the work, each on its own slice of sample times (NumPy's selection
+        runs without the GIL); every sample's percentiles are computed alone, so the numbers
+        do not depend on it.
+
+    Returns
+    -------
+    Envelopes
+    """
     rows = np.flatnonzero(keep)
+    every = len(rows) == history.shape[0]
     values = np.full((len(SIGNALS), len(percentiles), len(time)), np.nan)
-    if len(rows):
+
+    def fill(span: slice) -> None:
         for i, signal in enumerate(SIGNALS):  # one signal at a time: bounded memory
             scale = 180 / math.pi if signal in _DEGREES else 1.0
-            values[i] = np.percentile(history[rows, i, :].astype(float) * scale, percentiles,
-                                      axis=0)
+            block = history[:, i, span] if every else history[rows, i, span]
+            values[i, :, span] = np.percentile(block.astype(float) * scale, percentiles,
+                                               axis=0)
+
+    if len(rows):
+        edges = np.linspace(0, len(time), max(1, min(threads, len(time))) + 1).astype(int)
+        spans = [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
+        if len(spans) == 1:
+            fill(spans[0])
+        else:
+            with ThreadPoolExecutor(len(spans), thread_name_prefix="uavdyn-envelopes") as pool:
+                list(pool.map(fill, spans))
     return Envelopes(np.asarray(time, float), SIGNALS, tuple(percentiles), values, len(rows))
 
 

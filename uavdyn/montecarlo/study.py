@@ -1,6 +1,12 @@
 """Running a Monte-Carlo study: chunks of runs in this process (CasADi threads) or as Dask
-tasks, each chunk file written atomically as it finishes, a re-run into the same folder
-resuming from the chunks that verify, and the assembled :class:`MonteCarloResult`.
+tasks, each chunk file written atomically as it finishes (by the process that computed it,
+when that process sees the folder), a re-run into the same folder resuming from the chunks that
+verify, and the assembled :class:`MonteCarloResult`.
+
+Only the statistics are serial: the client reads each reused chunk once, keeps every chunk it
+receives in memory (no re-reading of files just written), computes the envelopes on as many
+threads as the study was given cores, and a Dask cluster starts while the compiled batch
+Function is loaded and closes while the statistics are computed.
 
 Output folder (``out``)::
 
@@ -21,6 +27,7 @@ import contextlib
 import json
 import os
 import re
+import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -28,16 +35,17 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from uavdyn.montecarlo.batch import SIGNALS
 from uavdyn.montecarlo.chunks import (
     ChunkResult,
     chunk_path,
     compiled_batch,
-    evaluate_chunk,
+    evaluate_and_write,
     read_chunk,
     table_columns,
     write_chunk,
 )
-from uavdyn.montecarlo.report import OUTPUT_FILES, json_text, write_outputs
+from uavdyn.montecarlo.report import OUTPUT_FILES, json_text, prepare_figures, write_outputs
 from uavdyn.montecarlo.result import MonteCarloResult
 from uavdyn.montecarlo.spec import MonteCarloError, StudySpec
 from uavdyn.montecarlo.statistics import RunTable, envelopes, exceedances
@@ -118,8 +126,8 @@ def _prepare(folder: Path, spec: StudySpec, force: bool) -> None:
 
 def run_study(spec: StudySpec, out: str | Path | None = None, workers: int = 1,
               threads: int = 1, scheduler: str | None = None, progress: bool = True,
-              force: bool = False, on_chunk: Callable[[ChunkResult], None] | None = None
-              ) -> MonteCarloResult:
+              force: bool = False, on_chunk: Callable[[ChunkResult], None] | None = None,
+              workers_write: bool | None = None) -> MonteCarloResult:
     """Run (or resume) a study.
 
     Parameters
@@ -142,6 +150,10 @@ def run_study(spec: StudySpec, out: str | Path | None = None, workers: int = 1,
         Write into a folder holding something else (see the module docstring).
     on_chunk : callable, optional
         Called with each :class:`ChunkResult` once it is stored.
+    workers_write : bool, optional
+        Whether Dask workers write their chunk files into ``out`` themselves (they must see it
+        at the same path). Default: yes on a ``LocalCluster``, no on a ``scheduler`` (the
+        client writes each chunk as it arrives).
 
     Returns
     -------
@@ -150,8 +162,8 @@ def run_study(spec: StudySpec, out: str | Path | None = None, workers: int = 1,
     Raises
     ------
     MonteCarloError
-        Bad settings, a folder that may not be written, Dask missing or unreachable, or an
-        impossible draw.
+        Bad settings, a folder that may not be written, Dask missing or unreachable, an
+        impossible draw, or a chunk file a worker wrote that this machine cannot see.
     """
     if not (isinstance(workers, int) and workers >= 1):
         raise MonteCarloError(f"workers must be an integer >= 1, got {workers}")
@@ -159,72 +171,113 @@ def run_study(spec: StudySpec, out: str | Path | None = None, workers: int = 1,
         raise MonteCarloError(f"threads must be an integer >= 1, got {threads}")
     started = time.perf_counter()
     folder = Path(out) if out is not None else None
+    write_on_workers = scheduler is None if workers_write is None else bool(workers_write)
     if folder is None:
-        return _run(spec, None, workers, threads, scheduler, progress, on_chunk, started)
+        return _run(spec, None, workers, threads, scheduler, progress, on_chunk, started,
+                    False)
     check_output_folder(folder, COMMAND, force)
     folder.mkdir(parents=True, exist_ok=True)
     with _locked(folder):
         _remove_dead_temporaries(folder)
         _prepare(folder, spec, force)
-        return _run(spec, folder, workers, threads, scheduler, progress, on_chunk, started)
+        return _run(spec, folder, workers, threads, scheduler, progress, on_chunk, started,
+                    write_on_workers)
 
 
 def _run(spec: StudySpec, folder: Path | None, workers: int, threads: int,
-         scheduler: str | None, progress: bool, on_chunk, started: float) -> MonteCarloResult:
-    memory: dict[int, ChunkResult] = {}
+         scheduler: str | None, progress: bool, on_chunk, started: float,
+         write_on_workers: bool) -> MonteCarloResult:
+    columns = table_columns(spec)
+    data = np.empty((spec.runs, len(columns)))
+    history = np.empty((spec.runs, len(SIGNALS), len(spec.history_time)), np.float32)
+    have = np.zeros(spec.n_chunks, bool)
+
+    def place(chunk: ChunkResult) -> None:
+        data[chunk.run_start:chunk.run_stop] = chunk.table
+        history[chunk.run_start:chunk.run_stop] = chunk.history
+        have[chunk.index] = True
+
     reused = []
-    if folder is not None:
+    if folder is not None:  # each verified chunk is read once, straight into the result
         for index in range(spec.n_chunks):
             found = read_chunk(folder, spec, index)
             if found is not None:
+                place(found)
                 reused.append(index)
-    todo = [c for c in range(spec.n_chunks) if c not in set(reused)]
+    todo = [c for c in range(spec.n_chunks) if not have[c]]
+    on_dask = bool(todo) and (workers > 1 or scheduler is not None)
     done_runs = sum(np.subtract(*reversed(spec.chunk_runs(c))) for c in reused)
     bar = tqdm(total=spec.runs, initial=int(done_runs), unit="run", disable=not progress,
                desc=f"montecarlo {spec.airframe.name}", dynamic_ncols=True)
+    # with Dask, once fewer chunks are left than workers one of them is idle: matplotlib is
+    # imported for the figures meanwhile
+    preload = threading.Thread(target=prepare_figures, name="uavdyn-matplotlib", daemon=True)
+    stored = []
 
     def store(result: ChunkResult) -> None:
-        if folder is not None:
+        if folder is not None and result.file is None:
             write_chunk(folder, spec, result)
-        else:
-            memory[result.index] = result
+        elif folder is not None and not Path(result.file).is_file():
+            raise MonteCarloError(
+                f"{result.file}: a Dask worker wrote this chunk file but this machine does not "
+                "see it; the workers do not share the output folder (let the client write the "
+                "chunks: leave out --workers-write)")
+        place(result)
+        stored.append(result.index)
         bar.update(result.run_stop - result.run_start)
+        if on_dask and folder is not None and len(todo) - len(stored) < workers \
+                and preload.ident is None:
+            preload.start()
         if on_chunk is not None:
             on_chunk(result)
 
+    session = None
     try:
+        if on_dask:
+            from uavdyn.montecarlo.scaleout import DaskSession, run_on_dask
+
+            session = DaskSession(workers, scheduler)  # starts while this process warms up
         if todo:
             _warm(spec, todo, threads)
-            if workers > 1 or scheduler is not None:
-                from uavdyn.montecarlo.scaleout import dask_client, run_on_dask
-
-                with dask_client(workers, scheduler) as client:
-                    run_on_dask(client, spec, todo, threads, store)
-            else:
-                for index in todo:
-                    store(evaluate_chunk(spec, index, threads))
+        if session is not None:
+            run_on_dask(session.client, spec, todo, threads, store,
+                        folder if write_on_workers else None)
+            session.close(wait=False)  # while the statistics are computed
+        else:
+            for index in todo:
+                store(evaluate_and_write(spec, index, threads, folder))
+        if not have.all():  # pragma: no cover - every chunk was read or stored above
+            raise MonteCarloError(f"chunks {np.flatnonzero(~have).tolist()} are missing")
+        bar.close()
+        if preload.ident is not None:
+            preload.join()
+        # the statistics use the cores the study was given on this machine
+        cores = max(threads, workers if scheduler is None else 1)
+        result = _assemble(spec, RunTable(columns, data), history, cores, todo, reused,
+                           folder, workers, threads, scheduler, started)
     finally:
         bar.close()
-    chunks = []
-    for index in range(spec.n_chunks):
-        result = memory.get(index) if folder is None else read_chunk(folder, spec, index)
-        if result is None:
-            raise MonteCarloError(f"chunk {index} of {chunk_path(folder or '.', index)} did "
-                                  "not verify after it was written")
-        chunks.append(result)
-    table = RunTable(table_columns(spec), np.vstack([c.table for c in chunks]))
-    history = np.concatenate([c.history for c in chunks])
+        if session is not None:
+            session.close(wait=True)
+    result.wall_s = time.perf_counter() - started
+    return result
+
+
+def _assemble(spec: StudySpec, table: RunTable, history: np.ndarray, cores: int,
+              todo: list[int], reused: list[int], folder: Path | None, workers: int,
+              threads: int, scheduler: str | None, started: float) -> MonteCarloResult:
+    """The result of a study whose chunks are all in ``table`` and ``history``, with its
+    output files written into ``folder``."""
     keep = (table["trim_ok"] == 1) & (table["diverged"] == 0)
     result = MonteCarloResult(
         spec=spec, table=table, history=history,
-        envelopes=envelopes(history, spec.history_time, keep),
+        envelopes=envelopes(history, spec.history_time, keep, threads=cores),
         exceedance=exceedances(table, spec.limits), wall_s=0.0, computed=tuple(todo),
         reused=tuple(reused), folder=folder, workers=workers, threads=threads,
         scheduler=scheduler)
     result.wall_s = time.perf_counter() - started
     if folder is not None:
         result.files = write_outputs(result, folder)
-        result.wall_s = time.perf_counter() - started
         _write_marker(folder, ["study.json", *OUTPUT_FILES,
                                *(str(chunk_path(".", c).relative_to(".")) for c in
                                  range(spec.n_chunks))])
