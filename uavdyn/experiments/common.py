@@ -16,6 +16,7 @@ from uavdyn.integrate import (
     rollout,
     takes_time,
 )
+from uavdyn.model import ModelStructure
 
 FORMULATIONS = ("improved", "paper")
 NOMINAL_PHYSICS = "nominal physics"
@@ -105,7 +106,8 @@ def usable(step, dt: float) -> bool:
 
 
 def free_run_runner(step, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
-                    sample_dt: float, dt: float, compiled: bool = True, structure=None):
+                    sample_dt: float, dt: float, compiled: bool = True,
+                    structure: ModelStructure | None = None):
     """A callable running one whole-sortie free run of ``step`` (``controls`` one row per log
     interval) and returning the body states at the log times (every ``dt/sample_dt``-th one
     when ``dt`` exceeds the log interval): what is timed (inputs converted once, outside the

@@ -43,7 +43,7 @@ from uavdyn.integrate import (
     reference_step,
     rollout,
 )
-from uavdyn.model import build_model, numpy_rhs, sortie_params, structure_of
+from uavdyn.model import ModelStructure, build_model, numpy_rhs, sortie_params, structure_of
 
 NOMINAL = "nominal physics"
 NOMINAL_VM = "nominal physics (CasADi VM)"
@@ -151,7 +151,8 @@ def _scipy_simulator(rhs, p: np.ndarray, sample_dt: float, method: str, rtol: fl
 
 
 def _model_runner(step: ca.Function, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
-                  sample_dt: float, dt: float, compiled: bool, structure=None
+                  sample_dt: float, dt: float, compiled: bool,
+                  structure: ModelStructure | None = None
                   ) -> Callable[[], np.ndarray]:
     """:func:`free_run_runner` on the solver's own grid: for ``dt`` a multiple of the log
     interval the solver samples the logged command at its own step start (as
