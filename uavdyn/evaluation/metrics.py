@@ -24,6 +24,7 @@ import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.integrate import (
+    DEPARTURE_RAD,
     EvalGrid,
     GridError,
     StepUseError,
@@ -355,7 +356,7 @@ def pooled_stats(pairs: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]
 
 
 def error_growth(time: np.ndarray, predicted: np.ndarray, target: np.ndarray,
-                 divergence_rad: float = 0.5) -> dict[str, float | bool]:
+                 divergence_rad: float = DEPARTURE_RAD) -> dict[str, float | bool]:
     """Pitch-error growth of a free run: slope of a straight-line fit of |error| against time
     (rad/s) up to divergence, maximum error before divergence (after it the error says nothing:
     a diverged run is reported as diverged, with its time), and a divergence flag with its time

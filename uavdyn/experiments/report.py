@@ -10,6 +10,7 @@ import os
 from pathlib import Path
 
 from uavdyn.experiments.ladder import per_sortie_rmse
+from uavdyn.integrate import DEPARTURE_RAD
 
 
 def _e(value) -> str:
@@ -62,7 +63,8 @@ def headline_lines(af: dict) -> list[str]:
             gone = [f"{m} {v['departed']}/{entry['sorties']}" for m, v in models.items()
                     if v.get("departed")]
             if gone:
-                text += (" Free runs whose pitch error passed 0.5 rad: " + ", ".join(gone) +
+                text += (f" Free runs whose pitch error passed {DEPARTURE_RAD:g} rad: "
+                         + ", ".join(gone) +
                          " (their RMSE is that of a run that has left the data).")
         cmp = entry.get("corrected_vs_identified")
         if cmp:
@@ -223,7 +225,8 @@ def _table3(af: dict) -> list[str]:
 
 def _table4(af: dict) -> list[str]:
     lines = ["| scenario | solver | sorties | pitch-error growth (rad/s) | max error before "
-             "divergence (rad) | diverged (error > 0.5 rad) | first divergence (s) |",
+             f"divergence (rad) | diverged (error > {DEPARTURE_RAD:g} rad) | "
+             "first divergence (s) |",
              "|---|---|---|---|---|---|---|"]
     for r in af["table4"]:
         if not r.get("sorties"):

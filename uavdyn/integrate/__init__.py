@@ -20,6 +20,7 @@ from uavdyn.integrate.codegen import (
     generate_c,
 )
 from uavdyn.integrate.rollout import (
+    DEPARTURE_RAD,
     DivergenceError,
     EvalGrid,
     GridError,
@@ -45,7 +46,8 @@ from uavdyn.integrate.tableau import EULER, HEUN, RK4, ButcherTableau, explicit_
 __all__ = ["actuator_history", "actuator_rest", "advance_actuators", "augment_states",
            "augmented_rk_step", "physics_step",
            "CacheError", "CodegenWarning", "CompileError", "cache_dir", "compile_function",
-           "find_compiler", "generate_c", "DivergenceError", "EvalGrid", "GridError",
+           "find_compiler", "generate_c", "DEPARTURE_RAD", "DivergenceError", "EvalGrid",
+           "GridError",
            "StepUseError", "StepUseWarning", "check_finite", "check_use", "free_run", "rollout",
            "simulate", "takes_time", "STEP_INPUTS", "reference_step", "rk4_numpy", "rk4_step",
            "rk_step", "substepped", "EULER", "HEUN", "RK4", "ButcherTableau", "explicit_rk_step"]

@@ -24,6 +24,11 @@ class GridError(ValueError):
     """A solver step does not fit the sample interval of the data."""
 
 
+# Pitch error (rad) past which a free run has left the data: its error says nothing any more
+# (the evaluation's divergence flag, the trainer's free-run guard, the report's departures).
+DEPARTURE_RAD = 0.5
+
+
 class DivergenceError(RuntimeError):
     """A rollout left the finite (or physical) range; ``time`` says when."""
 

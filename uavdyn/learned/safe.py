@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
-from uavdyn.integrate import compile_function, free_run, physics_step, rollout
+from uavdyn.integrate import DEPARTURE_RAD, compile_function, free_run, physics_step, rollout
 from uavdyn.learned.envelope import Envelope
 from uavdyn.learned.formulations import CorrectionLayout
 from uavdyn.learned.hybrid import correction_structure, hybrid_step, layout_states
@@ -43,7 +43,6 @@ from uavdyn.learned.weights import CorrectionNet
 from uavdyn.model import sortie_params
 
 THETA = 3
-FREE_RUN_DEPARTURE = 0.5  # rad of pitch error: a free run past it has left the data
 
 
 class SafeTrainingError(ValueError):
@@ -80,7 +79,7 @@ class SafeConfig:
     state_ratio_limit: float = 1.02  # every body state (u, w, q, theta): pooled validation
                                      # error at the selection horizon, corrected/physics <= this
     free_run_guard: bool = True      # ... and over its whole free run, where the physics' stays
-                                     # within FREE_RUN_DEPARTURE of the data; no new departures
+                                     # within DEPARTURE_RAD of the data; no new departures
     seed: int = 0
     threads: int = 1
     max_seconds: float = 3600.0       # a safety net: epochs and patience end a run, so
@@ -159,7 +158,7 @@ def _free_run_errors(step, start, sorties: list[Sortie], airframe: Airframe, sam
                      ) -> list[tuple[float, bool]]:
     """Per sortie: pitch RMSE of the open-loop replay of its commands from its first recorded
     state (``start(states, controls, p, dt)`` builds the step's state), and whether the pitch
-    error ever passed :data:`FREE_RUN_DEPARTURE` (or the state stopped being finite)."""
+    error ever passed :data:`uavdyn.integrate.DEPARTURE_RAD` (or the state stopped being finite)."""
     out = []
     for s in sorties:
         p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
@@ -167,7 +166,7 @@ def _free_run_errors(step, start, sorties: list[Sortie], airframe: Airframe, sam
         traj = free_run(step, z0, s.controls[:-1], p, sample_dt, compile=False, check=False)
         with np.errstate(all="ignore"):
             err = np.abs(traj[:, THETA] - s.states[:, THETA])
-            departed = bool(np.any(~np.isfinite(err) | (err > FREE_RUN_DEPARTURE)))
+            departed = bool(np.any(~np.isfinite(err) | (err > DEPARTURE_RAD)))
             rmse = float(np.sqrt(np.mean(err**2))) if np.all(np.isfinite(err)) else math.inf
         out.append((rmse, departed))
     return out
@@ -336,6 +335,12 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         return (sel["val_ratio_worst"] > cfg.worst_sortie_ratio, sel["val_ratio_geomean"])
 
     physics_val = _theta_rmse(va.physics, va.y, H_sel)
+
+    def beats_physics_in_pitch(sel: dict) -> bool:
+        """Pooled and on every validation sortie (within the tolerance) at the selection
+        horizon."""
+        return (sel["val_ratio_worst"] <= cfg.worst_sortie_ratio
+                and sel["val_ratio_geomean"] < 1.0 and sel["val_theta_rmse"] < physics_val)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     gamma = (cfg.lr_final / cfg.lr) ** (1.0 / max(1, cfg.epochs))
     sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma)
@@ -381,7 +386,6 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         if elapsed > cfg.max_seconds:
             break
     bar.close()
-    model.load_state_dict(best[2])
     # Through the best epochs by rank, the largest output scale at which no validation sortie
     # is worse than the physics (at the selection horizon and over free runs) and the map keeps
     # the stability rule: post-hoc guards on every sortie and trim, not only on the pooled
@@ -419,8 +423,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
             row = {"epoch": epoch_c, "scale": alpha,
                    **{k: v for k, v in sel.items() if k != "val_sortie_ratios"}}
             tried.append(row)
-            if not (sel["val_ratio_worst"] <= cfg.worst_sortie_ratio
-                    and sel["val_ratio_geomean"] < 1.0 and sel["val_theta_rmse"] < physics_val
+            if not (beats_physics_in_pitch(sel)
                     and sel["val_state_ratio_worst"] <= cfg.state_ratio_limit):
                 continue
             net = model.export(airframe.param_hash(), info(alpha, sel, tried, epoch_c))
@@ -481,8 +484,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                           f"{report.describe()}", history, cfg, epoch_c, seconds, validation,
                           report)
     # not kept: how every candidate (epoch, output scale) failed, then the closest reason
-    beat = [r for r in tried if r["val_ratio_worst"] <= cfg.worst_sortie_ratio
-            and r["val_ratio_geomean"] < 1.0 and r["val_theta_rmse"] < physics_val]
+    beat = [r for r in tried if beats_physics_in_pitch(r)]
     states_worse = [r["val_state_ratio_worst"] for r in beat
                     if r["val_state_ratio_worst"] > cfg.state_ratio_limit]
     tally = (f"of {len(tried)} candidates (epoch, output scale): {len(tried) - len(beat)} do not "
