@@ -343,3 +343,41 @@ def test_map_modes_of_a_memory_step_show_the_filters_exact_poles(name):
     assert comp.map_modes and not comp.made_unstable
     with pytest.raises(ValueError, match="command-memory"):
         discrete_map_modes(step, airframe, point, DT, MEMORY[:1])
+
+
+def test_the_stability_penalty_is_zero_at_the_physics_where_the_physics_is_unstable():
+    """With a speed-stability moment (blade flapping) the F450's hover oscillation is unstable
+    at every trim; the penalty's hinge sits at the physics' own abscissa there, so the
+    physics-only network (zero output, what training starts from) pays nothing: a hinge inside
+    the physics' value would make training fight the data. For a stable mode the hinge sits a
+    buffer inside the allowed value, never below the physics'."""
+    from uavdyn.learned.formulations import CorrectionLayout
+    from uavdyn.learned.stability import (
+        allowed_abscissa,
+        body_abscissa,
+        map_jacobian,
+        stability_penalty,
+        training_target,
+        trims_between,
+    )
+
+    airframe = load_airframe("f450").replace(M_u=0.011)
+    structure = structure_of(airframe)
+    n_in = structure.nx() + 2 * len(MEMORY) + 2
+    envelope = Envelope(np.full(n_in, -1e3), np.full(n_in, 1e3), np.ones(n_in))
+    layout = CorrectionLayout(structure, MEMORY, envelope.gate, np.full(3, 10.0))
+    model = TorchCorrection(airframe.kind, "improved", 8, "relu", np.zeros(n_in), np.ones(n_in),
+                            np.ones(3), DT, structure=structure, layout=layout,
+                            envelope=envelope)
+    trims, skipped = trims_between(airframe, 0.0, 8.0, layout)
+    assert trims, skipped
+    jp = map_jacobian(physics_step(structure))
+    sigma = [body_abscissa(np.array(jp(t.z[:layout.n_physics], t.u, t.p, DT)), DT)[0]
+             for t in trims]
+    assert min(sigma) > 0.1, sigma  # unstable physics at every trim
+    targets = [training_target(s) for s in sigma]
+    assert targets == sigma and [allowed_abscissa(s) for s in sigma] == sigma
+    assert stability_penalty(model, trims, targets, DT).item() < 1e-9
+    # a stable mode: allowed -0.5 (margin 0.5), hinge 0.1 * 1 + 0.01 inside it
+    assert training_target(-1.0) == pytest.approx(-0.61)
+    assert training_target(-0.01) == -0.01  # the buffer would pass the physics: floored

@@ -30,12 +30,12 @@ from uavdyn.learned.hybrid import correction_structure, hybrid_step, layout_stat
 from uavdyn.learned.stability import (
     DEFAULT_MARGIN,
     StabilityReport,
-    allowed_abscissa,
     body_abscissa,
     check_map_stability,
     envelope_speeds,
     map_jacobian,
     stability_penalty,
+    training_target,
     trims_between,
 )
 from uavdyn.learned.torch_model import DTYPE, TorchCorrection
@@ -260,8 +260,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     for t in trims:
         phys_sigma.append(body_abscissa(np.array(jp(t.z[:layout.n_physics], t.u, t.p, dt)),
                                         dt)[0])
-    targets = [allowed_abscissa(s, cfg.stability_margin) - (0.1 * abs(s) + 0.01)
-               for s in phys_sigma]
+    targets = [training_target(s, cfg.stability_margin) for s in phys_sigma]
 
     # The loss mixes two views, each scoring the physics-only step as 1: per window, relative to
     # the physics' error on that window (a calm window weighs as much as a gusty one, so the
