@@ -91,7 +91,7 @@ def prediction_models(airframe: str, weights: str | Path | None = None,
     Returns
     -------
     StudySetup
-        A preset whose shipped training kept no correction (the F450 today) flies its
+        A preset whose shipped training kept no correction flies its
         identified physics alone: ``missing["hybrid"]`` says why, unless only the hybrid was
         asked for.
 
