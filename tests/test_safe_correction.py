@@ -345,12 +345,12 @@ def test_map_modes_of_a_memory_step_show_the_filters_exact_poles(name):
         discrete_map_modes(step, airframe, point, DT, MEMORY[:1])
 
 
-def test_the_stability_penalty_is_zero_at_the_physics_where_the_physics_is_unstable():
+def test_the_stability_penalty_asks_little_of_the_physics_where_it_is_unstable():
     """With a speed-stability moment (blade flapping) the F450's hover oscillation is unstable
-    at every trim; the penalty's hinge sits at the physics' own abscissa there, so the
-    physics-only network (zero output, what training starts from) pays nothing: a hinge inside
-    the physics' value would make training fight the data. For a stable mode the hinge sits a
-    buffer inside the allowed value, never below the physics'."""
+    at every trim; the penalty's hinge sits at most 0.01 1/s inside the physics' own abscissa
+    there, so the physics-only network (zero output, what training starts from) pays at most
+    that per trim: a hinge 10 % inside the physics' rate made training fight the data. For a
+    stable mode the hinge sits a buffer inside the allowed value."""
     from uavdyn.learned.formulations import CorrectionLayout
     from uavdyn.learned.stability import (
         allowed_abscissa,
@@ -376,8 +376,10 @@ def test_the_stability_penalty_is_zero_at_the_physics_where_the_physics_is_unsta
              for t in trims]
     assert min(sigma) > 0.1, sigma  # unstable physics at every trim
     targets = [training_target(s) for s in sigma]
-    assert targets == sigma and [allowed_abscissa(s) for s in sigma] == sigma
-    assert stability_penalty(model, trims, targets, DT).item() < 1e-9
+    assert [allowed_abscissa(s) for s in sigma] == sigma  # may not be pushed outward
+    np.testing.assert_allclose(targets, np.array(sigma) - 0.01, rtol=0, atol=1e-12)
+    penalty = stability_penalty(model, trims, targets, DT).item()
+    assert penalty == pytest.approx(0.01 * len(trims), abs=1e-9)
     # a stable mode: allowed -0.5 (margin 0.5), hinge 0.1 * 1 + 0.01 inside it
     assert training_target(-1.0) == pytest.approx(-0.61)
-    assert training_target(-0.01) == -0.01  # the buffer would pass the physics: floored
+    assert training_target(0.0) == pytest.approx(-0.01)  # a neutral mode: a hair inside
