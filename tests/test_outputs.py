@@ -1,7 +1,7 @@
 """Nothing half-written, divergence never silent: output folders and files are renamed into
 place only when complete; a foreign folder is refused without --force and keeps its own files
 with it; an interrupted generate-data or train leaves the earlier output intact; simulate checks
-its inputs; the shipped F450 hybrid from hover stays bounded or raises with the time."""
+its inputs; the legacy F450 hybrid from hover stays bounded or raises with the time."""
 
 import json
 import os
@@ -148,9 +148,10 @@ def test_simulate_checks_amplitude_duration_and_folders(tmp_path, monkeypatch, c
     assert (tmp_path / "sub" / "x.csv").exists()
 
 
-def test_shipped_f450_hybrid_from_hover_is_bounded_or_raises(f450, f450_hover):
-    """The shipped F450 correction destabilises hover (see modes --hybrid): a free run must
-    then raise DivergenceError with the time, never return NaN silently."""
+def test_legacy_f450_hybrid_from_hover_is_bounded_or_raises(f450, f450_hover):
+    """The legacy F450 correction (``f450_improved.npz``, trained before the safe rules)
+    destabilises hover (see modes --hybrid --weights): a free run must then raise
+    DivergenceError with the time, never return NaN silently."""
     step = hybrid_step(shipped_weights("f450"), f450)
     controls = np.tile(f450_hover.u, (2000, 1))  # 20 s at 0.01 s
     rng = np.random.default_rng(0)
@@ -166,5 +167,5 @@ def test_shipped_f450_hybrid_from_hover_is_bounded_or_raises(f450, f450_hover):
         assert np.all(np.isfinite(traj)) and np.abs(traj).max() < 1e6
         outcomes.append("bounded")
     assert len(outcomes) == 20
-    print(f"F450 shipped hybrid from 20 hover starts: {outcomes.count('raised')} raised "
+    print(f"F450 legacy hybrid from 20 hover starts: {outcomes.count('raised')} raised "
           f"DivergenceError, {outcomes.count('bounded')} stayed bounded")
