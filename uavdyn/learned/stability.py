@@ -20,7 +20,7 @@ the exact check has room, but never more than 0.01 1/s inside the physics' own a
 the allowed value IS the physics' (neutral or unstable modes) a buffer proportional to the rate
 makes the penalty fight the data (it did: an identified F450, unstable at +0.74 1/s, trained to
 a loss above the physics' while the penalty demanded 10 % more stability than the physics
-has), while a small fixed one keeps a neutral mode from ending a hair outside.
+has), while a small fixed one still leaves the exact check room at a neutral mode.
 """
 
 from __future__ import annotations
