@@ -294,6 +294,13 @@ def test_safe_training_keeps_a_correction_only_under_its_rules():
         assert result.net.info["output_scale"] == v["output_scale"]
         chosen = v["shrink_tried"][-1]
         assert chosen["scale"] == v["output_scale"] and chosen["free_run_ok"]
+        # a channel cut only after the uniform scale made a state worse, and said so
+        assert len(v["channel_scales"]) == 3
+        assert chosen.get("channel_scales", [1.0] * 3) == v["channel_scales"]
+        if min(v["channel_scales"]) < 1.0:
+            uniform = [r for r in v["shrink_tried"] if r["epoch"] == chosen["epoch"]
+                       and r["scale"] == chosen["scale"] and "channel_scales" not in r]
+            assert uniform and uniform[0]["val_state_ratio_worst"] > cfg.state_ratio_limit
         assert chosen["free_run_new_departures"] == 0
     else:
         assert result.net is None

@@ -78,6 +78,9 @@ class SafeConfig:
     worst_sortie_ratio: float = 1.1  # every validation sortie: corrected/physics at 1 s <= this
     state_ratio_limit: float = 1.02  # every body state (u, w, q, theta): pooled validation
                                      # error at the selection horizon, corrected/physics <= this
+    channel_scales: tuple[float, ...] = (0.5, 0.0)  # where an output scale beats the physics
+                                     # in pitch but a state got worse: one output channel at a
+                                     # time scaled by these, the others kept
     free_run_guard: bool = True      # ... and over its whole free run, where the physics' stays
                                      # within DEPARTURE_RAD of the data; no new departures
     seed: int = 0
@@ -386,19 +389,27 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
             break
     bar.close()
     # Through the best epochs by rank, the largest output scale at which no validation sortie
-    # is worse than the physics (at the selection horizon and over free runs) and the map keeps
-    # the stability rule: post-hoc guards on every sortie and trim, not only on the pooled
-    # figure; the first epoch and scale passing all of them is kept.
+    # is worse than the physics (at the selection horizon and over free runs), no body state's
+    # error grows and the map keeps the stability rule: post-hoc guards on every sortie, state
+    # and trim, not only on the pooled figure; the first epoch and scale passing all of them is
+    # kept. Where a scale beats the physics in pitch but makes a state worse, the output
+    # channel behind it may be the one to cut (the forward-force residual, say, while the
+    # moment residual helps): one channel at a time is scaled down before the next scale.
     out_scale0, bound0 = model.out_scale.clone(), np.asarray(layout.bound, float)
+    n_out = len(bound0)
 
-    def scaled(alpha: float) -> None:
+    def scaled(alpha: float, channels: np.ndarray) -> None:
         with torch.no_grad():
-            model.out_scale.copy_(out_scale0 * alpha)
-        model.layout = replace(layout, bound=bound0 * alpha)
+            model.out_scale.copy_(out_scale0 * _t(alpha * channels))
+        # a channel switched off keeps a positive bound (its output is 0 through the tanh)
+        model.layout = replace(layout, bound=bound0 * alpha * np.where(channels > 0, channels,
+                                                                       1.0))
 
-    def info(alpha: float, final: dict, tried: list, epoch: int) -> dict:
+    def info(alpha: float, channels: np.ndarray, final: dict, tried: list, epoch: int
+             ) -> dict:
         return {"config": asdict(cfg), "airframe": airframe.name, "best_epoch": epoch,
-                "output_scale": alpha, "shrink_tried": tried,
+                "output_scale": alpha, "channel_scales": [float(c) for c in channels],
+                "shrink_tried": tried,
                 "val_theta_rmse": final["val_theta_rmse"],
                 "val_ratio_geomean": final["val_ratio_geomean"],
                 "val_ratio_worst": final["val_ratio_worst"],
@@ -411,48 +422,68 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     def physics_start(states, controls, p, d):
         return layout_states(layout0, states, controls, p, d)[:, :layout0.n_physics]
 
+    def final_checks(alpha: float, channels: np.ndarray, sel: dict, row: dict, epoch_c: int
+                     ) -> tuple | None:
+        """The free-run guard and the exact stability check of one candidate (recorded in
+        ``row``): what is kept, or None."""
+        nonlocal report, physics_free
+        net = model.export(airframe.param_hash(), info(alpha, channels, sel, tried, epoch_c))
+        step = hybrid_step(net, airframe, compile=False)
+        if cfg.free_run_guard:
+            if physics_free is None:
+                physics_free = _free_run_errors(phys, physics_start, val_sorties, airframe,
+                                                sample_dt)
+            start_of = step.start_states or (lambda st, u, p, d: st)
+            row.update(free_run_verdict(physics_free, _free_run_errors(
+                step, start_of, val_sorties, airframe, sample_dt), cfg.worst_sortie_ratio))
+            if not row["free_run_ok"]:
+                return None
+        report = check_map_stability(step, phys, trims, dt, cfg.stability_margin, skipped)
+        row["stable"] = report.ok
+        return (alpha, channels, sel, net, epoch_c, report) if report.ok else None
+
     chosen, tried, report, physics_free = None, [], None, None
     candidates = (sorted(snapshots, key=lambda c: (c[0], c[1]))[:max(1, cfg.candidate_epochs)]
                   or [best])  # no finite epoch: the untrained (zero) network, never kept
+    uniform = np.ones(n_out)
+    variants = [np.where(np.arange(n_out) == c, f, 1.0) for f in cfg.channel_scales
+                for c in range(n_out)]
     for _, epoch_c, state, _ in candidates:
         model.load_state_dict(state)
         for alpha in cfg.shrink:
-            scaled(alpha)
-            sel = selection(V)
-            row = {"epoch": epoch_c, "scale": alpha,
-                   **{k: v for k, v in sel.items() if k != "val_sortie_ratios"}}
-            tried.append(row)
-            if not (beats_physics_in_pitch(sel)
-                    and sel["val_state_ratio_worst"] <= cfg.state_ratio_limit):
-                continue
-            net = model.export(airframe.param_hash(), info(alpha, sel, tried, epoch_c))
-            step = hybrid_step(net, airframe, compile=False)
-            if cfg.free_run_guard:
-                if physics_free is None:
-                    physics_free = _free_run_errors(phys, physics_start, val_sorties,
-                                                    airframe, sample_dt)
-                start_of = step.start_states or (lambda st, u, p, d: st)
-                row.update(free_run_verdict(physics_free, _free_run_errors(
-                    step, start_of, val_sorties, airframe, sample_dt), cfg.worst_sortie_ratio))
-                if not row["free_run_ok"]:
+            trials = [uniform]
+            for channels in trials:  # grows by the channel variants at most once
+                scaled(alpha, channels)
+                sel = selection(V)
+                row = {"epoch": epoch_c, "scale": alpha,
+                       **({} if channels is uniform else
+                          {"channel_scales": [float(c) for c in channels]}),
+                       **{k: v for k, v in sel.items() if k != "val_sortie_ratios"}}
+                tried.append(row)
+                if not beats_physics_in_pitch(sel):
                     continue
-            report = check_map_stability(step, phys, trims, dt, cfg.stability_margin, skipped)
-            row["stable"] = report.ok
-            if report.ok:
-                chosen = (alpha, sel, net, epoch_c)
+                if sel["val_state_ratio_worst"] > cfg.state_ratio_limit:
+                    if channels is uniform:
+                        trials.extend(variants)
+                    continue
+                chosen = final_checks(alpha, channels, sel, row, epoch_c)
+                if chosen is not None:
+                    break
+            if chosen is not None:
                 break
         if chosen is not None:
             break
     if chosen is None:
         model.load_state_dict(best[2])
-        scaled(cfg.shrink[0])
-        alpha, final, epoch_c = cfg.shrink[0], best[3], best[1]
-        net = model.export(airframe.param_hash(), info(alpha, final, tried, epoch_c))
+        scaled(cfg.shrink[0], uniform)
+        alpha, channels, final, epoch_c = cfg.shrink[0], uniform, best[3], best[1]
+        net = model.export(airframe.param_hash(), info(alpha, channels, final, tried, epoch_c))
         if report is None:
             report = check_map_stability(hybrid_step(net, airframe, compile=False), phys,
                                          trims, dt, cfg.stability_margin, skipped)
     else:
-        alpha, final, net, epoch_c = chosen
+        alpha, channels, final, net, epoch_c, report = chosen
+
     validation = {"selection_horizon_s": horizon_sel, "physics_theta_rmse": physics_val,
                   "corrected_theta_rmse": final["val_theta_rmse"],
                   "ratio": (final["val_theta_rmse"] / physics_val if physics_val > 0
@@ -463,7 +494,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                                            final.get("val_state_ratios", []))),
                   "sortie_ratios": dict(zip([s.name for s in val_sorties],
                                             final["val_sortie_ratios"])),
-                  "output_scale": alpha, "shrink_tried": tried}
+                  "output_scale": alpha, "channel_scales": [float(c) for c in channels],
+                  "shrink_tried": tried}
     seconds = time.perf_counter() - start
     if chosen is not None:
         free = tried[-1]
@@ -477,16 +509,19 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         return SafeResult(net, True, f"validation pitch RMSE at {horizon_sel:g} s "
                           f"{physics_val:.4g} -> {final['val_theta_rmse']:.4g} rad (per-sortie "
                           f"ratio geometric mean {final['val_ratio_geomean']:.3g}, worst "
-                          f"{final['val_ratio_worst']:.3g}, output scale {alpha:g}; every body "
-                          f"state's error at most {final['val_state_ratio_worst']:.3g}x the "
+                          f"{final['val_ratio_worst']:.3g}, output scale {alpha:g}"
+                          + ("" if np.all(channels == 1) else " x channels ("
+                             + ", ".join(f"{c:g}" for c in channels) + ")")
+                          + f"; every body state's error at most "
+                          f"{final['val_state_ratio_worst']:.3g}x the "
                           f"physics'){free_text}; "
                           f"{report.describe()}", history, cfg, epoch_c, seconds, validation,
                           report)
-    # not kept: how every candidate (epoch, output scale) failed, then the closest reason
+    # not kept: how every candidate (epoch, output scales) failed, then the closest reason
     beat = [r for r in tried if beats_physics_in_pitch(r)]
     states_worse = [r["val_state_ratio_worst"] for r in beat
                     if r["val_state_ratio_worst"] > cfg.state_ratio_limit]
-    tally = (f"of {len(tried)} candidates (epoch, output scale): {len(tried) - len(beat)} do not "
+    tally = (f"of {len(tried)} candidates (epoch, output scales): {len(tried) - len(beat)} do not "
              f"beat the physics in pitch on every validation sortie at {horizon_sel:g} s, "
              f"{len(states_worse)} make a body state's error grow beyond "
              f"{cfg.state_ratio_limit:g}x"
