@@ -390,9 +390,10 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     bar.close()
     # Through the best epochs by rank, the largest output scale at which no validation sortie
     # is worse than the physics (at the selection horizon and over free runs), no body state's
-    # error grows and the map keeps the stability rule: post-hoc guards on every sortie, state
-    # and trim, not only on the pooled figure; the first epoch and scale passing all of them is
-    # kept. Where a scale beats the physics in pitch but makes a state worse, the output
+    # error grows beyond the per-state limit and the map keeps the stability rule: post-hoc
+    # guards on every sortie, state and trim, not only on the pooled figure; the first epoch
+    # and scale passing all of them is kept. Where a scale beats the physics in pitch but
+    # makes a state worse beyond the limit, the output
     # channel behind it may be the one to cut (the forward-force residual, say, while the
     # moment residual helps): one channel at a time is scaled down before the next scale.
     out_scale0, bound0 = model.out_scale.clone(), np.asarray(layout.bound, float)
