@@ -324,6 +324,9 @@ def cases() -> list[Case]:
         arrays_case("formulation as number", _set(formulation=np.array(3))),
         arrays_case("formulation as bytes", _set(formulation=np.array(b"improved"))),
         arrays_case("airframe_hash as integers", _set(airframe_hash=np.arange(4))),
+        arrays_case("guard unknown", _set(guard=np.array("box-sigmoid"))),
+        arrays_case("guard as number", _set(guard=np.array(1))),
+        arrays_case("format 4 without guard", _set(format_version=np.array(4))),
         # shapes
         arrays_case("W1 three-dimensional", _set(W1=np.zeros((HIDDEN, HIDDEN, 1)))),
         arrays_case("W0 one-dimensional", _set(W0=np.zeros(6))),

@@ -1,4 +1,4 @@
-"""The safe correction (weight format 3): a hand-set destabilising network is refused by the
+"""The safe correction (weight formats 3-4): a hand-set destabilising network is refused by the
 stability check with the trim point named; far outside the training envelope the hybrid step IS
 the physics step; the gate and the bound keep the step finite and within a stated distance of
 the physics from 1,000 random states in and out of the envelope; the augmented layout with
@@ -158,13 +158,14 @@ def test_gate_and_bound_keep_the_step_finite_and_close_to_the_physics(name):
     assert max(ratios) > 0.05  # the network did act somewhere (the bound was tested)
 
 
-def test_smoothstep_and_gate_are_exactly_zero_and_one():
+@pytest.mark.parametrize("form", ["distance", "product"])
+def test_smoothstep_and_gate_are_exactly_zero_and_one(form):
     t = np.array([-1.0, 0.0, 0.5, 1.0, 2.0])
     np.testing.assert_array_equal(smoothstep(t), [0.0, 0.0, 0.5, 1.0, 1.0])
     env = Envelope(np.array([0.0]), np.array([1.0]), np.array([0.5]))
-    np.testing.assert_array_equal(env.gate(np.array([[-0.6, -0.5, 0.0, 0.5, 1.0, 1.5, 1.6]])),
-                                  [0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0])
-    assert 0.0 < env.gate(np.array([[-0.25]]))[0] < 1.0
+    x = np.array([[-0.6, -0.5, 0.0, 0.5, 1.0, 1.5, 1.6]])
+    np.testing.assert_array_equal(env.gate(x, form=form), [0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0])
+    assert 0.0 < env.gate(np.array([[-0.25]]), form=form)[0] < 1.0
 
 
 @pytest.mark.parametrize("name", ["aerosonde", "f450"])
@@ -197,6 +198,45 @@ def test_weight_file_round_trip_and_torch_equals_casadi(name, tmp_path):
     np.testing.assert_allclose(want[0, 4:], expect, rtol=1e-14, atol=1e-14)
 
 
+def test_weight_file_names_its_guard_and_a_format_3_file_keeps_the_product_tanh_guard(tmp_path):
+    """A file written now says ``guard = distance-clamp`` and steps with it; the same arrays as
+    a format-3 file (no guard key) step with the product gate and tanh bound it was trained
+    with, which differ from the default where the gate fades or the bound bites."""
+    import dataclasses
+
+    airframe = load_airframe("aerosonde")
+    point = trim(airframe)
+    n_in = structure_of(airframe).nx() + 2 * len(MEMORY) + 2
+    net = _random_net(airframe, 5, _envelope_around(airframe, point, n_in), np.full(3, 0.5))
+    path = save_weights(net, tmp_path / "now.npz")
+    back = load_weights(path, airframe)
+    assert back.guard == "distance-clamp"
+    with np.load(path) as content:
+        arrays = {k: content[k] for k in content.files if k != "guard"}
+    arrays["format_version"] = np.array(3)
+    old = tmp_path / "format3.npz"
+    np.savez(old, **arrays)
+    legacy = load_weights(old, airframe)
+    assert legacy.guard == "product-tanh"
+    rng = np.random.default_rng(2)
+    steps = {name: hybrid_step(n, airframe, compile=False) for name, n in
+             (("now", back), ("legacy", legacy),
+              ("explicit", dataclasses.replace(back, guard="product-tanh")))}
+    differ = 0
+    for _ in range(30):
+        z = np.concatenate([point.x + rng.normal(0, 1.0, 4), np.tile(point.u, len(MEMORY))])
+        out = {k: np.array(f(z, point.u, airframe.p, DT)).ravel() for k, f in steps.items()}
+        np.testing.assert_array_equal(out["legacy"], out["explicit"])
+        differ += not np.allclose(out["legacy"], out["now"], rtol=0, atol=1e-12)
+    assert differ > 0
+    arrays["format_version"] = np.array(4)
+    np.savez(tmp_path / "format4.npz", **arrays)
+    from uavdyn.learned import WeightFileError
+
+    with pytest.raises(WeightFileError, match="guard"):
+        load_weights(tmp_path / "format4.npz", airframe)
+
+
 def test_wrong_state_size_is_refused(tmp_path):
     airframe = load_airframe("aerosonde")
     net = _pitch_feedback_net(airframe, -1.0)
@@ -207,25 +247,45 @@ def test_wrong_state_size_is_refused(tmp_path):
         net.layout(structure_of(lagged))
 
 
-def test_gate_is_the_two_sided_smoothstep_product_and_ramp_is_exact():
-    """The fast gate (one smoothstep per input) equals the docstring's two-sided product of
-    ``3c^2 - 2c^3`` written out independently here; ``ramp`` is max(x, 0) bit for bit."""
+def test_gates_and_bounds_equal_their_formulas_written_out_and_ramp_is_exact():
+    """Both gate forms equal the module docstring's formulas written out independently here
+    (the two-sided product of ``3c^2 - 2c^3``; one smoothstep of the squared distance to the
+    box), on points spread over inside, fade and outside; both bounds are the identity well
+    inside and never exceed the bound; ``ramp`` is max(x, 0) bit for bit."""
+    from uavdyn.learned.envelope import bounded
+    from uavdyn.model.ops import NUMPY_OPS, ramp
+
     rng = np.random.default_rng(3)
-    low, high = rng.normal(0, 1, 5), None
+    low = rng.normal(0, 1, 5)
     high = low + rng.uniform(0.1, 2.0, 5)
     fade = rng.uniform(0.05, 1.0, 5)
     env = Envelope(low, high, fade)
-    x = rng.uniform(-4, 4, (5, 2000))
+    # each input inside its range or up to 1.3 fade widths beyond either end
+    x = np.array([rng.uniform(low[i] - 1.3 * fade[i], high[i] + 1.3 * fade[i], 4000)
+                  for i in range(5)])
 
     def s(t):
         c = np.clip(t, 0.0, 1.0)
         return 3 * c**2 - 2 * c**3
 
-    expected = np.prod([s((x[i] - low[i] + fade[i]) / fade[i])
-                        * s((high[i] + fade[i] - x[i]) / fade[i]) for i in range(5)], axis=0)
-    np.testing.assert_allclose(env.gate(x), expected, rtol=0, atol=1e-12)
-    from uavdyn.model.ops import NUMPY_OPS, ramp
-
+    product = np.prod([s((x[i] - low[i] + fade[i]) / fade[i])
+                       * s((high[i] + fade[i] - x[i]) / fade[i]) for i in range(5)], axis=0)
+    outside = np.array([np.maximum.reduce([(low[i] - x[i]) / fade[i], (x[i] - high[i]) / fade[i],
+                                           np.zeros_like(x[i])]) for i in range(5)])
+    distance = 1.0 - s(np.sum(outside**2, axis=0))
+    for form, expected in (("product", product), ("distance", distance)):
+        got = env.gate(x, form=form)
+        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+        # the sample spans the whole gate: exactly 1, exactly 0 and values in between
+        assert np.any(got == 1.0) and np.any(got == 0.0) and np.any((got > 0.05) & (got < 0.95))
+    raw = np.concatenate([rng.normal(0, 1, 500), rng.normal(0, 100, 500)])[None, :]
+    bound = np.array([5.0])
+    for form in ("clamp", "tanh"):
+        y = bounded(raw, bound, NUMPY_OPS, form)
+        assert np.all(np.abs(y) <= 5.0 + 1e-12)
+        small = np.abs(raw) < 0.05
+        np.testing.assert_allclose(y[small], raw[small], rtol=1e-4)
+    np.testing.assert_array_equal(bounded(raw, bound, NUMPY_OPS, "clamp"), np.clip(raw, -5, 5))
     z = np.concatenate([rng.normal(0, 1e3, 1000), [0.0, -0.0, 5e-324, -5e-324]])
     np.testing.assert_array_equal(ramp(z, NUMPY_OPS), np.maximum(z, 0.0))
 

@@ -650,7 +650,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hidden-layer activation (default relu: cheapest in C; tanh is smooth "
                         "and bounded)")
     p.add_argument("--hidden", type=int, default=None,
-                   help="hidden-layer width (default 8 for the safe correction, 16 for the "
+                   help="hidden-layer width (default for the safe correction: 8 for a fixed "
+                        "wing, 6 for a multirotor, whose physics step is cheaper; 16 for the "
                         "legacy formulations)")
     p.add_argument("--dt", type=float, default=0.005,
                    help="hybrid step in s (default 0.005; the improved correction on flight "

@@ -6,8 +6,8 @@
     and a command memory: each command low-passed at a few time constants, exact exponential
     filters carried as augmented states) and the command ``u_k``: causal and state-complete,
     no absolute time. Output: a residual acceleration ``[du_dot, dw_dot, dq_dot]`` (SI units),
-    bounded (``bound * tanh(raw / bound)``) and multiplied by the envelope gate
-    (:mod:`uavdyn.learned.envelope`: 1 inside the training data, exactly 0 outside), added to
+    bounded and multiplied by the envelope gate (the guard of :mod:`uavdyn.learned.envelope`:
+    1 inside the training data, exactly 0 outside), added to
     the physics right-hand side in every RK stage and held over the step (grey-box / UDE
     style): ``theta_dot = q`` stays exact, far from the data the step IS the physics step.
 ``paper``
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 from uavdyn.integrate.augmented import augmented_rk_step
 from uavdyn.integrate.tableau import RK4, explicit_rk_step
-from uavdyn.learned.envelope import bounded
+from uavdyn.learned.envelope import DEFAULT_GUARD, GUARDS, bounded
 from uavdyn.model import ModelStructure
 
 HYPERSOLVER_ORDER = 5  # dt**(p+1) with p = 4 for RK4
@@ -82,12 +82,14 @@ class CorrectionLayout:
     """The state the ``improved`` correction steps: the physics ``structure``'s augmented state
     (None: the 4 body states) followed by one memory state per command and time constant in
     ``memory_tau`` (s); the network's gate (``gate(inp, ops)``, None: 1) and output bound
-    (per-output array, None: unbounded)."""
+    (per-output array, None: unbounded), applied in the form of ``guard`` (a name of
+    :data:`uavdyn.learned.envelope.GUARDS`; its gate form is the caller's to bind)."""
 
     structure: ModelStructure | None = None
     memory_tau: tuple[float, ...] = ()
     gate: Callable | None = None
     bound: object = None
+    guard: str = DEFAULT_GUARD
 
     @property
     def n_physics(self) -> int:
@@ -136,7 +138,7 @@ def improved_step(layout: CorrectionLayout, rhs: Callable, z, u, p, dt, net: Cal
     inp = ops.concat(z, u)
     accel = net(inp)
     if layout.bound is not None:
-        accel = bounded(accel, layout.bound, ops)
+        accel = bounded(accel, layout.bound, ops, GUARDS[layout.guard][1])
     if layout.gate is not None:
         accel = accel * layout.gate(inp, ops)
     extra = ops.concat(accel, ops.zeros(STATE_DIM - accel.shape[0], accel))

@@ -1,4 +1,4 @@
-"""Training of the safe correction (the ``improved`` formulation, weight format 3): causal,
+"""Training of the safe correction (the ``improved`` formulation, weight format 4): causal,
 state-complete inputs on the identified physics' augmented state plus a command memory, an
 envelope gate and an output bound, rollout losses over several horizons from recorded states, a
 stability penalty at trims over the training envelope, selection by the validation 1 s error,
@@ -43,6 +43,11 @@ from uavdyn.learned.weights import CorrectionNet
 from uavdyn.model import sortie_params
 
 THETA = 3
+# The hidden width by airframe kind. The cost target is relative to the physics step, and a
+# multirotor's physics step (no aerodynamic coefficients) costs about 0.34 us against a fixed
+# wing's 0.8 us (analysis/bench_hybrid.py): with the same network its hybrid step cost 1.5x
+# its physics' at width 8 and 1.4x at width 6, the fixed wing's 1.25x at width 8.
+DEFAULT_HIDDEN = {"fixed_wing": 8, "multirotor": 6}
 
 
 class SafeTrainingError(ValueError):
@@ -53,7 +58,8 @@ class SafeTrainingError(ValueError):
 class SafeConfig:
     """Everything that defines a safe-correction training run (saved with the weights)."""
 
-    hidden: int = 8                   # 3 x 8 ReLU: width sets the step cost (bench_hybrid)
+    hidden: int | None = None         # width of the 3 ReLU layers; None: DEFAULT_HIDDEN of
+                                      # the airframe's kind (the width sets the step cost)
     activation: str = "relu"
     memory_tau: tuple[float, ...] | None = None  # None: (0.05, 0.2) s without actuator states
     horizon_s: float = 2.0            # rollout windows from recorded states, this long
@@ -211,6 +217,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         does not beat the physics at the selection horizon on the validation split.
     """
     cfg = config or SafeConfig()
+    if cfg.hidden is None:
+        cfg = replace(cfg, hidden=DEFAULT_HIDDEN[airframe.kind])
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     rng = np.random.default_rng(cfg.seed)
@@ -402,7 +410,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     def scaled(alpha: float, channels: np.ndarray) -> None:
         with torch.no_grad():
             model.out_scale.copy_(out_scale0 * _t(alpha * channels))
-        # a channel switched off keeps a positive bound (its output is 0 through the tanh)
+        # a channel switched off keeps a positive bound (its output is 0 through the bound)
         model.layout = replace(layout, bound=bound0 * alpha * np.where(channels > 0, channels,
                                                                        1.0))
 

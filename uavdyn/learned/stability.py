@@ -291,8 +291,8 @@ def envelope_check(net, airframe: Airframe, dt: float | None = None,
     from uavdyn.learned.hybrid import correction_structure, hybrid_step
 
     if net.envelope is None or net.formulation != "improved":
-        raise ValueError("these weights store no training envelope (weight format 3, "
-                         "'improved' formulation, has one): no envelope sweep")
+        raise ValueError("these weights store no training envelope (weight formats 3-4, "
+                         "'improved' formulation, have one): no envelope sweep")
     structure = correction_structure(airframe, net.kind, net.formulation)
     layout = net.layout(structure)
     lo, hi = envelope_speeds(net.envelope)

@@ -103,7 +103,7 @@ class TorchCorrection(nn.Module):
         extra = {}
         if self.layout is not None:
             extra = {"n_state": self.layout.n_state, "memory_tau": tuple(self.layout.memory_tau),
-                     "envelope": self.envelope,
+                     "envelope": self.envelope, "guard": self.layout.guard,
                      "out_bound": (None if self.layout.bound is None
                                    else np.asarray(self.layout.bound, float).copy())}
         return CorrectionNet(

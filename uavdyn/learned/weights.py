@@ -24,18 +24,19 @@ import stat
 import tempfile
 import zipfile
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from uavdyn.learned.envelope import Envelope
+from uavdyn.learned.envelope import DEFAULT_GUARD, GUARDS, LEGACY_GUARD, Envelope
 from uavdyn.learned.formulations import FORMULATIONS, CorrectionLayout, Formulation
 from uavdyn.learned.mlp import ACTIVATIONS, mlp_forward
 from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS
 from uavdyn.safefiles import UnreadableFile, read_regular
 
-FORMAT_VERSION = 3
-READABLE_VERSIONS = (1, 2, 3)
+FORMAT_VERSION = 4
+READABLE_VERSIONS = (1, 2, 3, 4)
 MAX_MEMORY_FILTERS = 8
 N_HIDDEN_LAYERS = 3
 MAX_FILE_BYTES = 64 * 2**20          # a weight file is a few kB; refuse before reading more
@@ -50,9 +51,11 @@ REQUIRED_KEYS = (
 )
 # format 3 (the safe correction): the state size of the step (physics augmented state plus the
 # command memory), the memory filters' time constants, the training input envelope and the
-# output bound; absent (format 1-2), the correction is ungated and unbounded on 4 body states
+# output bound; absent (format 1-2), the correction is ungated and unbounded on 4 body states.
+# format 4: the key 'guard' names the form of gate and bound (format 3 is 'product-tanh')
 ENVELOPE_KEYS = ("env_low", "env_high", "env_fade")
-OPTIONAL_KEYS = ("info", "t_range", "n_state", "memory_tau", "out_bound", *ENVELOPE_KEYS)
+OPTIONAL_KEYS = ("info", "t_range", "n_state", "memory_tau", "out_bound", "guard",
+                 *ENVELOPE_KEYS)
 NAME_KEYS = ("formulation", "activation", "kind", "airframe_hash")
 
 
@@ -87,6 +90,7 @@ class CorrectionNet:
     memory_tau: tuple[float, ...] = ()
     envelope: Envelope | None = None
     out_bound: np.ndarray | None = None
+    guard: str = DEFAULT_GUARD
 
     def __post_init__(self) -> None:
         check_consistent(self, "<in memory>")
@@ -100,8 +104,10 @@ class CorrectionNet:
         WeightFileError
             If the network was made for a step with another number of states.
         """
-        gate = self.envelope.gate if self.envelope is not None else None
-        layout = CorrectionLayout(structure, tuple(self.memory_tau), gate, self.out_bound)
+        gate = (partial(self.envelope.gate, form=GUARDS[self.guard][0])
+                if self.envelope is not None else None)
+        layout = CorrectionLayout(structure, tuple(self.memory_tau), gate, self.out_bound,
+                                  self.guard)
         if layout.n_state != self.n_state:
             raise WeightFileError(
                 f"correction network key 'n_state' is {self.n_state} but the airframe's step "
@@ -218,6 +224,9 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
             raise WeightFileError(f"{origin}: key '{key}' contains non-finite values")
     if np.any(net.in_scale <= 0):
         raise WeightFileError(f"{origin}: key 'in_scale' must be > 0")
+    if net.guard not in GUARDS:
+        raise WeightFileError(f"{origin}: key 'guard' is {_show(net.guard)}; expected one of "
+                              f"{tuple(GUARDS)}")
     if net.out_bound is not None:
         bound = np.asarray(net.out_bound)
         if bound.shape != (n_out,) or not np.all(np.isfinite(bound)) or np.any(bound <= 0):
@@ -266,6 +275,7 @@ def save_weights(net: CorrectionNet, path: str | Path) -> Path:
         "airframe_hash": np.array(net.airframe_hash), "dt": np.array(float(net.dt)),
         "in_mean": net.in_mean, "in_scale": net.in_scale, "out_mean": net.out_mean,
         "out_scale": net.out_scale, "info": np.array(json.dumps(net.info, sort_keys=True)),
+        "guard": np.array(net.guard),
     }
     if net.t_range is not None:
         arrays["t_range"] = np.asarray(net.t_range, float)
@@ -348,11 +358,15 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
             raise WeightFileError(f"{path}: key '{key}' must be a short printable name, got "
                                   f"{_show(value)}")
     info = _info(path, content)
+    guard = _text(path, content, "guard") if "guard" in content else None
+    if guard is None and version >= 4:
+        raise WeightFileError(f"{path}: key 'guard' is missing; format {version} names the "
+                              f"form of its gate and bound (one of {tuple(GUARDS)})")
+    extra: dict = {"guard": guard or LEGACY_GUARD}
     n_layers = N_HIDDEN_LAYERS + 1
     t_range = None
     if "t_range" in content:
         t_range = tuple(float(v) for v in _real(path, content, "t_range", 1))
-    extra: dict = {}
     if "n_state" in content:
         extra["n_state"] = _integer(path, content, "n_state")
     if "memory_tau" in content:
