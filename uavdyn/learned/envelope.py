@@ -17,10 +17,11 @@ Two guards (the weight file names its own):
 
     gate = prod_i (1 - s(d_i)),   correction = gate * bound * tanh(raw / bound)
 
-Both are exactly 1 inside the box and exactly 0 once an input is a fade width outside it. The
-default costs a third of the other in a compiled step (one smoothstep instead of one per input,
-no ``tanh`` call: measured by ``analysis/bench_hybrid.py``); the clamp's kink lies at the bound,
-far beyond the corrections the data ask for (twice their 99.9 % quantile).
+Both are exactly 1 inside the box and exactly 0 once an input is a fade width outside it. In a
+compiled step the default guard costs less than half as much as the other (one smoothstep
+instead of one per input, no ``tanh`` call; the step costs are in ``analysis/bench_hybrid.py``'s
+output); the clamp's kink lies at the bound, far beyond the corrections the data ask for (twice
+their 99.9 % quantile).
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ THETA = 3
 # The hidden width by airframe kind. The cost target is relative to the physics step, and a
 # multirotor's physics step (no aerodynamic coefficients) costs about 0.34 us against a fixed
 # wing's 0.8 us (analysis/bench_hybrid.py): with the same network its hybrid step cost 1.5x
-# its physics' at width 8 and 1.4x at width 6, the fixed wing's 1.25x at width 8.
+# its physics' at width 8 and 1.4x at width 6, the fixed wing's 1.3x at width 8.
 DEFAULT_HIDDEN = {"fixed_wing": 8, "multirotor": 6}
 
 
