@@ -168,15 +168,20 @@ def test_smoothstep_and_gate_are_exactly_zero_and_one(form):
     assert 0.0 < env.gate(np.array([[-0.25]]), form=form)[0] < 1.0
 
 
+@pytest.mark.parametrize("guard", ["distance-clamp", "product-tanh"])
 @pytest.mark.parametrize("name", ["aerosonde", "f450"])
-def test_weight_file_round_trip_and_torch_equals_casadi(name, tmp_path):
+def test_weight_file_round_trip_and_torch_equals_casadi(name, guard, tmp_path):
+    import dataclasses
+
     airframe = load_airframe(name)
     point = trim(airframe, None if name == "aerosonde" else 0.0)
     n_in = structure_of(airframe).nx() + 2 * len(MEMORY) + 2
-    net = _random_net(airframe, 5, _envelope_around(airframe, point, n_in), np.full(3, 3.0))
+    net = dataclasses.replace(
+        _random_net(airframe, 5, _envelope_around(airframe, point, n_in), np.full(3, 3.0)),
+        guard=guard)
     path = save_weights(net, tmp_path / "safe.npz")
     back = load_weights(path, airframe)
-    assert back.n_state == net.n_state and back.memory_tau == MEMORY
+    assert back.n_state == net.n_state and back.memory_tau == MEMORY and back.guard == guard
     np.testing.assert_array_equal(back.envelope.low, net.envelope.low)
     np.testing.assert_array_equal(back.out_bound, net.out_bound)
     hyb = hybrid_step(back, airframe, compile=False)
