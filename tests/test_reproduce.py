@@ -374,3 +374,33 @@ def test_a_recipe_that_leaves_a_split_empty_warns():
     with pytest.warns(UserWarning, match="'test' split empty"):
         plan = assign_sorties(recipe, "fixed_wing")
     assert not any(p["split"] == "test" for p in plan)
+
+
+def test_retrain_trains_the_earlier_formulations_on_the_nominal_airframe(monkeypatch, tmp_path):
+    """``reproduce --retrain`` on an identified airframe with actuator lags (the shipped
+    identified airframes have them) must not hand the ``paper`` formulation, which steps the
+    4 body states only, an airframe it refuses: every earlier formulation sits on the nominal
+    airframe, as its shipped weights do."""
+    from uavdyn.experiments import reproduce
+    from uavdyn.learned import hybrid_step, shipped_identified
+    from uavdyn.model import structure_of
+
+    nominal = load_airframe("f450")
+    identified = shipped_identified("f450")
+    assert structure_of(identified).augmented  # the case that used to fail
+    calls = []
+
+    def fake_obtain(airframe, ds, formulation, target, config, log):
+        calls.append((airframe.name, formulation, target))
+        path = reproduce.weights_path(airframe, formulation, target,
+                                      ReproduceConfig(out=str(tmp_path)))
+        return path if path.exists() else None  # the shipped legacy weights stand in
+
+    monkeypatch.setattr(reproduce, "obtain_weights", fake_obtain)
+    config = ReproduceConfig(out=str(tmp_path), retrain=True, progress=False)
+    models = reproduce.legacy_models(nominal, None, config, lambda *a: None)
+    assert sorted(calls) == sorted((nominal.name, f, t) for f, t in reproduce.LEGACY)
+    assert models and all(owner is nominal for _, owner, _ in models.values())
+    # and the refusal this avoids is real: the paper weights on the identified airframe
+    with pytest.raises(ValueError, match="paper"):
+        hybrid_step(reproduce.weights_path(nominal, "paper", "data", config), identified)

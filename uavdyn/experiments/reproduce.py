@@ -492,19 +492,20 @@ def correction_inputs(airframe: Airframe, ds: Dataset, config: ReproduceConfig, 
                        "value": getattr(identified.params, n)} for n in names]}
 
 
-def legacy_models(airframe: Airframe, ds: Dataset, config: ReproduceConfig, log,
-                  identified: Airframe | None) -> dict[str, tuple[ca.Function, Airframe, Path]]:
+def legacy_models(airframe: Airframe, ds: Dataset, config: ReproduceConfig, log
+                  ) -> dict[str, tuple[ca.Function, Airframe, Path]]:
     """The earlier formulations still compared (SPEC section 4: ``paper`` against the default,
-    and both as pure numerical corrections of the nominal model): label -> (step, airframe it
-    runs on, weight file). Skipped with ``quick`` unless retraining."""
+    on flight data and as pure numerical corrections), all on the nominal ``airframe``: that is
+    what their shipped weights sit on, and the ``paper`` formulation cannot carry the actuator
+    states an identified airframe may have. Label -> (step, airframe it runs on, weight file).
+    Skipped with ``quick`` unless retraining."""
     if config.quick and not config.retrain:
         return {}
     out = {}
     for (formulation, target), label in LEGACY.items():
-        owner = identified if (config.retrain and identified and target == "data") else airframe
-        path = obtain_weights(owner, ds, formulation, target, config, log)
+        path = obtain_weights(airframe, ds, formulation, target, config, log)
         if path is not None:
-            out[label] = (hybrid_step(path, owner, compile=False), owner, path)
+            out[label] = (hybrid_step(path, airframe, compile=False), airframe, path)
     return out
 
 
@@ -564,7 +565,7 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
     known = {(ladder_name(r), sortie): res for r in rungs for (label, sortie), res
              in predictions.items() if label == r.label}
     bar.close()
-    legacy = legacy_models(airframe, ds, config, log, identified)
+    legacy = legacy_models(airframe, ds, config, log)
     candidates = table1_candidates(airframe, rungs, legacy, config.dts)
     bar = _bar(config, len(test) * (len(candidates["data"]) + len(candidates["reference"])),
                f"[{airframe.name}] Table 1")
