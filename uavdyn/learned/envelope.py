@@ -54,13 +54,6 @@ def pairwise_sum(terms: list):
     return terms[0]
 
 
-def check_guard(guard: str) -> str:
-    """``guard`` if it is a known guard; ``ValueError`` naming the choices otherwise."""
-    if guard not in GUARDS:
-        raise ValueError(f"unknown guard '{guard}'; expected one of {tuple(GUARDS)}")
-    return guard
-
-
 @dataclass(frozen=True)
 class Envelope:
     """Per-input range ``[low, high]`` of the training inputs and the fade width outside it.
