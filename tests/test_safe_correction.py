@@ -349,6 +349,8 @@ def test_safe_training_keeps_a_correction_only_under_its_rules():
         assert all(np.isfinite(h[key]) for h in result.history)
     v = result.validation
     assert set(v["sortie_ratios"]) == {s.name for s in sorties[4:]}
+    assert set(v["pitch_noise_std"]) == set(v["sortie_ratios"])
+    assert all(n >= 0 for n in v["pitch_noise_std"].values())
     assert v["output_scale"] in cfg.shrink and v["shrink_tried"]
     if result.kept:
         assert result.net is not None and result.stability.ok
@@ -394,6 +396,26 @@ def test_free_run_rule_counts_new_departures_and_ratios_only_where_the_physics_f
     left = free_run_verdict(physics, [(0.05, False), (0.9, True), (3.0, True)], 1.1)
     assert not left["free_run_ok"] and left["free_run_new_departures"] == 1
     assert left["free_run_worst"] == pytest.approx(0.5)
+
+
+def test_free_run_rule_compares_errors_with_the_measurement_noise_taken_off():
+    """Against records with white pitch noise sigma a prediction's expected squared error is
+    its squared error against the truth plus sigma^2. Built from known errors against the truth
+    (physics 1.3 mrad, corrected 1.6 mrad: 1.23x worse) and sigma = 2 mrad, the raw ratio is
+    1.07x and passes 1.1; with the noise given the rule sees the 1.23x and refuses. A sortie the
+    physics follows to within the noise is not scored."""
+    from uavdyn.learned.safe import excess_rmse, free_run_verdict
+
+    sigma, truth_p, truth_c = 0.002, 0.0013, 0.0016
+    physics = [(math.hypot(truth_p, sigma), False), (0.0019, False)]
+    corrected = [(math.hypot(truth_c, sigma), False), (0.0021, False)]
+    assert excess_rmse(physics[0][0] ** 2, sigma) == pytest.approx(truth_p)
+    assert excess_rmse(0.0019**2, sigma) == 0.0
+    raw = free_run_verdict(physics[:1], corrected[:1], 1.1)
+    assert raw["free_run_ok"] and raw["free_run_worst"] == pytest.approx(1.0738, abs=1e-4)
+    seen = free_run_verdict(physics, corrected, 1.1, [sigma, sigma])
+    assert not seen["free_run_ok"] and seen["free_run_scored"] == 1
+    assert seen["free_run_worst"] == pytest.approx(truth_c / truth_p)
 
 
 @pytest.mark.parametrize("name", ["aerosonde", "f450"])

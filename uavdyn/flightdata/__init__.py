@@ -15,6 +15,7 @@ from uavdyn.flightdata.dataset import (
     load_dataset,
     lowpass,
     normalisation,
+    pitch_noise_std,
     read_csv,
     read_manifest,
     write_csv,
@@ -24,5 +25,5 @@ from uavdyn.flightdata.ulog import import_alfa, import_ulog
 
 __all__ = ["SPLIT_NAMES", "Dataset", "FlightDataError", "Normalisation", "Sortie",
            "check_kinematics", "check_values", "csv_columns", "export", "kinematic_residual",
-           "load_dataset", "lowpass", "normalisation", "read_csv", "read_manifest", "write_csv",
-           "write_manifest", "import_alfa", "import_ulog"]
+           "load_dataset", "lowpass", "normalisation", "pitch_noise_std", "read_csv",
+           "read_manifest", "write_csv", "write_manifest", "import_alfa", "import_ulog"]

@@ -456,6 +456,34 @@ def kinematic_residual(time: np.ndarray, states: np.ndarray,
     return np.column_stack([starts, ends, diff]), travel
 
 
+def pitch_noise_std(time: np.ndarray, states: np.ndarray) -> float:
+    """The white part of the pitch measurement noise (rad), from the data alone.
+
+    Over one sample the pitch change minus the trapezoid integral of q leaves the difference of
+    two independent pitch noise samples (variance ``2 sigma^2``); the dynamics contribute
+    ``O(dt^3)`` and a gyro bias only a constant, so the residual's spread, taken robustly (the
+    median absolute deviation, which a few spikes do not move), gives ``sigma``. A pitch that is
+    itself the integral of q, or heavily filtered, gives about 0: nothing is then subtracted
+    where the estimate is used (:func:`uavdyn.learned.safe.excess_rmse`).
+
+    Parameters
+    ----------
+    time : ndarray, shape (N,)
+        Sample times (s), N >= 3.
+    states : ndarray, shape (N, 4)
+        Recorded ``u, w, q, theta``.
+
+    Returns
+    -------
+    float
+        Estimated standard deviation of the pitch noise (rad).
+    """
+    dt = float(np.median(np.diff(time)))
+    residual = kinematic_residual(time, states, dt)[0][:, 2]
+    mad = float(np.median(np.abs(residual - np.median(residual))))
+    return 1.4826 * mad / math.sqrt(2.0)
+
+
 def check_kinematics(path: str | Path, time: np.ndarray, states: np.ndarray,
                      window_s: float = KINEMATIC_WINDOW_S,
                      tolerance: float = KINEMATIC_TOLERANCE) -> None:
