@@ -404,13 +404,14 @@ def test_free_run_rule_compares_errors_with_the_measurement_noise_taken_off():
     (physics 1.3 mrad, corrected 1.6 mrad: 1.23x worse) and sigma = 2 mrad, the raw ratio is
     1.07x and passes 1.1; with the noise given the rule sees the 1.23x and refuses. A sortie the
     physics follows to within the noise is not scored."""
-    from uavdyn.learned.safe import excess_rmse, free_run_verdict
+    from uavdyn.flightdata import excess_rmse
+    from uavdyn.learned.safe import free_run_verdict
 
     sigma, truth_p, truth_c = 0.002, 0.0013, 0.0016
     physics = [(math.hypot(truth_p, sigma), False), (0.0019, False)]
     corrected = [(math.hypot(truth_c, sigma), False), (0.0021, False)]
-    assert excess_rmse(physics[0][0] ** 2, sigma) == pytest.approx(truth_p)
-    assert excess_rmse(0.0019**2, sigma) == 0.0
+    assert excess_rmse(physics[0][0], sigma) == pytest.approx(truth_p)
+    assert excess_rmse(0.0019, sigma) == 0.0 and excess_rmse(math.inf, sigma) == math.inf
     raw = free_run_verdict(physics[:1], corrected[:1], 1.1)
     assert raw["free_run_ok"] and raw["free_run_worst"] == pytest.approx(1.0738, abs=1e-4)
     seen = free_run_verdict(physics, corrected, 1.1, [sigma, sigma])

@@ -10,6 +10,7 @@ from uavdyn.flightdata.dataset import (
     check_kinematics,
     check_values,
     csv_columns,
+    excess_rmse,
     export,
     kinematic_residual,
     load_dataset,
@@ -24,6 +25,7 @@ from uavdyn.flightdata.dataset import (
 from uavdyn.flightdata.ulog import import_alfa, import_ulog
 
 __all__ = ["SPLIT_NAMES", "Dataset", "FlightDataError", "Normalisation", "Sortie",
-           "check_kinematics", "check_values", "csv_columns", "export", "kinematic_residual",
-           "load_dataset", "lowpass", "normalisation", "pitch_noise_std", "read_csv",
-           "read_manifest", "write_csv", "write_manifest", "import_alfa", "import_ulog"]
+           "check_kinematics", "check_values", "csv_columns", "excess_rmse", "export",
+           "kinematic_residual", "load_dataset", "lowpass", "normalisation", "pitch_noise_std",
+           "read_csv", "read_manifest", "write_csv", "write_manifest", "import_alfa",
+           "import_ulog"]

@@ -22,7 +22,7 @@ import torch
 from tqdm import tqdm
 
 from uavdyn.airframes import Airframe
-from uavdyn.flightdata import Sortie, pitch_noise_std
+from uavdyn.flightdata import Sortie, excess_rmse, pitch_noise_std
 from uavdyn.integrate import DEPARTURE_RAD, compile_function, free_run, physics_step, rollout
 from uavdyn.learned.envelope import Envelope
 from uavdyn.learned.formulations import CorrectionLayout
@@ -181,29 +181,17 @@ def _free_run_errors(step, start, sorties: list[Sortie], airframe: Airframe, sam
     return out
 
 
-def excess_rmse(mean_square: float, noise_std: float) -> float:
-    """The pitch RMSE against the true states that a mean-square error against noisy records
-    implies: white measurement noise adds its variance to the expected squared error of any
-    prediction that does not see it, so it is taken off (clamped at 0).
-
-    Ratios of raw RMSEs shrink towards 1 as errors approach the noise level: on a calm sortie
-    whose free-run error is near the 0.002 rad pitch noise a correction 1.3x worse against the
-    truth scores 1.08x against the records. Ratios of these excess RMSEs do not.
-    """
-    return math.sqrt(max(mean_square - noise_std**2, 0.0))
-
-
 def free_run_verdict(physics: list[tuple[float, bool]], corrected: list[tuple[float, bool]],
                      worst_ratio: float, noise_std: list[float] | None = None) -> dict:
     """The free-run rule over validation sorties: no corrected run departs where the physics'
     did not, and where the physics' stayed with the data the corrected pitch RMSE is at most
     ``worst_ratio`` times the physics'. Sorties where the physics departed only count for
     departures (their RMSE says nothing). With ``noise_std`` (per sortie, rad), the RMSEs are
-    compared after the measurement noise is taken off (:func:`excess_rmse`); a sortie the
-    physics follows to within the noise is not scored."""
+    compared after the measurement noise is taken off (:func:`uavdyn.flightdata.excess_rmse`);
+    a sortie the physics follows to within the noise is not scored."""
     noise = noise_std if noise_std is not None else [0.0] * len(physics)
-    excess = [(excess_rmse(p[0] ** 2, n), excess_rmse(c[0] ** 2, n) if math.isfinite(c[0])
-               else math.inf) for p, c, n in zip(physics, corrected, noise)]
+    excess = [(excess_rmse(p[0], n), excess_rmse(c[0], n))
+              for p, c, n in zip(physics, corrected, noise)]
     ratios = [e_c / e_p for p, c, (e_p, e_c) in zip(physics, corrected, excess)
               if not p[1] and e_p > 0 and not c[1]]
     new_departures = sum(1 for p, c in zip(physics, corrected) if c[1] and not p[1])
@@ -324,9 +312,14 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     # per-sortie ratios compare errors against the truth: each sortie's pitch noise (estimated
     # from its own records) is taken off (excess_rmse); the pooled RMSE stays as measured
     noise = [pitch_noise_std(s.time, s.states) for s in val_sorties]
+
+    def sortie_error(err: np.ndarray, i: int) -> float:
+        """Validation sortie ``i``'s pitch RMSE over its windows, its noise taken off."""
+        return excess_rmse(math.sqrt(float(np.mean(err[va.sortie == i]))), noise[i])
+
     err_val = (va.physics[:, :H_sel, THETA] - va.y[:, :H_sel, THETA]) ** 2
-    phys_sortie = np.array([excess_rmse(float(np.mean(err_val[va.sortie == i])), noise[i])
-                            if np.any(va.sortie == i) else math.nan for i in range(n_val)])
+    phys_sortie = np.array([sortie_error(err_val, i) if np.any(va.sortie == i) else math.nan
+                            for i in range(n_val)])
     scored = np.isfinite(phys_sortie) & (phys_sortie > 0)
 
     phys_states = np.sqrt(np.mean((va.physics[:, :H_sel] - va.y[:, :H_sel, :4]) ** 2,
@@ -345,8 +338,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         with np.errstate(over="ignore", invalid="ignore"):
             states = np.sqrt(np.mean((pred - va.y[:, :H_sel, :4]) ** 2, axis=(0, 1)))
             state_ratios = states / phys_states
-            ratios = np.array([excess_rmse(float(np.mean(err[va.sortie == i])), noise[i])
-                               / phys_sortie[i] if scored[i] else math.nan
+            ratios = np.array([sortie_error(err, i) / phys_sortie[i] if scored[i] else math.nan
                                for i in range(n_val)])
             r = ratios[scored]
             geo = float(np.exp(np.mean(np.log(r)))) if len(r) else math.inf
