@@ -32,6 +32,7 @@ from uavdyn.flightdata import (
     normalisation,
     pitch_noise_std,
     read_csv,
+    white_noise_std,
     write_csv,
 )
 
@@ -205,6 +206,19 @@ def test_pitch_noise_is_estimated_from_the_kinematic_identity():
         noisy[:, 2] += 0.02 + 0.005 * rng.standard_normal(len(t))  # gyro bias and noise
         noisy[rng.choice(len(t), 10, replace=False), 3] += 0.3       # spikes
         assert pitch_noise_std(t, noisy) == pytest.approx(sigma, rel=0.06)
+
+
+def test_white_noise_is_estimated_from_second_differences():
+    """A slow signal plus white noise of known spread (and a few spikes): the second-difference
+    estimate finds the spread; a smooth signal alone gives about nothing."""
+    t = np.arange(6001) / 100.0
+    smooth = 20.0 + 2.0 * np.sin(0.3 * t) + 0.5 * np.sin(2.0 * t)
+    assert white_noise_std(smooth) < 1e-4
+    rng = np.random.default_rng(5)
+    for sigma in (0.01, 0.05, 0.2):
+        noisy = smooth + sigma * rng.standard_normal(len(t))
+        noisy[rng.choice(len(t), 10, replace=False)] += 5.0
+        assert white_noise_std(noisy) == pytest.approx(sigma, rel=0.06)
 
 
 def test_export_round_trip(small_dataset, tmp_path):

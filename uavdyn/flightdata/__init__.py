@@ -19,6 +19,7 @@ from uavdyn.flightdata.dataset import (
     pitch_noise_std,
     read_csv,
     read_manifest,
+    white_noise_std,
     write_csv,
     write_manifest,
 )
@@ -27,5 +28,5 @@ from uavdyn.flightdata.ulog import import_alfa, import_ulog
 __all__ = ["SPLIT_NAMES", "Dataset", "FlightDataError", "Normalisation", "Sortie",
            "check_kinematics", "check_values", "csv_columns", "excess_rmse", "export",
            "kinematic_residual", "load_dataset", "lowpass", "normalisation", "pitch_noise_std",
-           "read_csv", "read_manifest", "write_csv", "write_manifest", "import_alfa",
-           "import_ulog"]
+           "read_csv", "read_manifest", "white_noise_std", "write_csv", "write_manifest",
+           "import_alfa", "import_ulog"]

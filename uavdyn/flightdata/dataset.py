@@ -484,6 +484,19 @@ def pitch_noise_std(time: np.ndarray, states: np.ndarray) -> float:
     return 1.4826 * mad / math.sqrt(2.0)
 
 
+def white_noise_std(signal: np.ndarray) -> float:
+    """The white part of a sampled signal's noise, from the signal alone: the second difference
+    of a signal sampled fast against its dynamics is mostly noise (variance ``6 sigma^2`` for
+    white noise), taken robustly (median absolute deviation). Content above the sampling's
+    reach (gusts in air-relative velocities) counts as noise, which for weighting residuals is
+    what it is."""
+    second = np.diff(np.asarray(signal, float), 2)
+    if len(second) == 0:
+        return 0.0
+    mad = float(np.median(np.abs(second - np.median(second))))
+    return 1.4826 * mad / math.sqrt(6.0)
+
+
 def excess_rmse(rmse: float, noise_std: float) -> float:
     """The RMSE against the true states that an RMSE against noisy records implies: white
     measurement noise adds its variance to the expected squared error of any prediction that

@@ -28,6 +28,7 @@ from uavdyn.integrate.rollout import (
     StepUseWarning,
     check_finite,
     check_use,
+    estimate_start,
     free_run,
     rollout,
     simulate,
@@ -48,6 +49,7 @@ __all__ = ["actuator_history", "actuator_rest", "advance_actuators", "augment_st
            "CacheError", "CodegenWarning", "CompileError", "cache_dir", "compile_function",
            "find_compiler", "generate_c", "DEPARTURE_RAD", "DivergenceError", "EvalGrid",
            "GridError",
-           "StepUseError", "StepUseWarning", "check_finite", "check_use", "free_run", "rollout",
+           "StepUseError", "StepUseWarning", "check_finite", "check_use", "estimate_start",
+           "free_run", "rollout",
            "simulate", "takes_time", "STEP_INPUTS", "reference_step", "rk4_numpy", "rk4_step",
            "rk_step", "substepped", "EULER", "HEUN", "RK4", "ButcherTableau", "explicit_rk_step"]

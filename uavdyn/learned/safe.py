@@ -22,8 +22,15 @@ import torch
 from tqdm import tqdm
 
 from uavdyn.airframes import Airframe
-from uavdyn.flightdata import Sortie, excess_rmse, pitch_noise_std
-from uavdyn.integrate import DEPARTURE_RAD, compile_function, free_run, physics_step, rollout
+from uavdyn.flightdata import Sortie, excess_rmse, pitch_noise_std, white_noise_std
+from uavdyn.integrate import (
+    DEPARTURE_RAD,
+    compile_function,
+    estimate_start,
+    free_run,
+    physics_step,
+    rollout,
+)
 from uavdyn.learned.envelope import Envelope
 from uavdyn.learned.formulations import CorrectionLayout
 from uavdyn.learned.hybrid import correction_structure, hybrid_step, layout_states
@@ -163,15 +170,17 @@ def _theta_rmse(pred: np.ndarray, y: np.ndarray, H: int) -> float:
     return float(np.sqrt(np.mean((pred[:, :H, THETA] - y[:, :H, THETA]) ** 2)))
 
 
-def _free_run_errors(step, start, sorties: list[Sortie], airframe: Airframe, sample_dt: float
-                     ) -> list[tuple[float, bool]]:
-    """Per sortie: pitch RMSE of the open-loop replay of its commands from its first recorded
-    state (``start(states, controls, p, dt)`` builds the step's state), and whether the pitch
-    error ever passed :data:`uavdyn.integrate.DEPARTURE_RAD` (or the state stopped being finite)."""
+def _free_run_errors(step, start, sorties: list[Sortie], airframe: Airframe, sample_dt: float,
+                     body_starts: list[np.ndarray]) -> list[tuple[float, bool]]:
+    """Per sortie: pitch RMSE of the open-loop replay of its commands from ``body_starts[i]``
+    (``start(states, controls, p, dt)`` builds the rest of the step's state from the first
+    recorded sample), and whether the pitch error ever passed
+    :data:`uavdyn.integrate.DEPARTURE_RAD` (or the state stopped being finite)."""
     out = []
-    for s in sorties:
+    for s, body in zip(sorties, body_starts):
         p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
-        z0 = start(s.states[:1], s.controls[:1], p, sample_dt)[0]
+        z0 = np.array(start(s.states[:1], s.controls[:1], p, sample_dt)[0], dtype=float)
+        z0[:4] = body  # a copy: the sortie's records stay as they are
         traj = free_run(step, z0, s.controls[:-1], p, sample_dt, compile=False, check=False)
         with np.errstate(all="ignore"):
             err = np.abs(traj[:, THETA] - s.states[:, THETA])
@@ -179,6 +188,26 @@ def _free_run_errors(step, start, sorties: list[Sortie], airframe: Airframe, sam
             rmse = float(np.sqrt(np.mean(err**2))) if np.all(np.isfinite(err)) else math.inf
         out.append((rmse, departed))
     return out
+
+
+START_FIT_S = 1.0  # the free-run guard fits each run's start to this much of the sortie
+
+
+def _fitted_start(phys, physics_start, sortie: Sortie, airframe: Airframe, sample_dt: float,
+                  pitch_noise: float) -> np.ndarray:
+    """Body states to start a validation free run from: fitted through the physics to the
+    first :data:`START_FIT_S` of records (:func:`uavdyn.integrate.estimate_start`), each state
+    weighted by its noise (pitch: the kinematic estimate; u, w, q: the second-difference one).
+    Both the physics' run and the corrected one start there, so neither inherits the noise of
+    the first sample, which would add an error common to both and pull their ratio to 1."""
+    p = sortie_params(airframe, sortie.meta.get("manifest_entry", {}).get("altitude_m"))
+    z0 = physics_start(sortie.states[:1], sortie.controls[:1], p, sample_dt)[0]
+    n = max(1, min(len(sortie.time) - 1, int(round(START_FIT_S / sample_dt))))
+    spread = np.std(sortie.states[:n + 1, :4], axis=0)
+    noise = np.array([white_noise_std(sortie.states[:, i]) for i in range(3)] + [pitch_noise])
+    scale = np.maximum(noise, 1e-6 * (1.0 + spread))
+    return estimate_start(phys, z0, sortie.controls[:n], sortie.states[:n + 1], p, sample_dt,
+                          scale)[:4]
 
 
 def free_run_verdict(physics: list[tuple[float, bool]], corrected: list[tuple[float, bool]],
@@ -449,24 +478,26 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                      ) -> tuple | None:
         """The free-run guard and the exact stability check of one candidate (recorded in
         ``row``): what is kept, or None."""
-        nonlocal report, physics_free
+        nonlocal report, physics_free, body_starts
         net = model.export(airframe.param_hash(), info(alpha, channels, sel, tried, epoch_c))
         step = hybrid_step(net, airframe, compile=False)
         if cfg.free_run_guard:
             if physics_free is None:
+                body_starts = [_fitted_start(phys, physics_start, s, airframe, sample_dt, n)
+                               for s, n in zip(val_sorties, noise)]
                 physics_free = _free_run_errors(phys, physics_start, val_sorties, airframe,
-                                                sample_dt)
+                                                sample_dt, body_starts)
             start_of = step.start_states or (lambda st, u, p, d: st)
             row.update(free_run_verdict(physics_free, _free_run_errors(
-                step, start_of, val_sorties, airframe, sample_dt), cfg.worst_sortie_ratio,
-                noise))
+                step, start_of, val_sorties, airframe, sample_dt, body_starts),
+                cfg.worst_sortie_ratio, noise))
             if not row["free_run_ok"]:
                 return None
         report = check_map_stability(step, phys, trims, dt, cfg.stability_margin, skipped)
         row["stable"] = report.ok
         return (alpha, channels, sel, net, epoch_c, report) if report.ok else None
 
-    chosen, tried, report, physics_free = None, [], None, None
+    chosen, tried, report, physics_free, body_starts = None, [], None, None, []
     candidates = (sorted(snapshots, key=lambda c: (c[0], c[1]))[:max(1, cfg.candidate_epochs)]
                   or [best])  # no finite epoch: the untrained (zero) network, never kept
     uniform = np.ones(n_out)
