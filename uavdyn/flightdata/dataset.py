@@ -456,6 +456,12 @@ def kinematic_residual(time: np.ndarray, states: np.ndarray,
     return np.column_stack([starts, ends, diff]), travel
 
 
+def _robust_std(values: np.ndarray) -> float:
+    """Standard deviation of the Gaussian bulk of ``values`` from their median absolute
+    deviation (1.4826 MAD), which a few spikes or outliers do not move."""
+    return 1.4826 * float(np.median(np.abs(values - np.median(values))))
+
+
 def pitch_noise_std(time: np.ndarray, states: np.ndarray) -> float:
     """The white part of the pitch measurement noise (rad), from the data alone.
 
@@ -480,8 +486,7 @@ def pitch_noise_std(time: np.ndarray, states: np.ndarray) -> float:
     """
     dt = float(np.median(np.diff(time)))
     residual = kinematic_residual(time, states, dt)[0][:, 2]
-    mad = float(np.median(np.abs(residual - np.median(residual))))
-    return 1.4826 * mad / math.sqrt(2.0)
+    return _robust_std(residual) / math.sqrt(2.0)
 
 
 def white_noise_std(signal: np.ndarray) -> float:
@@ -493,8 +498,7 @@ def white_noise_std(signal: np.ndarray) -> float:
     second = np.diff(np.asarray(signal, float), 2)
     if len(second) == 0:
         return 0.0
-    mad = float(np.median(np.abs(second - np.median(second))))
-    return 1.4826 * mad / math.sqrt(6.0)
+    return _robust_std(second) / math.sqrt(6.0)
 
 
 def excess_rmse(rmse: float, noise_std: float) -> float:
