@@ -478,3 +478,28 @@ def test_the_stability_penalty_asks_little_of_the_physics_where_it_is_unstable()
     # a stable mode: allowed -0.5 (margin 0.5), hinge 0.1 * 1 + 0.01 inside it
     assert training_target(-1.0) == pytest.approx(-0.61)
     assert training_target(0.0) == pytest.approx(-0.01)  # a neutral mode: a hair inside
+
+
+def test_pooled_state_errors_recover_the_error_against_the_truth_from_noisy_records():
+    """Windows from two sorties whose records carry white noise of different spread per state
+    (known): the pooled RMSE with the noise taken off equals the prediction's RMSE against the
+    truth (to sampling accuracy), where the raw RMSE against the records is inflated; a
+    prediction that is not finite scores inf."""
+    from uavdyn.learned.safe import pooled_state_errors
+
+    rng = np.random.default_rng(3)
+    W, H = 2000, 50
+    truth = rng.normal(size=(W, H, 4)).cumsum(axis=1)
+    offset = np.array([0.3, 0.2, 0.01, 0.003])               # the prediction's error per state
+    pred = truth + offset * rng.normal(size=(W, H, 4))
+    sortie_noise = np.array([[0.5, 0.3, 0.02, 0.002], [0.1, 0.6, 0.005, 0.004]])
+    noise = sortie_noise[np.arange(W) % 2]                   # (W, 4): each window's sortie
+    records = truth + noise[:, None, :] * rng.normal(size=(W, H, 4))
+    raw = np.sqrt(np.mean((pred - records) ** 2, axis=(0, 1)))
+    seen = pooled_state_errors(pred, records, noise)
+    assert np.all(raw > 1.1 * offset)
+    np.testing.assert_allclose(seen, offset, rtol=0.05)
+    assert np.array_equal(pooled_state_errors(pred, records, 0 * noise), raw)
+    bad = pred.copy()
+    bad[0, 0, 1] = np.nan
+    assert pooled_state_errors(bad, records, noise)[1] == math.inf

@@ -90,7 +90,8 @@ class SafeConfig:
     candidate_epochs: int = 5        # the best epochs (by rank) the final checks go through
     worst_sortie_ratio: float = 1.1  # every validation sortie: corrected/physics at 1 s <= this
     state_ratio_limit: float = 1.02  # every body state (u, w, q, theta): pooled validation
-                                     # error at the selection horizon, corrected/physics <= this
+                                     # error at the selection horizon, its measurement noise
+                                     # taken off, corrected/physics <= this
     channel_scales: tuple[float, ...] = (0.5, 0.0)  # where an output scale beats the physics
                                      # in pitch but a state got worse: one output channel at a
                                      # time scaled by these, the others kept
@@ -193,18 +194,48 @@ def _free_run_errors(step, start, sorties: list[Sortie], airframe: Airframe, sam
 START_FIT_S = 1.0  # the free-run guard fits each run's start to this much of the sortie
 
 
+def pooled_state_errors(pred: np.ndarray, records: np.ndarray, noise: np.ndarray
+                        ) -> np.ndarray:
+    """Pooled RMSE of each body state of windowed predictions against noisy records, with the
+    records' white noise taken off (:func:`uavdyn.flightdata.excess_rmse`).
+
+    Parameters
+    ----------
+    pred, records : ndarray, shape (W, H, 4)
+        Predicted and recorded ``u, w, q, theta`` over W windows of H samples.
+    noise : ndarray, shape (W, 4)
+        Standard deviation of each window's measurement noise per state (its sortie's).
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        The RMSE the truth would show (inf where the prediction is not finite).
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        mse = np.mean((pred - records) ** 2, axis=(0, 1))
+    noise_var = np.mean(np.asarray(noise, float) ** 2, axis=0)
+    return np.array([excess_rmse(math.sqrt(m), math.sqrt(v)) if math.isfinite(m)
+                     else math.inf for m, v in zip(mse, noise_var)])
+
+
+def _state_noise(sortie: Sortie) -> np.ndarray:
+    """The white measurement noise of a sortie's body states ``u, w, q, theta`` from its
+    records alone (pitch: the kinematic estimate; u, w, q: the second-difference one)."""
+    return np.array([white_noise_std(sortie.states[:, i]) for i in range(3)]
+                    + [pitch_noise_std(sortie.time, sortie.states)])
+
+
 def _fitted_start(phys, physics_start, sortie: Sortie, airframe: Airframe, sample_dt: float,
-                  pitch_noise: float) -> np.ndarray:
+                  noise: np.ndarray) -> np.ndarray:
     """Body states to start a validation free run from: fitted through the physics to the
     first :data:`START_FIT_S` of records (:func:`uavdyn.integrate.estimate_start`), each state
-    weighted by its noise (pitch: the kinematic estimate; u, w, q: the second-difference one).
-    Both the physics' run and the corrected one start there, so neither inherits the noise of
-    the first sample, which would add an error common to both and pull their ratio to 1."""
+    weighted by its ``noise`` (:func:`_state_noise`). Both the physics' run and the corrected
+    one start there, so neither inherits the noise of the first sample, which would add an
+    error common to both and pull their ratio to 1."""
     p = sortie_params(airframe, sortie.meta.get("manifest_entry", {}).get("altitude_m"))
     z0 = physics_start(sortie.states[:1], sortie.controls[:1], p, sample_dt)[0]
     n = max(1, min(len(sortie.time) - 1, int(round(START_FIT_S / sample_dt))))
     spread = np.std(sortie.states[:n + 1, :4], axis=0)
-    noise = np.array([white_noise_std(sortie.states[:, i]) for i in range(3)] + [pitch_noise])
     scale = np.maximum(noise, 1e-6 * (1.0 + spread))
     return estimate_start(phys, z0, sortie.controls[:n], sortie.states[:n + 1], p, sample_dt,
                           scale)[:4]
@@ -338,9 +369,14 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                 + cfg.pooled_weight * torch.mean(e))
 
     n_val = len(val_sorties)
-    # per-sortie ratios compare errors against the truth: each sortie's pitch noise (estimated
-    # from its own records) is taken off (excess_rmse); the pooled RMSE stays as measured
-    noise = [pitch_noise_std(s.time, s.states) for s in val_sorties]
+    # per-sortie and per-state ratios compare errors against the truth: each sortie's state
+    # noise (estimated from its own records) is taken off (excess_rmse); the pooled pitch RMSE
+    # stays as measured
+    state_noise = np.array([_state_noise(s) for s in val_sorties])     # (n_val, 4)
+    noise = [float(n) for n in state_noise[:, THETA]]
+
+    def state_errors(pred: np.ndarray) -> np.ndarray:
+        return pooled_state_errors(pred, va.y[:, :H_sel, :4], state_noise[va.sortie])
 
     def sortie_error(err: np.ndarray, i: int) -> float:
         """Validation sortie ``i``'s pitch RMSE over its windows, its noise taken off."""
@@ -351,21 +387,21 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                             for i in range(n_val)])
     scored = np.isfinite(phys_sortie) & (phys_sortie > 0)
 
-    phys_states = np.sqrt(np.mean((va.physics[:, :H_sel] - va.y[:, :H_sel, :4]) ** 2,
-                                  axis=(0, 1)))
+    phys_states = state_errors(va.physics[:, :H_sel])
     phys_states = np.where(phys_states > 0, phys_states, np.inf)
 
     def selection(D) -> dict:
         """Validation pitch RMSE at the selection horizon (pooled), per validation sortie the
         ratio corrected / physics of the pitch errors with the sortie's measurement noise taken
-        off (their geometric mean selects, the worst one guards) and per
-        body state the pooled ratio (guards: a correction may not buy pitch accuracy with
-        airspeed or climb-rate errors, which a speed or altitude controller would pay for)."""
+        off (their geometric mean selects, the worst one guards) and per body state the
+        ratio of pooled errors, noise taken off too (guards: a correction may not buy pitch
+        accuracy with airspeed or climb-rate errors, which a speed or altitude controller
+        would pay for)."""
         with torch.no_grad():
             pred = _rollout(model, D["z0"], D["u"][:, :H_sel], D["p"].T, dt).numpy()
         err = (pred[:, :, THETA] - va.y[:, :H_sel, THETA]) ** 2
         with np.errstate(over="ignore", invalid="ignore"):
-            states = np.sqrt(np.mean((pred - va.y[:, :H_sel, :4]) ** 2, axis=(0, 1)))
+            states = state_errors(pred)
             state_ratios = states / phys_states
             ratios = np.array([sortie_error(err, i) / phys_sortie[i] if scored[i] else math.nan
                                for i in range(n_val)])
@@ -484,7 +520,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         if cfg.free_run_guard:
             if physics_free is None:
                 body_starts = [_fitted_start(phys, physics_start, s, airframe, sample_dt, n)
-                               for s, n in zip(val_sorties, noise)]
+                               for s, n in zip(val_sorties, state_noise)]
                 physics_free = _free_run_errors(phys, physics_start, val_sorties, airframe,
                                                 sample_dt, body_starts)
             start_of = step.start_states or (lambda st, u, p, d: st)
@@ -550,6 +586,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                   "sortie_ratios": dict(zip([s.name for s in val_sorties],
                                             final["val_sortie_ratios"])),
                   "pitch_noise_std": dict(zip([s.name for s in val_sorties], noise)),
+                  "state_noise_std": {s.name: [float(v) for v in n]
+                                      for s, n in zip(val_sorties, state_noise)},
                   "output_scale": alpha, "channel_scales": [float(c) for c in channels],
                   "shrink_tried": tried}
     seconds = time.perf_counter() - start
