@@ -657,7 +657,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hybrid step in s (default 0.005; the improved correction on flight "
                         "data steps once per log sample)")
     p.add_argument("--epochs", type=int, default=None,
-                   help="maximum epochs (default 25 for the safe correction, 60 otherwise)")
+                   help="maximum epochs (default 100 for the safe correction, 60 otherwise)")
     p.add_argument("--rollout-horizon", type=int, default=25,
                    help="rollout-loss window in samples (default 25)")
     p.add_argument("--rollout-weight", type=float, default=1.0,

@@ -76,7 +76,7 @@ class SafeConfig:
     batches_per_epoch: int = 6
     eval_windows: int = 128           # fixed train and validation windows scored after every
                                       # epoch with the same loss (Table 2, Fig. 4)
-    epochs: int = 25
+    epochs: int = 100                # a budget: patience ends a run that stops improving
     lr: float = 3e-3
     lr_final: float = 3e-4
     patience: int = 8
