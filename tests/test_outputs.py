@@ -148,6 +148,24 @@ def test_simulate_checks_amplitude_duration_and_folders(tmp_path, monkeypatch, c
     assert (tmp_path / "sub" / "x.csv").exists()
 
 
+def test_evaluate_checks_its_output_before_the_work(tmp_path, monkeypatch, capsys):
+    """An output that could not be written is refused before the dataset is even read (the
+    dataset here does not exist: the output's error must come first), and nothing is
+    created; an output that is a folder is refused too."""
+    monkeypatch.chdir(tmp_path)
+    for out, message in (("/nonexistent_uavdyn_dir/e.json", "will not create folder"),
+                         (str(tmp_path), "is a folder, not a file")):
+        assert main(["evaluate", "--airframe", "aerosonde", "--dataset", "no_such_dataset",
+                     "--out", out]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
+    assert not Path("/nonexistent_uavdyn_dir").exists()
+    assert main(["evaluate", "--airframe", "aerosonde", "--dataset", "no_such_dataset",
+                 "--out", "sub/e.json"]) == 2
+    assert "no_such_dataset" in capsys.readouterr().err
+    assert not (tmp_path / "sub").exists()
+
+
 def test_legacy_f450_hybrid_from_hover_is_bounded_or_raises(f450, f450_hover):
     """The legacy F450 correction (``f450_improved.npz``, trained before the safe rules)
     destabilises hover (see modes --hybrid --weights): a free run must then raise

@@ -38,12 +38,32 @@ def _check_parent(path: Path, create_parents: bool) -> None:
         return
     if not create_parents:
         raise OutputError(f"{path}: folder {parent} does not exist (create it first)")
+    check_output_file(path)
+    parent.mkdir(parents=True, exist_ok=True)
+
+
+def check_output_file(path: str | Path) -> None:
+    """Check, before any work, that ``path`` could be written by :func:`atomic_file` (its
+    folder exists, or may be created inside the current folder); creates nothing.
+
+    Raises
+    ------
+    OutputError
+        If it could not, naming the path and why.
+    """
+    path = Path(path)
+    parent = path.parent
+    if path.is_dir():
+        raise OutputError(f"{path}: is a folder, not a file")
+    if parent.exists():
+        if not parent.is_dir():
+            raise OutputError(f"{path}: its parent {parent} is not a folder")
+        return
     cwd = Path.cwd().resolve()
     resolved = parent.resolve()
     if resolved != cwd and cwd not in resolved.parents:
         raise OutputError(f"{path}: will not create folder {parent} outside the current folder "
                           "(create it first)")
-    parent.mkdir(parents=True, exist_ok=True)
 
 
 @contextmanager

@@ -68,7 +68,13 @@ from uavdyn.linear import (
     trim_state,
 )
 from uavdyn.model import build_model
-from uavdyn.outputs import atomic_file, check_output_folder, output_folder, write_text_atomic
+from uavdyn.outputs import (
+    atomic_file,
+    check_output_file,
+    check_output_folder,
+    output_folder,
+    write_text_atomic,
+)
 
 
 class CliError(Exception):
@@ -213,6 +219,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         raise CliError(f"--dt must be a positive number of seconds, got {args.dt}")
     if not (args.duration > 0 and math.isfinite(args.duration)):
         raise CliError(f"--duration must be a positive number of seconds, got {args.duration}")
+    check_output_file(args.out)
     n = int(round(args.duration / args.dt))
     if n < 1:
         raise CliError("--duration must be at least one step long")
@@ -428,9 +435,11 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Table 1 and Table 4 for any dataset folder, as JSON and Markdown."""
 
-    airframe = load_airframe(args.airframe)
     out = Path(args.out)
     md = out.with_suffix(".md")
+    for path in (out, md):
+        check_output_file(path)  # before the work, not after it
+    airframe = load_airframe(args.airframe)
     for path in (out, md):
         if path.exists() and not args.force and not _own_json(out):
             raise CliError(f"{path} exists and is not an earlier 'uavdyn evaluate' result; "
