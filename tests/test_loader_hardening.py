@@ -558,8 +558,9 @@ def test_replace_and_perturb_are_checked_too():
 # ----------------------------------------------------------------------------- CLI and fuzz
 
 
-def test_cli_refuses_escapes_on_one_line(ds, tmp_path, capsys):
+def test_cli_refuses_escapes_on_one_line(ds, tmp_path, capsys, monkeypatch):
     _manifest_with(ds, lambda m: m["sorties"][0].update(file=f"../{SENTINEL}"))
+    monkeypatch.chdir(tmp_path)  # the output may be created here: the dataset's error is tested
     out = tmp_path / "out"
     assert main(["evaluate", "--airframe", "f450", "--dataset", str(ds), "--out",
                  str(out / "m.json")]) == 2
