@@ -288,7 +288,7 @@ def test_size_bounds_are_checked_before_reading(ds, tmp_path, monkeypatch):
     assert "manifest.json" in msg and "100-byte limit" in msg
     plane = tmp_path / "plane.json"
     plane.write_text(json.dumps(to_toml_dict(load_airframe("f450"))))
-    monkeypatch.setattr(airframes, "AIRFRAME_MAX_BYTES", 100)
+    monkeypatch.setattr(airframes.loader, "AIRFRAME_MAX_BYTES", 100)  # read where it is used
     assert "100-byte limit" in _fails(lambda: load_airframe(plane), AirframeError)
 
 

@@ -1,0 +1,158 @@
+"""Physical bounds of airframe parameters (:data:`BOUNDS`) and the checks of values against them."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from uavdyn.airframes.errors import AirframeError, _short
+
+
+@dataclass(frozen=True)
+class Bound:
+    """Allowed range of one parameter: ``low < x`` (or ``<=`` if not ``low_open``) and
+    ``x <= high`` (or ``<`` if ``high_open``), in ``unit``; ``why`` says where it comes from."""
+
+    low: float
+    high: float
+    unit: str = ""
+    why: str = ""
+    low_open: bool = True
+    high_open: bool = False
+
+    def describe(self) -> str:
+        """The interval in mathematical notation, e.g. ``(0, 100000] kg``."""
+        text = (f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}"
+                f"{')' if self.high_open else ']'}")
+        return f"{text} {self.unit}".strip()
+
+    def violation(self, value: float) -> str | None:
+        """What is wrong with ``value`` (None if it is within the bound)."""
+        if value < self.low or (self.low_open and value == self.low):
+            return f"must be {'>' if self.low_open else '>='} {self.low:g}"
+        if value > self.high or (self.high_open and value == self.high):
+            return f"must be {'<' if self.high_open else '<='} {self.high:g}"
+        return None
+
+
+def _b(low: float, high: float, unit: str = "", why: str = "", low_open: bool = True,
+       high_open: bool = False) -> Bound:
+    return Bound(low, high, unit, why, low_open, high_open)
+
+
+_COEFF = _b(-1e3, 1e3, "", "aerodynamic/propeller coefficient: finite, |x| < 1e3",
+            low_open=True, high_open=True)
+_MASS = _b(0, 1e5, "kg", "a 100 t aircraft is far beyond any UAV")
+_JY = _b(0, 1e6, "kg m^2", "pitch inertia of a 100 t aircraft is ~1e6 kg m^2")
+_RHO = _b(0, 2.0, "kg/m^3", "sea-level ISA is 1.225; 2 is beyond any atmosphere flown in")
+_G = _b(9.0, 10.5, "m/s^2", "Earth's surface gravity is 9.78-9.83 m/s^2", low_open=False)
+_LENGTH = _b(0, 100, "m", "lengths are positive and shorter than 100 m", high_open=True)
+_ALPHA_DOT = _b(-100, 100, "1/rad", "alpha-dot derivative (times alpha_dot c/2V): conventional "
+                                    "aircraft have |x| < ~20 (e.g. C_m_alpha_dot -5 to -15)",
+                low_open=False)
+_TAU = _b(0, 10, "s", "first-order time constant; 0 = no lag (no actuator state)",
+          low_open=False)
+# The closed-form alpha-dot divides by 1 + rho S c C_L_alpha_dot / (4 m) (the alpha-dot lift
+# acts like an added mass); below this the "added mass" would more than double alpha_dot.
+ALPHA_DOT_DENOMINATOR_MIN = 0.5
+
+# The schema's physical bounds, per kind and parameter (every parameter has one).
+BOUNDS: dict[str, dict[str, Bound]] = {
+    "fixed_wing": {
+        "mass": _MASS, "Jy": _JY,
+        "S_wing": _b(0, 1e3, "m^2", "wing area; a 747 has 511 m^2"),
+        "b": _LENGTH, "c": _LENGTH, "rho": _RHO,
+        "e": _b(0, 1.5, "", "Oswald efficiency: 1 for an elliptic wing, up to ~1.2 with "
+                            "winglets"),
+        "gravity": _G,
+        "C_L_0": _COEFF, "C_L_alpha": _COEFF, "C_L_alpha2": _COEFF, "C_L_q": _COEFF,
+        "C_L_delta_e": _COEFF,
+        "C_D_0": _b(0, 10, "", "zero-lift drag coefficient: >= 0, a flat plate is ~2",
+                    low_open=False),
+        "C_D_q": _COEFF, "C_D_delta_e": _COEFF, "C_m_0": _COEFF, "C_m_alpha": _COEFF,
+        "C_m_q": _COEFF, "C_m_delta_e": _COEFF,
+        "M_blend": _b(0, 100, "1/rad", "stall-blend sharpness (50 in [BM]); up to 100 keeps "
+                                       "exp(M (|alpha| + alpha0)) finite for |alpha| <= pi"),
+        "alpha0": _b(0, math.pi / 2, "rad", "stall-blend angle, within +-90 deg"),
+        "D_prop": _LENGTH,
+        "KV_rpm_per_volt": _b(0, 1e5, "rpm/V", "motor velocity constant; small motors are "
+                                                "~1e4"),
+        "R_motor": _b(0, 1e3, "ohm", "motor winding resistance"),
+        "i0": _b(0, 1e3, "A", "no-load current, >= 0", low_open=False),
+        "V_max": _b(0, 1e4, "V", "battery voltage"),
+        "C_Q2": _COEFF, "C_Q1": _COEFF, "C_Q0": _COEFF,
+        "C_T2": _COEFF, "C_T1": _COEFF, "C_T0": _COEFF,
+        "C_L_alpha_dot": _ALPHA_DOT, "C_m_alpha_dot": _ALPHA_DOT,
+        "tau_elevator": _TAU, "tau_throttle": _TAU,
+    },
+    "multirotor": {
+        "mass": _MASS, "Jy": _JY, "arm": _LENGTH,
+        "c_T": _b(0, 1e3, "N/(rad/s)^2", "rotor thrust coefficient (1e-5 for an F450)",
+                  high_open=True),
+        "C_R": _b(0, 1e5, "rad/s", "throttle-to-rotor-speed slope (1148 for an F450)"),
+        "omega_b": _b(-1e5, 1e5, "rad/s", "throttle-to-rotor-speed offset", high_open=True),
+        "rho": _RHO, "gravity": _G,
+        "CdA_x": _b(0, 1e3, "m^2", "drag area, >= 0", low_open=False),
+        "CdA_z": _b(0, 1e3, "m^2", "drag area, >= 0", low_open=False),
+        "drag_linear": _b(0, 1e6, "N s/m", "linear (rotor) drag, >= 0", low_open=False),
+        "pitch_damping": _b(0, 1e6, "N m s/rad", "pitch damping, >= 0", low_open=False),
+        "pitch_mix": _b(0, 1, "", "mixer share of pitch_cmd in a rotor's throttle (0..1)",
+                        low_open=False),
+        "tau_rotor": _TAU,
+        "k_inflow": _b(0, 1e3, "N s^2/(rad m)", "thrust loss per rotor speed and axial inflow "
+                                                  "speed, >= 0", low_open=False),
+        "M_u": _b(-1e3, 1e3, "N s", "speed-stability pitching moment per forward airspeed "
+                                    "(blade flapping; > 0 nose-up)", high_open=True),
+        "M_0": _b(-1e4, 1e4, "N m", "constant pitching moment (e.g. centre-of-gravity offset)",
+                  high_open=True),
+    },
+}
+
+# Keys that must be strictly positive / non-negative (derived from BOUNDS; kept for callers).
+POSITIVE_KEYS: dict[str, tuple[str, ...]] = {
+    kind: tuple(n for n, b in table.items() if b.low == 0 and b.low_open)
+    for kind, table in BOUNDS.items()}
+NONNEGATIVE_KEYS: dict[str, tuple[str, ...]] = {
+    kind: tuple(n for n, b in table.items() if b.low == 0 and not b.low_open)
+    for kind, table in BOUNDS.items()}
+
+
+def alpha_dot_denominator(values: dict[str, float]) -> float:
+    """``1 + rho S c C_L_alpha_dot / (4 m)``: the alpha-dot lift moves w_dot, hence alpha_dot,
+    so the exact alpha_dot is the one computed without it divided by this factor."""
+    return 1.0 + (values["rho"] * values["S_wing"] * values["c"] * values["C_L_alpha_dot"]
+                  / (4.0 * values["mass"]))
+
+
+def _as_number(value: object, name: str, origin: str) -> float:
+    """A parameter value as float: a bool or a string is not a number; an integer too large
+    for a float is not finite."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise AirframeError(f"{origin}: parameter '{name}' must be a number, got "
+                            f"{_short(value)}")
+    try:
+        return float(value)
+    except OverflowError:
+        raise AirframeError(f"{origin}: parameter '{name}' is not finite (an integer of "
+                            f"{value.bit_length()} bits)") from None
+
+
+def _check_values(values: dict[str, float], kind: str, origin: str) -> None:
+    """Every value finite and within its :data:`BOUNDS` entry (the message names the key)."""
+    for name, value in values.items():
+        if not math.isfinite(value):
+            raise AirframeError(f"{origin}: parameter '{name}' is not finite ({value})")
+    for name, bound in BOUNDS[kind].items():
+        problem = bound.violation(values[name])
+        if problem:
+            raise AirframeError(f"{origin}: parameter '{name}' {problem}, got {values[name]!r} "
+                                f"(allowed {bound.describe()}: {bound.why})")
+    if kind == "fixed_wing":
+        denominator = alpha_dot_denominator(values)
+        if not denominator >= ALPHA_DOT_DENOMINATOR_MIN:
+            raise AirframeError(
+                f"{origin}: parameter 'C_L_alpha_dot' = {values['C_L_alpha_dot']!r} makes the "
+                f"alpha-dot factor 1 + rho S c C_L_alpha_dot / (4 mass) = {denominator:.3g}, "
+                f"below {ALPHA_DOT_DENOMINATOR_MIN:g}: a negative alpha-dot lift that large "
+                "is not a physical airframe (the closed form would amplify alpha_dot "
+                f"{1 / max(denominator, 1e-300):.3g}-fold)")
