@@ -132,16 +132,12 @@ def make_windows(sorties: list[Sortie], window_samples: int, stride: int = 1) ->
 
 
 _STEPS: dict = {}
-
-
-@lru_cache(maxsize=64)
-def _rollout(step: ca.Function, samples: int) -> ca.Function:
-    return rollout(step, samples)
 _ACTUATOR_STEPS: dict = {}
 
 
 @lru_cache(maxsize=64)
 def _rollout(step: ca.Function, samples: int) -> ca.Function:
+    """``rollout`` of a step over ``samples`` steps, built once per step and length."""
     return rollout(step, samples)
 
 
@@ -166,8 +162,6 @@ def actuator_states(structure, controls: np.ndarray, p: np.ndarray, sample_dt: f
     rows = np.array(_rollout(_ACTUATOR_STEPS[structure], len(controls) - 1)(
         z0, controls[:-1].T, p, sample_dt))
     return np.vstack([z0[N_BODY:], rows[N_BODY:].T])
-
-
 
 
 def compiled_step(structure, substeps: int) -> ca.Function:

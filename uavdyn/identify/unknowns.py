@@ -1,0 +1,137 @@
+"""The unknowns of an identification: the names asked for, their scaling and their bounds."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from uavdyn.airframes import BOUNDS, CONTROL_RANGES, DELAY_MAX_SAMPLES, Airframe
+from uavdyn.airframes.tables import VALUE_LIMITS
+from uavdyn.flightdata import Sortie
+from uavdyn.identify.errors import IdentifyError
+from uavdyn.model import LAG_PARAMS
+
+DELAY_PREFIX = "delay_"
+TAU_NAMES = frozenset(t for lags in LAG_PARAMS.values() for t in lags.values())
+TAU_GRID = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)   # s, start candidates of a time constant at 0
+TAU_BOUNDS = (1e-3, 10.0)                       # s, a fitted time constant stays inside
+TAU_SCALE = 0.1                                 # s, unit of the unknown of a tau fitted from 0
+
+
+def control_names(kind: str) -> tuple[str, ...]:
+    return tuple(n for n, _ in CONTROL_RANGES[kind])
+
+
+def _check_request(airframe: Airframe, names: list[str], sorties: list[Sortie],
+                   max_delay: int) -> tuple[list[str], list[str]]:
+    """Split ``names`` into parameters of ``p`` and searched delays (control names)."""
+    if not names:
+        raise IdentifyError("no parameter named: give at least one with --params")
+    if len(set(names)) != len(names):
+        raise IdentifyError(f"parameter named twice in {names}")
+    controls = control_names(airframe.kind)
+    delay_names = [DELAY_PREFIX + c for c in controls]
+    bad_delays = [n for n in names if n.startswith(DELAY_PREFIX) and n not in delay_names]
+    if bad_delays:
+        raise IdentifyError(f"{bad_delays} not a delay of the {airframe.kind} model; valid "
+                            f"delays: {', '.join(delay_names)}")
+    unknown = [n for n in names if n not in airframe.param_names and n not in delay_names]
+    if unknown:
+        raise IdentifyError(f"parameter(s) {unknown} are not in the {airframe.kind} model of "
+                            f"'{airframe.name}'; choose from "
+                            f"{', '.join(airframe.param_names + tuple(delay_names))}")
+    if (isinstance(max_delay, bool) or not isinstance(max_delay, int)
+            or not 1 <= max_delay <= DELAY_MAX_SAMPLES):
+        raise IdentifyError(f"max_delay must be a whole number of samples in "
+                            f"[1, {DELAY_MAX_SAMPLES}], got {max_delay!r}")
+    if not sorties:
+        raise IdentifyError("no training sorties")
+    wrong = [s.name for s in sorties if s.kind != airframe.kind]
+    if wrong:
+        raise IdentifyError(f"sortie(s) {wrong[:3]} are of another kind than airframe "
+                            f"'{airframe.name}' ({airframe.kind})")
+    continuous = [n for n in names if n not in delay_names]
+    searched = [n[len(DELAY_PREFIX):] for n in names if n in delay_names]
+    return continuous, searched
+
+
+@dataclass
+class Unknowns:
+    """The continuous unknowns of a fit: ``p[index] = p_nom[index] + scale * theta``, with
+    ``theta`` starting at ``theta0`` (0, or a time constant fitted from 0 at the middle of
+    :data:`TAU_GRID`, ``from_zero``) and bounded by ``[lo, hi]``."""
+
+    index: list[int]
+    p_nom: np.ndarray
+    scale: np.ndarray
+    theta0: np.ndarray
+    from_zero: list[int]
+    lo: np.ndarray
+    hi: np.ndarray
+
+    def p_of(self, theta: np.ndarray) -> np.ndarray:
+        """The full parameter vector at the scaled unknowns ``theta``."""
+        p = self.p_nom.copy()
+        p[self.index] = self.p_nom[self.index] + self.scale * theta
+        return p
+
+
+def scaled_unknowns(airframe: Airframe, continuous: list[str], relative_bound: float
+                    ) -> Unknowns:
+    """The unknowns of the parameters ``continuous``, each scaled by its nominal magnitude (a
+    time constant at 0: :data:`TAU_SCALE`; another parameter at 0: 1)."""
+    index = [airframe.param_names.index(n) for n in continuous]
+    p_nom = airframe.p
+    is_tau = np.array([n in TAU_NAMES for n in continuous], bool)
+    from_zero = [j for j, n in enumerate(continuous) if is_tau[j] and p_nom[index[j]] == 0]
+    scale = np.where(np.abs(p_nom[index]) > 0, np.abs(p_nom[index]),
+                     np.where(is_tau, TAU_SCALE, 1.0)) if continuous else np.zeros(0)
+    theta = np.zeros(len(continuous))
+    guess = TAU_GRID[len(TAU_GRID) // 2]
+    theta[from_zero] = guess / TAU_SCALE
+    lo, hi = _theta_bounds(airframe, continuous, p_nom, scale, relative_bound)
+    return Unknowns(index, p_nom, scale, theta, from_zero, lo, hi)
+
+
+def _at_bound(value: float, low: float, high: float) -> str:
+    """Which bound an estimate ended on, if any: within 1e-4 of the allowed range in the fit's
+    units (the nominal value's magnitude; 1 for a parameter whose nominal value is 0), a range
+    counted as at most 2 units so a zero-nominal parameter's wide physical range (e.g. 0..1e3)
+    does not flag a small but clearly interior estimate."""
+    span = 1e-4 * max(min(high - low, 2.0) if math.isfinite(high - low) else 1.0, 1e-300)
+    return "lower" if value - low <= span else "upper" if high - value <= span else ""
+
+
+
+def _bound(airframe: Airframe, name: str) -> tuple[float, float]:
+    """The physical range of a parameter: the schema's bound, a table's value limit, or
+    :data:`TAU_BOUNDS` for a time constant."""
+    if name in TAU_NAMES:
+        return TAU_BOUNDS
+    if name in BOUNDS[airframe.kind]:
+        bound = BOUNDS[airframe.kind][name]
+        return bound.low, bound.high
+    table = name.split("_table_")[0]
+    if table in VALUE_LIMITS:
+        return -VALUE_LIMITS[table], VALUE_LIMITS[table]
+    return -math.inf, math.inf
+
+
+def _theta_bounds(airframe: Airframe, names: list[str], p_nom: np.ndarray, scale: np.ndarray,
+                  relative_bound: float) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of the scaled unknowns: within ``(1 +- relative_bound)`` of a nonzero nominal
+    value (sign kept), and always inside the physical range (:func:`_bound`; the only bound for
+    a parameter whose nominal value is 0, such as an unset alpha-dot derivative or lag)."""
+    lo = np.empty(len(names))
+    hi = np.empty(len(names))
+    for j, name in enumerate(names):
+        p0 = p_nom[airframe.param_names.index(name)]
+        low, high = _bound(airframe, name)
+        if p0 != 0:
+            low = max(low, p0 - relative_bound * abs(p0))
+            high = min(high, p0 + relative_bound * abs(p0))
+        lo[j], hi[j] = (low - p0) / scale[j], (high - p0) / scale[j]
+    return lo, hi
+
