@@ -1,0 +1,73 @@
+"""The system C compiler: finding it, naming it in cache keys, and the errors of using it."""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+COMPILER_ENV = "UAVDYN_CC"
+DEFAULT_FLAGS = ("-O3", "-fPIC", "-shared")
+
+
+class CodegenWarning(UserWarning):
+    """Compilation was not possible; the uncompiled CasADi Function is used."""
+
+
+class CompileError(RuntimeError):
+    """The system compiler rejected the generated code or produced no usable library.
+
+    The message is one line naming the compiler and the Function; the full compiler output is
+    kept in :attr:`stderr` (and shown as a note in tracebacks, e.g. with ``--debug``).
+
+    Attributes
+    ----------
+    compiler, function : str or None
+        The compiler executable and the CasADi Function's name.
+    command : list of str or None
+        The compiler command line.
+    returncode : int or None
+        The compiler's exit status.
+    stderr : str
+        The compiler's complete standard error.
+    """
+
+    def __init__(self, message: str, *, compiler: str | None = None,
+                 function: str | None = None, command: list[str] | None = None,
+                 returncode: int | None = None, stderr: str = "") -> None:
+        super().__init__(message)
+        self.compiler = compiler
+        self.function = function
+        self.command = command
+        self.returncode = returncode
+        self.stderr = stderr
+        if stderr.strip() and hasattr(self, "add_note"):  # Python >= 3.11
+            self.add_note(f"compiler output:\n{stderr.rstrip()}")
+
+
+def find_compiler() -> str | None:
+    """The C compiler to use: ``$UAVDYN_CC`` if set (empty means none), else cc or gcc/clang.
+
+    Returns
+    -------
+    str or None
+        Full path of the executable, or None (the CasADi VM is then used).
+    """
+    env = os.environ.get(COMPILER_ENV)
+    if env is not None:
+        return shutil.which(env) if env else None
+    for name in ("cc", "gcc", "clang"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def _compiler_id(compiler: str) -> str:
+    """The compiler's resolved path, size and modification time: an upgraded compiler gets new
+    cache keys without having to run it."""
+    real = os.path.realpath(compiler)
+    try:
+        st = os.stat(real)
+    except OSError:
+        return real
+    return f"{real}:{st.st_size}:{st.st_mtime_ns}"
