@@ -33,7 +33,9 @@ from fuzz_dataset import (
 )
 
 import uavdyn.airframes as airframes
+import uavdyn.flightdata.csvio as csvio
 import uavdyn.flightdata.dataset as dataset
+import uavdyn.flightdata.manifest as manifest
 from uavdyn.airframes import (
     BOUNDS,
     OPTIONAL_PARAMS,
@@ -280,10 +282,10 @@ def test_size_bounds_are_checked_before_reading(ds, tmp_path, monkeypatch):
         msg = _fails(lambda: load_dataset(big))
     assert "more than the 536870912-byte limit" in msg and str(os.path.realpath(big)) \
         not in files
-    monkeypatch.setattr(dataset, "CSV_MAX_BYTES", 1000)
+    monkeypatch.setattr(csvio, "CSV_MAX_BYTES", 1000)  # read where it is used
     msg = _fails(lambda: load_dataset(ds))
     assert "s0.csv" in msg and "1000-byte limit" in msg
-    monkeypatch.setattr(dataset, "MANIFEST_MAX_BYTES", 100)
+    monkeypatch.setattr(manifest, "MANIFEST_MAX_BYTES", 100)  # read where it is used
     msg = _fails(lambda: load_dataset(ds))
     assert "manifest.json" in msg and "100-byte limit" in msg
     plane = tmp_path / "plane.json"

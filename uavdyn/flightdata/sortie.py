@@ -1,0 +1,54 @@
+"""The in-memory sortie type and the interchange-format columns of each airframe kind."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from uavdyn.flightdata.errors import FlightDataError
+from uavdyn.model import CONTROL_NAMES, STATE_NAMES
+
+SPLIT_NAMES = ("train", "validation", "test")
+
+
+def csv_columns(kind: str) -> tuple[str, ...]:
+    """The interchange-format header for an airframe kind."""
+    if not isinstance(kind, str) or kind not in CONTROL_NAMES:
+        raise FlightDataError(f"unknown airframe kind {kind!r}; expected one of "
+                              f"{tuple(CONTROL_NAMES)}")
+    return ("time",) + STATE_NAMES + CONTROL_NAMES[kind]
+
+
+@dataclass
+class Sortie:
+    """One flight: uniformly sampled time, states ``N x 4`` and controls ``N x 2``;
+    ``true_states`` (optional) are the noise-free states of an emulated flight."""
+
+    name: str
+    kind: str
+    time: np.ndarray
+    states: np.ndarray
+    controls: np.ndarray
+    mission: str = ""
+    meta: dict = field(default_factory=dict)
+    true_states: np.ndarray | None = None
+
+    @property
+    def dt(self) -> float:
+        """Median sample interval (s)."""
+        return float(np.median(np.diff(self.time)))
+
+    @property
+    def duration(self) -> float:
+        """Last minus first time stamp (s)."""
+        return float(self.time[-1] - self.time[0])
+
+    @property
+    def split(self) -> str:
+        """``train``/``validation``/``test`` as recorded in the manifest ('' if none)."""
+        return str(self.meta.get("split", ""))
+
+    def to_array(self) -> np.ndarray:
+        """``N x 7`` table in the CSV column order (time, states, controls)."""
+        return np.column_stack([self.time, self.states, self.controls])
