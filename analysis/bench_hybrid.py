@@ -33,7 +33,7 @@ from uavdyn.identify.report import airframe_toml
 from uavdyn.integrate import compile_function, physics_step, rollout
 from uavdyn.learned import hybrid_step, load_weights, save_weights
 from uavdyn.learned.safe import SafeConfig, SafeResult, train_safe, write_safe_history
-from uavdyn.model import sortie_params, structure_of
+from uavdyn.model import sortie_params
 
 PRESET = {"fixed_wing": "aerosonde", "quadrotor": "f450"}
 N_TIMING = 2000
@@ -70,7 +70,7 @@ def cost_ratio(step, physics, z0, u, p, dt: float, repeats: int = 15) -> dict:
     ``physics_us_per_step``, ``hybrid_us_per_step`` and ``ratio`` are medians; the ``_min``
     keys are the minima."""
     runs = {}
-    for name, st, x0 in (("physics", physics, z0[:physics.size1_in(0)]), ("hybrid", step, z0)):
+    for name, st, x0 in (("physics", physics, z0[:physics.nx]), ("hybrid", step, z0)):
         f = compile_function(rollout(st, N_TIMING))
         args = [ca.DM(x0), ca.DM(np.tile(u[:, None], (1, N_TIMING))), ca.DM(p), dt]
         runs[name] = lambda f=f, args=args: f(*args)
@@ -134,13 +134,11 @@ def run_airframe(name: str, args) -> dict:
             save_weights(result.net, folder / f"{nominal.name}_safe.npz")
     sample_dt = float(np.median(np.diff(ds.test[0].time)))
     physics = physics_step(fitted)
-    rows_p = score(Solver("identified physics", physics, sample_dt, structure_of(fitted)),
-                   fitted, ds.test)
+    rows_p = score(Solver("identified physics", physics, sample_dt), fitted, ds.test)
     per_sortie = []
     if result.net is not None:
         step = hybrid_step(result.net, fitted, compile=False)
-        rows_h = score(Solver("corrected", step, sample_dt, structure_of(fitted)), fitted,
-                       ds.test)
+        rows_h = score(Solver("corrected", step, sample_dt), fitted, ds.test)
         for rp, rh in zip(rows_p, rows_h):
             row = {"sortie": rp["sortie"], "condition": rp["condition"]}
             for mode in ("horizon_1s", "free_run"):
@@ -154,11 +152,8 @@ def run_airframe(name: str, args) -> dict:
                 rh["free_run"] is not None and not math.isfinite(rh["free_run"])
                 and rp["free_run"] is not None and math.isfinite(rp["free_run"]))
             per_sortie.append(row)
-        z0 = np.concatenate([ds.test[0].states[0], np.tile(ds.test[0].controls[0],
-                                                           len(result.net.memory_tau))])
-        if physics.size1_in(0) != 4:
-            z0 = step.start_states(ds.test[0].states[:1], ds.test[0].controls[:1], fitted.p,
-                                   sample_dt)[0]
+        z0 = step.initial_state(ds.test[0].states[0], ds.test[0].controls[:1], fitted.p,
+                                sample_dt)
         out["cost"] = cost_ratio(step, physics, z0, ds.test[0].controls[0], fitted.p,
                                  sample_dt)
         bare = dataclasses.replace(result.net, envelope=None, out_bound=None)

@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from uavdyn.integrate import compile_function, physics_step, rollout
+from uavdyn.integrate import compile_function, rollout
 from uavdyn.learned import hybrid_step, shipped_correction
-from uavdyn.linear import trim, trim_state
+from uavdyn.linear import trim
 from uavdyn.model import NUMPY_OPS, body_forces
 from uavdyn.montecarlo import build_spec, load_dispersions, run_study
 from uavdyn.montecarlo.chunks import compiled_batch
@@ -105,10 +105,8 @@ def _sequential_loop(spec, runs: int, step) -> tuple[float, np.ndarray]:
         point = trim(airframe, spec.airspeed)
         p = airframe.p
         controls = point.u + spec.deviations
-        # the step's whole state at trim: the physics' (augmented) trim state, then each
-        # command memory of a safe correction at the trim command
-        z0 = trim_state(airframe, point)
-        z0 = np.concatenate([z0, np.tile(point.u, (sim.size1_in(0) - len(z0)) // len(point.u))])
+        # the step's whole state at trim: actuators, buffers and command memory at rest
+        z0 = step.initial_state(point.x, point.u, p, spec.dt)
         x = np.asarray(sim(z0, controls.T, p, spec.dt))[:4]
         x = np.hstack([point.x[:, None], x])
         if not np.all(np.isfinite(x)):
@@ -195,8 +193,7 @@ def main(argv: list[str] | None = None) -> int:
                           "best_wall_s": min(e["wall_s"] for e in (one, threads, two) if e)})
             entry["meets_target"] = entry["best_wall_s"] <= TARGETS_S[model]
             loop_runs = min(args.loop_runs, args.runs)
-            step = physics_step(spec.structure) if weights is None else \
-                hybrid_step(weights, airframe, compile=False)
+            step = spec.discrete_model()
             loop_wall, loop_pitch = _sequential_loop(spec, loop_runs, step)
             extrapolated = loop_wall * args.runs / loop_runs
             batched = reference.table["max_abs_pitch_deg"][:loop_runs]

@@ -187,8 +187,8 @@ def bench_airframe(name: str, log) -> dict:
                                     "flight diverged")
     # diagnostic: the preset's nominal physics (the emulator's own baseline parameters) as the
     # prediction, RTI at horizon 20: separates the controller from the identified model
-    nominal = PredictionModel("nominal_physics", physics_step(plant), plant,
-                              setups["rti"].plant_trim, (), f"RK4 of {plant.name} (nominal)")
+    nominal = PredictionModel("nominal_physics", physics_step(plant), setups["rti"].plant_trim,
+                              f"RK4 of {plant.name} (nominal)")
     diag = StudySetup(plant, setups["rti"].plant_trim, {"nominal_physics": nominal},
                       setups["rti"].weights)
     runs = fly_all(diag, MPCConfig(horizon=20, mode="rti"),

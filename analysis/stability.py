@@ -19,22 +19,21 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from uavdyn.airframes import load_airframe  # noqa: E402
-from uavdyn.integrate import rk4_step  # noqa: E402
-from uavdyn.learned import hybrid_step, shipped_weights  # noqa: E402
+from uavdyn.integrate import physics_step  # noqa: E402
+from uavdyn.learned import hybrid_step, shipped_correction  # noqa: E402
 from uavdyn.linear import (  # noqa: E402
     discrete_map_modes,
     mode_table,
     trim,  # noqa: E402
 )
-from uavdyn.model import build_model  # noqa: E402
 
 
-def analyse(name: str, weights: Path, dt: float) -> dict:
-    """Hybrid-map and RK4-map modes of one preset at its nominal trim point."""
-    af = load_airframe(name)
+def analyse(af, weights: Path, dt: float) -> dict:
+    """Hybrid-map and physics-map modes of an airframe (the one the weights were trained on)
+    at its nominal trim point."""
     point = trim(af)
-    hybrid = discrete_map_modes(hybrid_step(weights, af, compile=False), af, point, dt)
-    plain = discrete_map_modes(rk4_step(build_model(af).f), af, point, dt)
+    hybrid = discrete_map_modes(hybrid_step(weights, af, compile=False), point, dt)
+    plain = discrete_map_modes(physics_step(af), point, dt)
     return {"airframe": af, "point": point, "hybrid": hybrid, "rk4": plain, "weights": weights}
 
 
@@ -80,12 +79,17 @@ def main() -> None:
     parser.add_argument("--out", default="results/stability")
     parser.add_argument("--airframes", nargs="+", default=["aerosonde", "f450"])
     parser.add_argument("--weights", nargs="*", default=None,
-                        help="weight files, one per airframe (default: the shipped ones)")
+                        help="weight files, one per airframe file given with --airframes "
+                             "(default: each preset's shipped safe correction on its "
+                             "identified airframe)")
     args = parser.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    files = args.weights or [shipped_weights(n) for n in args.airframes]
-    results = [analyse(n, Path(w), args.dt) for n, w in zip(args.airframes, files)]
+    if args.weights:
+        pairs = [(Path(w), load_airframe(n)) for n, w in zip(args.airframes, args.weights)]
+    else:
+        pairs = [shipped_correction(n) for n in args.airframes]
+    results = [analyse(af, w, args.dt) for w, af in pairs]
     lines, summary = [], []
     for res in results:
         h, r = res["hybrid"], res["rk4"]

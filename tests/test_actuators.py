@@ -20,6 +20,7 @@ from uavdyn.flightdata import Sortie
 from uavdyn.integrate import (
     augment_states,
     augmented_rk_step,
+    body_model,
     compile_function,
     find_compiler,
     free_run,
@@ -215,7 +216,7 @@ def test_presets_unchanged_with_the_new_keys_absent_or_zero(name, point_name, ze
     rng = np.random.default_rng(0)
     for airframe in (af, explicit):
         step = physics_step(airframe)
-        assert step.size1_in(0) == 4
+        assert step.nx == 4 and step.state_names == ("u", "w", "q", "theta")
         for _ in range(5):
             x = point.x + rng.normal(0.0, 0.3, 4)
             u = point.u + rng.normal(0.0, 0.02, 2)
@@ -231,8 +232,8 @@ def test_presets_unchanged_with_the_new_keys_absent_or_zero(name, point_name, ze
                                                                       af.p)[:2])
         np.testing.assert_allclose(A, A0, rtol=1e-14, atol=1e-14)
         np.testing.assert_allclose(B, B0, rtol=1e-14, atol=1e-14)
-        comp = discrete_map_modes(physics_step(airframe), airframe, point, 0.01)
-        ref = discrete_map_modes(plain, af, point, 0.01)
+        comp = discrete_map_modes(physics_step(airframe), point, 0.01)
+        ref = discrete_map_modes(body_model(plain, af.kind), point, 0.01, airframe=af)
         np.testing.assert_allclose(comp.map_eigenvalues, ref.map_eigenvalues, atol=1e-14)
         assert [m.name for m in comp.physics_modes] == [m.name for m in ref.physics_modes]
 
@@ -289,7 +290,7 @@ def test_continuous_modes_contain_the_actuator_poles(lagged, lagged_trim, aeroso
 def test_discrete_map_has_the_lag_and_delay_eigenvalues(lagged, lagged_trim):
     af = lagged.with_delays(throttle=1)  # three buffer states
     dt = 0.004
-    comp = discrete_map_modes(physics_step(af), af, lagged_trim, dt)
+    comp = discrete_map_modes(physics_step(af), lagged_trim, dt)
     lam = comp.map_eigenvalues
     assert len(lam) == structure_of(af).nx() == 9
     for tau in (TAU_E, TAU_T):
@@ -300,8 +301,9 @@ def test_discrete_map_has_the_lag_and_delay_eigenvalues(lagged, lagged_trim):
     assert np.abs(lam - comp.exact_eigenvalues).max() < 1e-8
     assert comp.made_unstable == []
     assert {"elevator actuator lag", "throttle actuator lag"} <= {m.name for m in comp.map_modes}
-    with pytest.raises(ValueError, match="has 7 states"):
-        discrete_map_modes(physics_step(lagged.with_delays(elevator=1)), af, lagged_trim, dt)
+    with pytest.raises(ValueError, match="has 7 physics states"):
+        discrete_map_modes(physics_step(lagged.with_delays(elevator=1)), lagged_trim, dt,
+                           airframe=af)
 
 
 # ------------------------------------------------------------------ tables and ISA
@@ -367,7 +369,7 @@ def test_evaluation_restarts_from_the_recorded_command_history(lagged, lagged_tr
     free run) is exact only if its actuator/buffer states come from the recorded commands."""
     dt = 0.01
     time, states, controls = _recorded(lagged, lagged_trim, 300, dt)
-    solver = Solver("physics", physics_step(lagged), dt, structure_of(lagged))
+    solver = Solver("physics", physics_step(lagged), dt)
     res = evaluate_trajectory(solver, time, states, controls, lagged.p)
     for mode in ("one_step", "horizon_1s", "free_run"):
         pred, target = res[mode]
@@ -378,13 +380,11 @@ def test_evaluation_restarts_from_the_recorded_command_history(lagged, lagged_tr
         trim_state(lagged, dataclasses.replace(lagged_trim, x=states[k], u=controls[k])),
         controls[k], lagged.p, dt)).ravel()[:4] for k in range(40, 60)])
     assert np.abs(rest - states[41:61]).max() > 1e-6
-    with pytest.raises(ValueError, match="give the step's layout"):
-        evaluate_trajectory(Solver("no layout", physics_step(lagged), dt), time, states,
-                            controls, lagged.p)
+    with pytest.raises(TypeError, match="give a DiscreteModel"):  # a bare Function has no layout
+        Solver("no layout", physics_step(lagged).function, dt)
     # delays count calls: at another step size the step is refused, every mode reported
-    refused = evaluate_trajectory(Solver("fine", physics_step(lagged), dt / 2,
-                                         structure_of(lagged)), time, states, controls,
-                                  lagged.p)
+    refused = evaluate_trajectory(Solver("fine", physics_step(lagged), dt / 2), time, states,
+                                  controls, lagged.p)
     assert set(refused["refused"]) == {"one_step", "horizon_1s", "free_run"}
     assert "transport delays" in refused["refused"]["free_run"]
 
@@ -418,7 +418,7 @@ def test_sortie_free_run_uses_the_sortie_altitude_and_the_augmented_state(lagged
     z0 = trim_state(isa, lagged_trim)
     expected = free_run(step, z0, controls[:-1], p, dt)[:, :4]
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
-    sea = sortie_free_run(step, sortie, isa.p, dt, structure=structure_of(isa))
+    sea = sortie_free_run(step, sortie, isa.p, dt)
     assert np.abs(sea - got).max() > 1e-4  # the altitude really changed the density
     np.testing.assert_allclose(sea, states, rtol=0, atol=1e-9)  # recorded at sea level
 
@@ -430,7 +430,7 @@ def test_mpc_closes_the_loop_with_lag_and_delay(aerosonde):
     af = aerosonde.replace(tau_elevator=0.08, tau_throttle=0.3).with_delays(elevator=1)
     point = trim(af, 25.0)
     dt = 0.05
-    mpc = TrackingMPC(physics_step(af), af, af.p, point.u, MPCConfig(horizon=20, dt=dt))
+    mpc = TrackingMPC(physics_step(af), point.u, MPCConfig(horizon=20, dt=dt))
     assert mpc.nx == 5 + 3
     plant = physics_plant(af, dt, substeps=5)
     z0 = trim_state(af, point, with_position=True)
@@ -453,8 +453,8 @@ def test_mpc_closes_the_loop_with_lag_and_delay(aerosonde):
     assert err[result.time[1:] >= 3.0].max() < 0.05 * step
     assert result.states[:, 3].max() > point.x[3] + 0.9 * step
     assert np.all(np.abs(np.diff(result.controls[:, 0])) <= mpc.rates[0] * dt + 1e-9)
-    with pytest.raises(ValueError, match="give the Airframe"):
-        TrackingMPC(physics_step(af), af.kind, af.p, point.u, MPCConfig(horizon=3, dt=dt))
+    with pytest.raises(ValueError, match="carries position states"):
+        TrackingMPC(physics_step(af, with_position=True), point.u, MPCConfig(horizon=3, dt=dt))
 
 
 # ------------------------------------------------------------------ C, NumPy, torch
@@ -464,8 +464,8 @@ def test_mpc_closes_the_loop_with_lag_and_delay(aerosonde):
 def test_compiled_augmented_step_equals_the_vm(lagged, lagged_trim):
     af = lagged.with_delays(throttle=2)
     step = physics_step(af, substeps=2)
-    compiled = compile_function(step)
-    assert compiled.is_a("External")
+    compiled = step.compiled().function
+    assert compiled.is_a("External") and compile_function(step.function).is_a("External")
     rng = np.random.default_rng(5)
     z0 = trim_state(af, lagged_trim)
     for _ in range(10):
@@ -509,7 +509,7 @@ def test_a_lag_about_to_be_fitted_at_zero_is_the_limit_of_a_fast_lag(aerosonde, 
     """``fitting`` keeps the actuator state at tau = 0: the step is finite there and equals its
     limit tau -> 0+ (no 0/0 at the first stage's time)."""
     step = physics_step(aerosonde, fitting=("tau_elevator",))
-    assert step.size1_in(0) == 5
+    assert step.nx == 5 and step.state_names[-1] == "elevator_actuator"
     z = np.append(aerosonde_trim.x, aerosonde_trim.u[0] - 0.02)
     u = aerosonde_trim.u + [0.03, 0.0]
     at_zero = np.array(step(z, u, aerosonde.p, 0.01)).ravel()

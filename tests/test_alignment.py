@@ -10,7 +10,6 @@ from uavdyn.airframes import load_airframe
 from uavdyn.evaluation import MODES, Solver, evaluate_trajectory, fine_reference
 from uavdyn.integrate import physics_step
 from uavdyn.linear import trim
-from uavdyn.model import structure_of
 
 
 def doublets(airframe, duration=20.0, dt=0.01):
@@ -32,7 +31,7 @@ def test_physics_scored_against_its_own_reference_is_exact_to_truncation(name, d
     af = load_airframe(name)
     t, x0, U = doublets(af)
     ref = fine_reference(af, t, x0, U, af.p)
-    solver = Solver("rk4", physics_step(af), dt, structure_of(af))
+    solver = Solver("rk4", physics_step(af), dt)
     res = evaluate_trajectory(solver, t, ref, U, af.p)
     assert "refused" not in res
     for mode in MODES:

@@ -77,7 +77,7 @@ def test_presets_default_to_zero_and_modes_unchanged(aerosonde, aerosonde_trim):
 def test_shipped_weights_still_load(aerosonde):
     import uavdyn.learned as learned
 
-    net = learned.load_weights(learned.shipped_weights("aerosonde"), aerosonde)
+    net = learned.load_weights(learned.shipped_weights("aerosonde", "paper"), aerosonde)
     assert net.airframe_hash == PRESET_HASH["aerosonde"]
 
 

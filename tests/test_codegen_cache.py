@@ -397,7 +397,7 @@ def test_a_graph_calling_a_compiled_function_is_refused_not_crashed(tmp_path):
     from uavdyn.integrate import CompileError, compile_function, physics_step, rollout
 
     airframe = load_airframe("aerosonde")
-    step = compile_function(physics_step(airframe), directory=tmp_path)
+    step = compile_function(physics_step(airframe).function, directory=tmp_path)
     if not step.is_a("External"):
         pytest.skip("no C compiler")
     with pytest.raises(CompileError, match="calls the already compiled Function"):

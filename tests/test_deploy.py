@@ -12,6 +12,7 @@ from uavdyn.deploy.bundle import (
     BundleSpec,
     doublet_controls,
     export_bundle,
+    model_bundle_spec,
     silence_unused_parameters,
 )
 from uavdyn.integrate import rk4_step, simulate
@@ -63,29 +64,31 @@ def test_bundle_matches_python(tmp_path, request, name, real, rollout_steps, tol
 
 
 @pytest.mark.parametrize("formulation, real, rollout_steps, tol", [
-    ("improved", "double", 0, 1e-12), ("improved", "float", 0, 1e-4),
-    ("improved", "double", 400, 1e-12), ("paper", "double", 0, 1e-12),
+    ("safe", "double", 0, 1e-12), ("safe", "float", 0, 1e-4),
+    ("safe", "double", 400, 1e-12), ("paper", "double", 0, 1e-12),
 ])
-def test_hybrid_bundle_matches_python_hybrid_rollout(tmp_path, aerosonde, aerosonde_trim,
-                                                     formulation, real, rollout_steps, tol):
-    from uavdyn.integrate import free_run, takes_time
-    from uavdyn.learned import hybrid_step, shipped_weights
+def test_hybrid_bundle_matches_python_hybrid_rollout(tmp_path, aerosonde, formulation, real,
+                                                     rollout_steps, tol):
+    """The shipped corrections (the safe one on its identified airframe, with its actuator
+    states; the paper's on the nominal preset, with its time input) export through their
+    discrete model: the example's trajectory is the Python rollout's."""
+    from uavdyn.integrate import free_run, physics_step
+    from uavdyn.learned import hybrid_step, shipped_identified, shipped_weights
+    from uavdyn.linear import trim
 
-    step = hybrid_step(shipped_weights("aerosonde", formulation), aerosonde, compile=False)
-    model = build_model(aerosonde)
-    spec = BundleSpec("hyb", model.state_names, model.control_names, model.param_names,
-                      aerosonde.p, aerosonde_trim.x, aerosonde_trim.u, 0.005, math.radians(2),
-                      example_steps=400, real=real, rollout_steps=rollout_steps,
-                      has_time_input=takes_time(step))
-    folder = export_bundle(step, spec, tmp_path / "bundle")
+    owner = shipped_identified("aerosonde") if formulation == "safe" else aerosonde
+    model = hybrid_step(shipped_weights("aerosonde", formulation), owner, compile=False)
+    spec = model_bundle_spec("hyb", model, trim(owner, 25.0), 0.005, example_steps=400,
+                             real=real, rollout_steps=rollout_steps)
+    assert spec.state_names == model.state_names and spec.has_time_input == model.takes_time
+    folder = export_bundle(model, spec, tmp_path / "bundle")
     _, data = build_and_run(folder, "hyb")
-    expected = free_run(step, aerosonde_trim.x, doublet_controls(spec), aerosonde.p, 0.005,
-                        compile=False)
-    assert np.abs(data[:, 1:5] - expected).max() <= tol
-    # the correction is really in the exported code: it differs from plain RK4
-    plain = simulate(rk4_step(model.f), aerosonde_trim.x, doublet_controls(spec), aerosonde.p,
-                     0.005)
-    assert np.abs(plain - expected).max() > 1e-6
+    expected = free_run(model, spec.x0, doublet_controls(spec), spec.p, 0.005, compile=False)
+    assert np.abs(data[:, 1:1 + model.nx] - expected).max() <= tol
+    # the correction is really in the exported code: it differs from the physics alone
+    physics = physics_step(owner)
+    plain = simulate(physics, spec.x0[:physics.nx], doublet_controls(spec), spec.p, 0.005)
+    assert np.abs(plain[:, :4] - expected[:, :4]).max() > 1e-6
 
 
 def test_makefile_builds(tmp_path, aerosonde, aerosonde_trim):
@@ -123,7 +126,6 @@ def test_augmented_bundle_matches_python_and_lists_its_states(tmp_path, aerosond
     """An airframe with actuator lags and a delay exports its augmented step: the header and
     README name every state in order, the trim state is at rest, and the example's trajectory
     is the Python one to 1e-12."""
-    from uavdyn.deploy import airframe_bundle_spec
     from uavdyn.integrate import physics_step
     from uavdyn.linear import trim
     from uavdyn.model import structure_of
@@ -132,8 +134,8 @@ def test_augmented_bundle_matches_python_and_lists_its_states(tmp_path, aerosond
     point = trim(af, 25.0)
     names = structure_of(af).state_names()
     step = physics_step(af)
-    spec = airframe_bundle_spec("lagged", af, point, 0.005, example_steps=300,
-                                rollout_steps=rollout_steps)
+    spec = model_bundle_spec("lagged", step, point, 0.005, example_steps=300,
+                             rollout_steps=rollout_steps)
     assert spec.state_names == names and len(spec.x0) == len(names) == 8
     folder = export_bundle(step, spec, tmp_path / "bundle")
     header = (folder / "lagged.h").read_text()

@@ -7,15 +7,17 @@ import numpy as np
 import pytest
 from test_correction import random_net
 
-from uavdyn.airframes import perturb
 from uavdyn.integrate import compile_function, find_compiler, rk4_step, rollout
 from uavdyn.learned import (
     WeightFileError,
     hybrid_jacobian,
     hybrid_step,
     load_weights,
+    shipped_correction,
+    shipped_identified,
     shipped_weights,
 )
+from uavdyn.linear import trim
 from uavdyn.model import build_model
 
 
@@ -79,7 +81,7 @@ def test_torch_vm_and_c_agree(airframe_name, formulation, request):
 
     step = hybrid_step(net, af, compile=False)
     args = [x.T, u.T, af.p, dt[None, :]] + ([t[None, :]] if formulation == "paper" else [])
-    x_vm = np.array(step.map(1000)(*args)).T
+    x_vm = np.array(step.function.map(1000)(*args)).T
     np.testing.assert_allclose(x_vm, x_torch, rtol=0, atol=1e-10)
     # the correction really acts (else the comparison would be vacuous)
     x_phys = np.array(rk4_step(build_model(af).f).map(1000)(x.T, u.T, af.p, dt[None, :])).T
@@ -87,7 +89,7 @@ def test_torch_vm_and_c_agree(airframe_name, formulation, request):
     if find_compiler() is not None:
         y_c = np.array(compile_function(corr)(inp.T)).T
         np.testing.assert_allclose(y_c, y_torch, rtol=0, atol=tol)
-        x_c = np.array(compile_function(step.map(1000))(*args)).T
+        x_c = np.array(compile_function(step.function.map(1000))(*args)).T
         np.testing.assert_allclose(x_c, x_torch, rtol=0, atol=1e-10)
         single = hybrid_step(net, af, compile=True)
         np.testing.assert_allclose(np.array(single(*[a if np.ndim(a) < 2 else a[:, :1]
@@ -207,15 +209,19 @@ def test_rollout_equals_repeated_steps_and_jacobian_is_nlp_ready(aerosonde, aero
 
 @pytest.mark.parametrize("name", ["aerosonde", "f450"])
 def test_shipped_weights_load_and_refuse_other_airframes(name, request):
-    af = request.getfixturevalue(name)
+    """The default shipped weights are the safe correction on the identified airframe; the
+    nominal preset (another parameter hash) is refused."""
     path = shipped_weights(name)
-    if not path.exists():
-        pytest.fail(f"shipped weights missing: {path}")
+    af = shipped_identified(name)
+    assert path == shipped_correction(name)[0]
     net = load_weights(path, af)
-    assert net.formulation == "improved"
-    step = hybrid_step(path, af)
-    point = request.getfixturevalue("aerosonde_trim" if name == "aerosonde" else "f450_hover")
-    assert np.all(np.isfinite(np.array(step(point.x, point.u, af.p, 0.005))))
-    other = perturb(af, 1.15)
+    assert net.formulation == "improved" and net.envelope is not None
+    model = hybrid_step(path, af)
+    point = trim(af, af.nominal_airspeed if af.kind == "fixed_wing" else 0.0)
+    z = model.initial_state(point.x, point.u, af.p)
+    assert z.shape == (model.nx,)
+    assert np.all(np.isfinite(np.array(model(z, point.u, af.p, net.dt))))
     with pytest.raises(WeightFileError, match="another airframe"):
-        hybrid_step(path, other)
+        hybrid_step(path, request.getfixturevalue(name))
+    with pytest.raises(WeightFileError, match="no shipped weights of formulation"):
+        shipped_weights(name, "improved")

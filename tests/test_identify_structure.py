@@ -15,8 +15,7 @@ from uavdyn.airframes.tables import Table
 from uavdyn.emulation.emulator import SensorNoise
 from uavdyn.flightdata import Sortie
 from uavdyn.identify import IdentifyError, identify, write_outputs
-from uavdyn.integrate import rollout
-from uavdyn.integrate.augmented import augment_states, physics_step
+from uavdyn.integrate import augment_states, physics_step, rollout
 from uavdyn.integrate.inputs import doublet, multistep_3211
 from uavdyn.linear import trim
 from uavdyn.model import sortie_params, structure_of
@@ -235,7 +234,7 @@ def test_window_start_states_equal_the_steps_own_actuator_history(aerosonde):
     """The fit summary restarts each window from actuator and buffer states computed by a
     CasADi loop; they equal :func:`uavdyn.integrate.augmented.actuator_history`."""
     from uavdyn.identify.windows import actuator_states
-    from uavdyn.integrate.augmented import actuator_history
+    from uavdyn.integrate import actuator_history
 
     airframe = aerosonde.replace(tau_elevator=0.03, tau_throttle=0.4).with_delays(elevator=2,
                                                                                  throttle=1)

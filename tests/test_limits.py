@@ -15,9 +15,9 @@ import pytest
 
 from uavdyn.airframes import CONTROL_RANGES, AirframeError, load_airframe, to_toml_dict
 from uavdyn.cli import main
-from uavdyn.integrate import rk4_step
+from uavdyn.integrate import body_model, physics_step
 from uavdyn.linear.trim import TrimError, trim
-from uavdyn.model import CONTROL_BOUNDS, CONTROL_NAMES, build_model
+from uavdyn.model import CONTROL_BOUNDS, CONTROL_NAMES
 from uavdyn.mpc import MPCConfig, TrackingMPC
 from uavdyn.mpc.tracking import DEFAULT_RATE_LIMITS
 
@@ -91,17 +91,17 @@ def _solve(mpc: TrackingMPC, point) -> np.ndarray:
 def test_mpc_never_commands_beyond_the_airframe_limit(limited):
     af = load_airframe(limited)
     point = trim(af, 25.0)
-    step = rk4_step(build_model(af).f)
+    step = physics_step(af)
     cfg = MPCConfig(horizon=20, dt=0.05)
-    mpc = TrackingMPC(step, af, af.p, point.u, cfg)
+    mpc = TrackingMPC(step, point.u, cfg)
     assert mpc.kind == "fixed_wing"
     np.testing.assert_allclose(mpc.bounds, [[-0.14, 0.14], [0.0, 1.0]])
     np.testing.assert_allclose(mpc.rates, [2.0, DEFAULT_RATE_LIMITS["fixed_wing"][1]])
     U = _solve(mpc, point)
     assert np.all(np.abs(U[0]) <= 0.14 + 1e-9)
     assert np.abs(U[0]).max() > 0.13  # the limit is active, not merely unreached
-    # The same request on the kind string (backward compatible) goes past 0.14 rad.
-    free = TrackingMPC(step, af.kind, af.p, point.u, cfg)
+    # The same request on a model without the airframe (the kind's bounds) goes past 0.14 rad.
+    free = TrackingMPC(body_model(step.function, af.kind), point.u, cfg, p=af.p)
     np.testing.assert_allclose(free.bounds, CONTROL_BOUNDS["fixed_wing"])
     assert np.abs(_solve(free, point)[0]).max() > 0.14
 

@@ -28,7 +28,7 @@ def test_zero_correction_map_equals_exp_A_dt(name, trim_name, request):
     af, point = request.getfixturevalue(name), request.getfixturevalue(trim_name)
     dt = 0.002
     step = hybrid_step(zero_correction(af), af, compile=False)
-    comp = discrete_map_modes(step, af, point, dt)
+    comp = discrete_map_modes(step, point, dt)
     # RK4 stability polynomial R(z) = 1 + z + z^2/2 + z^3/6 + z^4/24 of the continuous poles
     A, _ = linearise(af, point)
     z = np.linalg.eigvals(A) * dt
@@ -54,6 +54,6 @@ def test_destabilising_map_is_flagged(aerosonde, aerosonde_trim):
         ca.SX.sym("dt")
     bump = ca.vertcat(0, 0.5 * (x[1] - aerosonde_trim.x[1]), 0, 0)
     bad = ca.Function("bad", [x, u, p, dt], [base(x, u, p, dt) + bump])
-    comp = discrete_map_modes(bad, aerosonde, aerosonde_trim, 0.005)
+    comp = discrete_map_modes(base.with_function(bad), aerosonde_trim, 0.005)
     assert comp.made_unstable, comp.table()
     assert "UNSTABLE" in comp.table()

@@ -26,7 +26,7 @@ from scipy.stats import truncnorm
 from uavdyn.airframes import load_airframe
 from uavdyn.cli.montecarlo import add_parser
 from uavdyn.integrate import free_run, physics_step
-from uavdyn.learned import shipped_weights
+from uavdyn.learned import shipped_correction, shipped_weights
 from uavdyn.linear import trim
 from uavdyn.model import build_model, structure_of
 from uavdyn.montecarlo import (
@@ -385,12 +385,13 @@ def test_impossible_draw_stops_the_study(tmp_path, aerosonde):
 
 
 def test_hybrid_study_runs_the_shipped_correction(tmp_path, aerosonde):
-    disp = _dispersions(tmp_path, GUSTY, aerosonde)
-    physics = run_study(build_spec(aerosonde, disp, runs=6, duration=2.0, chunk_size=6),
+    weights, identified = shipped_correction("aerosonde")
+    disp = _dispersions(tmp_path, GUSTY, identified)
+    physics = run_study(build_spec(identified, disp, runs=6, duration=2.0, chunk_size=6),
                         progress=False)
-    hybrid = run_study(build_spec(aerosonde, disp, runs=6, duration=2.0, chunk_size=6,
-                                  weights="shipped"), progress=False)
-    assert hybrid.spec.model.startswith("hybrid (aerosonde_improved.npz")
+    hybrid = run_study(build_spec(identified, disp, runs=6, duration=2.0, chunk_size=6,
+                                  weights=weights), progress=False)
+    assert hybrid.spec.model.startswith("hybrid (aerosonde_safe.npz")
     assert np.all(np.isfinite(hybrid.history))
     assert not np.array_equal(physics.history, hybrid.history)  # the correction acts
     with pytest.raises(MonteCarloError, match="takes time t"):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from uavdyn.emulation import Emulator
-from uavdyn.integrate import rk4_step
+from uavdyn.integrate import body_model, rk4_step
 from uavdyn.model import build_model
 from uavdyn.mpc import (
     MPCConfig,
@@ -25,14 +25,14 @@ from uavdyn.mpc import (
 
 @pytest.fixture(scope="module")
 def physics(aerosonde):
-    return rk4_step(build_model(aerosonde).f)
+    return body_model(rk4_step(build_model(aerosonde).f), aerosonde.kind, aerosonde)
 
 
 @pytest.fixture(scope="module")
 def setup(aerosonde, aerosonde_trim, physics):
     emulator = Emulator(aerosonde)
     x0 = emulator.initial_state(aerosonde_trim.x, aerosonde_trim.u, 100.0)
-    mpc = TrackingMPC(physics, aerosonde.kind, aerosonde.p, aerosonde_trim.u,
+    mpc = TrackingMPC(physics, aerosonde_trim.u,
                       MPCConfig(horizon=20, dt=0.05))
     return mpc, emulator_plant(emulator, 0.05), x0
 
@@ -40,7 +40,7 @@ def setup(aerosonde, aerosonde_trim, physics):
 def _rti(step, af, trim, horizon, **kw):
     cfg = MPCConfig(horizon=horizon, dt=0.05, mode="rti", compile=kw.pop("compile", False),
                     **kw)
-    return RTIController(TrackingProblem(step, af, af.p, trim.u, cfg))
+    return RTIController(TrackingProblem(step, trim.u, cfg))
 
 
 def test_pitch_step_settles_on_the_emulator(setup, aerosonde_trim):
@@ -76,20 +76,20 @@ def test_climb_tracks_altitude_ramp(setup, aerosonde_trim):
 
 def test_bad_configuration(aerosonde, aerosonde_trim, physics):
     with pytest.raises(ValueError, match="horizon must be >= 1"):
-        TrackingMPC(physics, aerosonde.kind, aerosonde.p, aerosonde_trim.u,
+        TrackingMPC(physics, aerosonde_trim.u,
                     MPCConfig(horizon=0))
     with pytest.raises(ValueError, match="solver must be 'sqp' or 'ipopt'"):
-        TrackingMPC(physics, aerosonde.kind, aerosonde.p, aerosonde_trim.u,
+        TrackingMPC(physics, aerosonde_trim.u,
                     MPCConfig(solver="x"))
     with pytest.raises(ValueError, match="mode must be one of"):
-        TrackingMPC(physics, aerosonde.kind, aerosonde.p, aerosonde_trim.u,
+        TrackingMPC(physics, aerosonde_trim.u,
                     MPCConfig(mode="fast"))
     with pytest.raises(ValueError, match="qp_solver must be one of"):
         _rti(physics, aerosonde, aerosonde_trim, 3, qp_solver="nope")
     from uavdyn.integrate import compile_function
     with pytest.raises(ValueError, match="uncompiled SX Function"):
-        TrackingMPC(compile_function(physics), aerosonde.kind, aerosonde.p, aerosonde_trim.u)
-    mpc = TrackingMPC(physics, aerosonde.kind, aerosonde.p, aerosonde_trim.u,
+        TrackingMPC(physics.with_function(compile_function(physics.function)), aerosonde_trim.u)
+    mpc = TrackingMPC(physics, aerosonde_trim.u,
                       MPCConfig(horizon=3))
     with pytest.raises(ValueError, match=r"x0 must be \[u, w, q, theta, h\]"):
         mpc.solve(aerosonde_trim.x, aerosonde_trim.u, 0.0, 100.0, 25.0)
@@ -103,7 +103,7 @@ def test_a_forced_solver_failure_is_never_applied(aerosonde, aerosonde_trim, phy
     last command is held (counted as held)."""
     N = 3
     if mode == "sqp":
-        mpc = TrackingMPC(physics, aerosonde, aerosonde.p, aerosonde_trim.u,
+        mpc = TrackingMPC(physics, aerosonde_trim.u,
                           MPCConfig(horizon=N, max_iter=10))
     else:
         mpc = _rti(physics, aerosonde, aerosonde_trim, N)
@@ -139,9 +139,10 @@ def test_a_diverged_prediction_is_a_failed_solve_and_never_applied(aerosonde, ae
                    ca.SX.sym("dt"))
     broken = ca.Function("broken", [x, u, p, dt], [x + np.nan * (u[0] + 1.0)],
                          ["x", "u", "p", "dt"], ["x_next"])
+    broken = body_model(broken, aerosonde.kind, aerosonde)
     x0 = np.append(aerosonde_trim.x, 100.0)
     u0 = aerosonde_trim.u + [0.01, 0.0]
-    for mpc in (TrackingMPC(broken, aerosonde.kind, aerosonde.p, aerosonde_trim.u,
+    for mpc in (TrackingMPC(broken, aerosonde_trim.u,
                             MPCConfig(horizon=5, dt=0.05, max_iter=3)),
                 _rti(broken, aerosonde, aerosonde_trim, 5)):
         res = mpc.solve(x0, aerosonde_trim.u, aerosonde_trim.x[3], 100.0, 25.0)
@@ -159,7 +160,7 @@ def test_rti_converges_to_the_full_sqp(aerosonde, aerosonde_trim, physics):
     cost; the line-searched Gauss-Newton SQP of mode "sqp" to 1e-5."""
     N = 10
     cfg = MPCConfig(horizon=N, dt=0.05)
-    sqp = TrackingMPC(physics, aerosonde, aerosonde.p, aerosonde_trim.u, cfg)
+    sqp = TrackingMPC(physics, aerosonde_trim.u, cfg)
     rti = _rti(physics, aerosonde, aerosonde_trim, N)
     x0 = np.array([aerosonde_trim.x[0] - 1.0, aerosonde_trim.x[1], 0.1,
                    aerosonde_trim.x[3] - 0.05, 100.0])
@@ -170,7 +171,7 @@ def test_rti_converges_to_the_full_sqp(aerosonde, aerosonde_trim, physics):
     assert a.success and b.success
     np.testing.assert_allclose(b.predicted_controls, a.predicted_controls, rtol=0, atol=1e-6)
     # the Gauss-Newton SQP with line search (mode "sqp") reaches it from a cold start too
-    gn = build_controller(physics, aerosonde, aerosonde.p, aerosonde_trim.u,
+    gn = build_controller(physics, aerosonde_trim.u,
                           MPCConfig(horizon=N, dt=0.05, mode="sqp", compile=False,
                                     sqp_tol=1e-9))
     c = gn.solve(*args)
@@ -192,10 +193,10 @@ def test_rti_and_sqp_fly_the_same_trajectory(aerosonde, aerosonde_trim, physics)
         return aerosonde_trim.x[3] + np.where(t >= 0.5, step, 0.0)
 
     runs = []
-    for mpc in (TrackingMPC(physics, aerosonde, aerosonde.p, aerosonde_trim.u,
+    for mpc in (TrackingMPC(physics, aerosonde_trim.u,
                             MPCConfig(horizon=15)),
                 _rti(physics, aerosonde, aerosonde_trim, 15),
-                build_controller(physics, aerosonde, aerosonde.p, aerosonde_trim.u,
+                build_controller(physics, aerosonde_trim.u,
                                  MPCConfig(horizon=15, mode="sqp", compile=False))):
         runs.append(fly_closed_loop(mpc, emulator_plant(emulator, 0.05), x0, aerosonde_trim.u,
                                     50, theta_ref, lambda t: np.full_like(t, 100.0), 25.0,
@@ -274,9 +275,10 @@ def test_hybrid_prediction_model_solves(aerosonde_trim):
     model = setup.models["hybrid"]
     P = model.airframe.params
     taus = [t for t in (P.tau_elevator, P.tau_throttle)] if P.tau_elevator > 0 else []
-    assert len(taus) + len(model.memory_tau) > 0  # the step carries states besides the body
-    n_carried = (len(taus) if taus else 0) + 2 * len(model.memory_tau)
-    assert model.step.size1_in(0) == 4 + n_carried
+    memory_tau = model.model.layout.memory_tau
+    assert len(taus) + len(memory_tau) > 0  # the step carries states besides the body
+    n_carried = (len(taus) if taus else 0) + 2 * len(memory_tau)
+    assert model.model.nx == 4 + n_carried
     mpc = model.controller(MPCConfig(horizon=10, dt=0.05, mode="rti", compile=False))
     assert mpc.nx == 5 + n_carried
     emulator = Emulator(setup.plant_airframe)
@@ -291,7 +293,7 @@ def test_hybrid_prediction_model_solves(aerosonde_trim):
     # trim command (written out here: a <- u + (a - u) exp(-dt / tau) per control)
     applied = np.vstack([pt.u, result.controls])
     expected = []
-    for tau_list in ([taus] if taus else []) + [[t, t] for t in model.memory_tau]:
+    for tau_list in ([taus] if taus else []) + [[t, t] for t in memory_tau]:
         a = applied[0].copy()
         for u in applied[:-1]:
             a = u + (a - u) * np.exp(-0.05 / np.array(tau_list))

@@ -11,7 +11,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 from test_correction import random_net
 
@@ -19,8 +18,7 @@ from uavdyn.cli import main
 from uavdyn.emulation import Recipe, generate_dataset
 from uavdyn.emulation.fingerprint import compare_fingerprints, dataset_fingerprint
 from uavdyn.flightdata import load_dataset
-from uavdyn.integrate import DivergenceError, free_run
-from uavdyn.learned import hybrid_step, save_weights, shipped_weights
+from uavdyn.learned import save_weights
 from uavdyn.outputs import MARKER, OutputError, atomic_file, output_folder
 
 
@@ -166,24 +164,3 @@ def test_evaluate_checks_its_output_before_the_work(tmp_path, monkeypatch, capsy
     assert not (tmp_path / "sub").exists()
 
 
-def test_legacy_f450_hybrid_from_hover_is_bounded_or_raises(f450, f450_hover):
-    """The legacy F450 correction (``f450_improved.npz``, trained before the safe rules)
-    destabilises hover (see modes --hybrid --weights): a free run must then raise
-    DivergenceError with the time, never return NaN silently."""
-    step = hybrid_step(shipped_weights("f450"), f450)
-    controls = np.tile(f450_hover.u, (2000, 1))  # 20 s at 0.01 s
-    rng = np.random.default_rng(0)
-    outcomes = []
-    for k in range(20):
-        x0 = f450_hover.x + rng.normal(size=4) * [0.5, 0.5, 0.1, 0.05] * (k > 0)
-        try:
-            traj = free_run(step, x0, controls, f450.p, 0.005, 2)
-        except DivergenceError as exc:
-            assert 0.0 < exc.time <= 20.0 and "diverged at t =" in str(exc)
-            outcomes.append("raised")
-            continue
-        assert np.all(np.isfinite(traj)) and np.abs(traj).max() < 1e6
-        outcomes.append("bounded")
-    assert len(outcomes) == 20
-    print(f"F450 legacy hybrid from 20 hover starts: {outcomes.count('raised')} raised "
-          f"DivergenceError, {outcomes.count('bounded')} stayed bounded")

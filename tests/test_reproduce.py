@@ -328,8 +328,8 @@ def test_evaluate_refuses_a_dataset_without_test_split_unless_asked(tmp_path, ca
 
 def test_free_run_runner_starts_an_augmented_step_from_its_own_start_state():
     """Table 3 / work-precision time a safe correction (command-memory states) from the state
-    its ``start_states`` builds: the body states it returns equal a hand-built rollout from
-    ``[x0, u0, u0]``."""
+    :meth:`DiscreteModel.initial_state` builds: the body states it returns equal a hand-built
+    rollout from ``[x0, u0, u0]``."""
     from test_safe_correction import _pitch_feedback_net
 
     from uavdyn.experiments.common import free_run_runner
@@ -394,17 +394,16 @@ def test_retrain_trains_the_earlier_formulations_on_the_nominal_airframe(monkeyp
     assert structure_of(identified).augmented  # the case that used to fail
     calls = []
 
-    def fake_obtain(airframe, ds, formulation, target, config, log):
-        calls.append((airframe.name, formulation, target))
-        path = reproduce.weights_path(airframe, formulation, target,
-                                      ReproduceConfig(out=str(tmp_path)))
-        return path if path.exists() else None  # the shipped legacy weights stand in
+    def fake_obtain(airframe, ds, formulation, config, log):
+        calls.append((airframe.name, formulation))
+        path = reproduce.weights_path(airframe, formulation, ReproduceConfig(out=str(tmp_path)))
+        return path if path.exists() else None  # the shipped paper weights stand in
 
     monkeypatch.setattr(reproduce, "obtain_weights", fake_obtain)
     config = ReproduceConfig(out=str(tmp_path), retrain=True, progress=False)
     models = reproduce.legacy_models(nominal, None, config, lambda *a: None)
-    assert sorted(calls) == sorted((nominal.name, f, t) for f, t in reproduce.LEGACY)
+    assert sorted(calls) == sorted((nominal.name, f) for f in reproduce.LEGACY)
     assert models and all(owner is nominal for _, owner, _ in models.values())
     # and the refusal this avoids is real: the paper weights on the identified airframe
     with pytest.raises(ValueError, match="paper"):
-        hybrid_step(reproduce.weights_path(nominal, "paper", "data", config), identified)
+        hybrid_step(reproduce.weights_path(nominal, "paper", config), identified)

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from uavdyn.airframes import load_airframe
-from uavdyn.integrate import physics_step
+from uavdyn.integrate import StateLayout, physics_step
 from uavdyn.learned import CorrectionNet, hybrid_step, load_weights, save_weights
 from uavdyn.learned.envelope import Envelope, smoothstep
 from uavdyn.learned.stability import check_map_stability, envelope_trims
@@ -57,7 +57,7 @@ def _trims(airframe, net):
     x[:, 0] += np.linspace(-1, 1, 50) if airframe.kind == "fixed_wing" else 0.0
     sortie = Sortie("trims", airframe.kind, np.arange(50) * DT, x, np.tile(point.u, (50, 1)),
                     "survey")
-    return envelope_trims(airframe, [sortie], net.layout(structure_of(airframe)))
+    return envelope_trims(airframe, [sortie], StateLayout(structure_of(airframe), MEMORY))
 
 
 @pytest.mark.parametrize("name", ["aerosonde", "f450"])
@@ -429,15 +429,15 @@ def test_map_modes_of_a_memory_step_show_the_filters_exact_poles(name):
     airframe = load_airframe(name)
     point = trim(airframe)
     step = hybrid_step(_pitch_feedback_net(airframe, -1.0), airframe, compile=False)
-    comp = discrete_map_modes(step, airframe, point, DT, MEMORY)
+    comp = discrete_map_modes(step, point, DT)
     lam = np.sort_complex(comp.map_eigenvalues)
     for tau in MEMORY:
         hits = np.sum(np.abs(lam - math.exp(-DT / tau)) < 1e-12)
         assert hits == 2, (tau, lam)  # one filter per command
-    assert len(comp.map_eigenvalues) == step.size1_in(0) == len(comp.exact_eigenvalues)
+    assert len(comp.map_eigenvalues) == step.nx == len(comp.exact_eigenvalues)
+    assert step.state_names[-2 * len(MEMORY):] == tuple(
+        f"{c}_memory_{tau:g}s" for tau in MEMORY for c in step.control_names)
     assert comp.map_modes and not comp.made_unstable
-    with pytest.raises(ValueError, match="command-memory"):
-        discrete_map_modes(step, airframe, point, DT, MEMORY[:1])
 
 
 def test_the_stability_penalty_asks_little_of_the_physics_where_it_is_unstable():
@@ -450,7 +450,6 @@ def test_the_stability_penalty_asks_little_of_the_physics_where_it_is_unstable()
     from uavdyn.learned.stability import (
         allowed_abscissa,
         body_abscissa,
-        map_jacobian,
         stability_penalty,
         training_target,
         trims_between,
@@ -464,10 +463,10 @@ def test_the_stability_penalty_asks_little_of_the_physics_where_it_is_unstable()
     model = TorchCorrection(airframe.kind, "improved", 8, "relu", np.zeros(n_in), np.ones(n_in),
                             np.ones(3), DT, structure=structure, layout=layout,
                             envelope=envelope)
-    trims, skipped = trims_between(airframe, 0.0, 8.0, layout)
+    trims, skipped = trims_between(airframe, 0.0, 8.0, StateLayout(structure, MEMORY))
     assert trims, skipped
-    jp = map_jacobian(physics_step(structure))
-    sigma = [body_abscissa(np.array(jp(t.z[:layout.n_physics], t.u, t.p, DT)), DT)[0]
+    jp = physics_step(structure).jacobians()
+    sigma = [body_abscissa(np.array(jp(t.z[:layout.n_physics], t.u, t.p, DT)[1]), DT)[0]
              for t in trims]
     assert min(sigma) > 0.1, sigma  # unstable physics at every trim
     targets = [training_target(s) for s in sigma]

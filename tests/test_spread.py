@@ -21,7 +21,6 @@ from uavdyn.evaluation import (
     squared_error,
 )
 from uavdyn.integrate import physics_step
-from uavdyn.model import structure_of
 
 
 def test_pooled_rmse_equals_rmse_of_concatenated_errors():
@@ -76,7 +75,7 @@ def test_horizon_windows_agree_with_the_one_second_mode():
     af = load_airframe("aerosonde")
     t, x0, U = doublets(af, duration=8.0)
     states = np.zeros((len(t), 4)) + x0  # any target: both paths must compare the same samples
-    solver = Solver("rk4", physics_step(af), 0.01, structure_of(af))
+    solver = Solver("rk4", physics_step(af), 0.01)
     curve = horizon_predictions(solver, t, states, U, af.p, (0.002, 0.5, 1.0, 20.0))
     res = evaluate_trajectory(solver, t, states, U, af.p)
     np.testing.assert_array_equal(curve[1.0][0], res["horizon_1s"][0])

@@ -23,7 +23,7 @@ from uavdyn.integrate import (
     rk4_step,
     takes_time,
 )
-from uavdyn.learned import FORMULATIONS, hybrid_step, shipped_weights
+from uavdyn.learned import FORMULATIONS, hybrid_step, shipped_correction, shipped_weights
 from uavdyn.model import NUMPY_OPS, build_model, make_rhs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -204,7 +204,7 @@ def test_network_and_step_agree_in_casadi_numpy_torch(formulation, activation, a
                     lambda z: net.forward(z, torch_ops()), torch_ops(), T(t)).numpy()
     step = hybrid_step(net, aerosonde, compile=False)
     args = [x, u, aerosonde.p, dt] + ([t] if form.takes_time else [])
-    x_ca = np.array(step.map(n)(*args))
+    x_ca = np.array(step.function.map(n)(*args))
     assert np.abs(x_t - x_np).max() <= 1e-12 * np.abs(x_np).max()
     assert np.abs(x_ca - x_np).max() <= 1e-12 * np.abs(x_np).max()
     phys = np.array(rk4_step(build_model(aerosonde).f).map(n)(x, u, aerosonde.p, dt))
@@ -217,21 +217,23 @@ def test_network_and_step_agree_in_casadi_numpy_torch(formulation, activation, a
 def test_paper_step_takes_time_by_name_and_refuses_other_dt_and_times(aerosonde,
                                                                     aerosonde_trim):
     step = hybrid_step(shipped_weights("aerosonde", "paper"), aerosonde, compile=False)
-    assert takes_time(step) and step.name_in()[-1] == "t"
-    assert step.trained_dt == 0.005 and step.t_range == (0.0, 30.0)
+    assert takes_time(step) and step.takes_time and step.function.name_in()[-1] == "t"
+    assert step.dt == 0.005 and step.t_range == (0.0, 30.0)
     controls = np.tile(aerosonde_trim.u, (100, 1))
-    with pytest.raises(StepUseError, match=r"step size 0\.01 s but it was trained at 0\.005"):
+    with pytest.raises(StepUseError, match=r"step size 0\.01 s but it is made for 0\.005"):
         free_run(step, aerosonde_trim.x, controls, aerosonde.p, 0.01)
     with pytest.raises(StepUseError, match=r"times 29\.9\.\.30\.4 s but it was trained on "
                                            r"0\.\.30 s"):
         free_run(step, aerosonde_trim.x, controls, aerosonde.p, 0.005, t0=29.9)
     lenient = hybrid_step(shipped_weights("aerosonde", "paper"), aerosonde, compile=False,
                           strict=False)
-    with pytest.warns(UserWarning, match="trained at 0.005"):
+    with pytest.warns(UserWarning, match="made for 0.005"):
         free_run(lenient, aerosonde_trim.x, controls, aerosonde.p, 0.01)
-    improved = hybrid_step(shipped_weights("aerosonde"), aerosonde, compile=False)
-    assert not takes_time(improved)
-    free_run(improved, aerosonde_trim.x, controls, aerosonde.p, 0.01)  # any dt is fine
+    weights, identified = shipped_correction("aerosonde")
+    improved = hybrid_step(weights, identified, compile=False)
+    assert not takes_time(improved) and improved.dt is None
+    z0 = improved.initial_state(aerosonde_trim.x, aerosonde_trim.u)
+    free_run(improved, z0, controls, identified.p, 0.01)  # any dt is fine
 
 
 def test_paper_step_sees_time_since_sortie_start(aerosonde, aerosonde_trim):

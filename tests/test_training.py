@@ -12,7 +12,7 @@ torch = pytest.importorskip("torch")
 
 
 from uavdyn.evaluation import pitch_rmse  # noqa: E402
-from uavdyn.integrate import EvalGrid, GridError, rk4_step  # noqa: E402
+from uavdyn.integrate import EvalGrid, GridError, physics_step  # noqa: E402
 from uavdyn.learned import hybrid_step, load_weights, save_weights  # noqa: E402
 from uavdyn.learned.data import (  # noqa: E402
     DatasetError,
@@ -22,7 +22,6 @@ from uavdyn.learned.data import (  # noqa: E402
     target_trajectories,
 )
 from uavdyn.learned.train import TrainConfig, train  # noqa: E402
-from uavdyn.model import build_model  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +46,7 @@ def test_short_training_learns_the_discrepancy(small_data, aerosonde, tmp_path):
 
     path = save_weights(result.net, tmp_path / "w.npz")
     step = hybrid_step(load_weights(path, aerosonde), aerosonde, compile=False)
-    rk4 = rk4_step(build_model(aerosonde).f)
+    rk4 = physics_step(aerosonde)
     e_hybrid = pitch_rmse(step, test_s, aerosonde.p, 0.005)
     e_physics = pitch_rmse(rk4, test_s, aerosonde.p, 0.005)
     assert e_hybrid < e_physics, (e_hybrid, e_physics)

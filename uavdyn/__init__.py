@@ -5,9 +5,14 @@ Typical use::
 
     import uavdyn
     af = uavdyn.load_airframe("aerosonde")
-    model = uavdyn.build_model(af)          # CasADi f(x, u, p) -> x_dot, Jacobians
     point = uavdyn.trim(af, airspeed=25.0)
-    step = uavdyn.rk4_step(model.f)         # (x, u, p, dt) -> x_next
+    model = uavdyn.physics_step(af)         # DiscreteModel: (x, u, p, dt) -> x_next
+    model.state_names                       # body, then actuator/delay states of the airframe
+    x0 = model.initial_state(point.x, point.u)
+    traj = uavdyn.free_run(model, x0, [point.u] * 100, af.p, 0.01)
+
+``uavdyn.hybrid_step(weights, airframe)`` gives the same object with a learned correction;
+``uavdyn.rk4_step(f)`` is the bare RK4 of a right-hand side (it knows no actuator states).
 
 Sub-packages, each importing only those before it: ``airframes``, ``model``, ``linear``,
 ``integrate``, ``flightdata``, ``emulation``, ``learned``, ``evaluation``, ``mpc``, ``deploy``,
@@ -15,10 +20,20 @@ Sub-packages, each importing only those before it: ``airframes``, ``model``, ``l
 """
 
 from uavdyn.airframes import Airframe, load_airframe, perturb
-from uavdyn.integrate import free_run, reference_step, rk4_step, rollout, simulate
+from uavdyn.integrate import (
+    DiscreteModel,
+    free_run,
+    physics_step,
+    reference_step,
+    rk4_step,
+    rollout,
+    simulate,
+)
+from uavdyn.learned import hybrid_step
 from uavdyn.linear import trim
 from uavdyn.model import build_model
 
 __version__ = "0.2.0"
-__all__ = ["Airframe", "load_airframe", "perturb", "build_model", "trim", "rk4_step",
+__all__ = ["Airframe", "load_airframe", "perturb", "build_model", "trim", "DiscreteModel",
+           "physics_step", "hybrid_step", "rk4_step",
            "rollout", "reference_step", "simulate", "free_run", "__version__"]

@@ -19,7 +19,7 @@ from uavdyn import __version__
 from uavdyn.airframes import AirframeError, list_presets, load_airframe
 from uavdyn.cli.montecarlo import add_parser as add_montecarlo_parser
 from uavdyn.cli.mpc import add_parser as add_mpc_parser
-from uavdyn.deploy import airframe_bundle_spec, export_bundle
+from uavdyn.deploy import export_bundle, model_bundle_spec
 from uavdyn.emulation.datagen import Recipe, generate_dataset
 from uavdyn.emulation.fingerprint import (
     DEFAULT_TOLERANCE,
@@ -48,10 +48,8 @@ from uavdyn.identify import identify, write_outputs
 from uavdyn.integrate import (
     CompileError,
     DivergenceError,
-    check_use,
     free_run,
     physics_step,
-    takes_time,
 )
 from uavdyn.integrate.inputs import control_sequence
 from uavdyn.learned import WeightFileError, hybrid_step, load_weights, shipped_correction
@@ -65,7 +63,6 @@ from uavdyn.linear import (
     modes,
     point_params,
     trim,
-    trim_state,
 )
 from uavdyn.model import build_model
 from uavdyn.outputs import (
@@ -174,15 +171,15 @@ def _hybrid_modes(args: argparse.Namespace) -> int:
     dt = args.dt if args.dt is not None else net.dt
     if not (dt > 0 and math.isfinite(dt)):
         raise CliError(f"--dt must be a positive number of seconds, got {dt}")
-    step = hybrid_step(net, airframe, compile=False)
-    if takes_time(step):
+    model = hybrid_step(net, airframe, compile=False)
+    if model.takes_time:
         raise CliError(f"{weights.name}: this correction takes time t as an input, so its map "
                        "changes along the flight and has no modes at a trim point; use weights "
                        "of the 'improved' formulation")
-    check_use(step, dt)
+    model.check_use(dt)
     point = trim(airframe, args.airspeed, math.radians(args.gamma_deg))
-    comp = discrete_map_modes(step, airframe, point, dt, tuple(net.memory_tau))
-    sweep = envelope_check(net, airframe, dt, step=step) if net.envelope is not None else None
+    comp = discrete_map_modes(model, point, dt)
+    sweep = envelope_check(net, airframe, dt, model=model) if net.envelope is not None else None
     if args.json:
         print(json.dumps({
             "trim": point.as_dict(), "dt": dt, "weights": str(weights),
@@ -246,8 +243,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                        f"({whose}trim {point.u[args.channel]:.4g})")
     # the airframe's step (actuator lags and delays as augmented states, at rest on the trim
     # command); compiled; raises DivergenceError with its time; the body states are written
-    states = free_run(physics_step(airframe), trim_state(airframe, point), controls[:-1],
-                      point_params(airframe, point), args.dt)[:, :4]
+    model = physics_step(airframe)
+    p = point_params(airframe, point)
+    states = free_run(model, model.initial_state(point.x, point.u, p, args.dt), controls[:-1],
+                      p, args.dt)[:, :4]
     sortie = Sortie(name=Path(args.out).stem, kind=airframe.kind, time=t, states=states,
                     controls=controls, mission=args.input)
     with atomic_file(args.out, create_parents=True) as tmp:
@@ -268,15 +267,13 @@ def cmd_export_c(args: argparse.Namespace) -> int:
     airframe = load_airframe(args.airframe)
     if args.model == "hybrid":  # the correction runs on the airframe it was trained on
         weights, airframe = _correction(args, airframe)
-        net = load_weights(weights, airframe)
-        step = hybrid_step(net, airframe, compile=False)
-        memory = tuple(net.memory_tau)
+        model = hybrid_step(load_weights(weights, airframe), airframe, compile=False)
     else:
-        step, memory = physics_step(airframe), ()
+        model = physics_step(airframe)
     point = trim(airframe, args.airspeed, math.radians(args.gamma_deg))
-    spec = airframe_bundle_spec(args.name, airframe, point, args.dt, memory, real=args.real,
-                                rollout_steps=args.rollout, has_time_input=takes_time(step))
-    out = export_bundle(step, spec, args.out, force=args.force)
+    spec = model_bundle_spec(args.name, model, point, args.dt, real=args.real,
+                             rollout_steps=args.rollout)
+    out = export_bundle(model, spec, args.out, force=args.force)
     what = f"rollout of {args.rollout} steps" if args.rollout else "one step"
     print(f"wrote {out}/ ({args.name}.h, {args.name}.c, {args.name}_generated.c, main.c, "
           f"Makefile; {args.real}, {what})")

@@ -2,9 +2,9 @@
 
 from uavdyn.deploy.bundle import (
     BundleSpec,
-    airframe_bundle_spec,
     doublet_controls,
     export_bundle,
+    model_bundle_spec,
 )
 
-__all__ = ["BundleSpec", "airframe_bundle_spec", "doublet_controls", "export_bundle"]
+__all__ = ["BundleSpec", "model_bundle_spec", "doublet_controls", "export_bundle"]

@@ -6,7 +6,7 @@ doublet and prints the trajectory as CSV. No CasADi and no malloc at run time; b
 An airframe with actuator lags or transport delays is exported on its augmented state (the
 step of :func:`uavdyn.integrate.physics_step`); the header and README list the states in
 order, and the trim state has every actuator at its command and every buffer full of it
-(:func:`airframe_bundle_spec` fills all of it in from an airframe and a trim point).
+(:func:`model_bundle_spec` fills all of it in from a discrete model and a trim point).
 """
 
 from __future__ import annotations
@@ -19,11 +19,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from uavdyn.airframes import Airframe
-from uavdyn.integrate import generate_c, rollout
-from uavdyn.learned.formulations import memory_state_names
-from uavdyn.linear import TrimPoint, point_params, trim_state
-from uavdyn.model import structure_of
+from uavdyn.integrate import DiscreteModel, generate_c, rollout
+from uavdyn.linear import TrimPoint, point_params
 from uavdyn.outputs import output_folder
 
 C_FLAGS = "-std=c99 -O2 -Wall -Wextra -Werror"
@@ -52,24 +49,34 @@ class BundleSpec:
     has_time_input: bool = False
 
 
-def airframe_bundle_spec(name: str, airframe: Airframe, point: TrimPoint, dt: float,
-                         memory_tau: tuple[float, ...] = (), **options) -> BundleSpec:
-    """The :class:`BundleSpec` of an airframe's step at a trim point: its (augmented) state
-    names, its control and parameter names, ``p`` at the point's altitude, the trim state
-    (:func:`uavdyn.linear.trim_state`) and command, and the example doublet (2 deg of
-    elevator for a fixed wing, 0.05 of pitch command for a multirotor) unless ``options``
-    say otherwise (any other :class:`BundleSpec` field). A safe correction's step adds its
-    command-memory states (``memory_tau``), started at the trim command."""
-    structure = structure_of(airframe)
-    fixed_wing = airframe.kind == "fixed_wing"
+def model_bundle_spec(name: str, model: DiscreteModel, point: TrimPoint, dt: float,
+                      **options) -> BundleSpec:
+    """The :class:`BundleSpec` of a discrete model at a trim point of its airframe: the model's
+    state, control and parameter names, ``p`` at the point's altitude, the model's state at
+    the trim (:meth:`DiscreteModel.initial_state`: actuators, buffers and command memory at
+    rest on the trim command) and the example doublet (2 deg of elevator for a fixed wing,
+    0.05 of pitch command for a multirotor) unless ``options`` say otherwise (any other
+    :class:`BundleSpec` field).
+
+    Raises
+    ------
+    ValueError
+        If the model was built without an airframe.
+    """
+    if model.airframe is None:
+        raise ValueError(f"model '{model.name}' was built without an airframe: build it with "
+                         "one (uavdyn.physics_step(airframe), hybrid_step(weights, airframe))")
+    fixed_wing = model.kind == "fixed_wing"
     options.setdefault("doublet_amplitude", math.radians(2.0) if fixed_wing else 0.05)
     options.setdefault("doublet_channel", 0 if fixed_wing else 1)
-    u = np.asarray(point.u, float)
-    memory = memory_state_names(structure.control_names, tuple(memory_tau))
-    return BundleSpec(name, structure.state_names() + memory, structure.control_names,
-                      airframe.param_names, point_params(airframe, point),
-                      trim_state(airframe, point, memory_tau=tuple(memory_tau)),
-                      u, dt, **options)
+    options.setdefault("has_time_input", model.takes_time)
+    p = point_params(model.airframe, point)
+    x = np.asarray(point.x, float)
+    if model.layout.with_position:
+        x = np.concatenate([x, [0.0, point.altitude_m or 0.0]])
+    return BundleSpec(name, model.state_names, model.control_names, model.param_names, p,
+                      model.initial_state(x, point.u, p, dt), np.asarray(point.u, float), dt,
+                      **options)
 
 
 def _state_notes(state_names: tuple[str, ...]) -> list[str]:
@@ -111,9 +118,9 @@ def _renamed(func: ca.Function, name: str) -> ca.Function:
     return ca.Function(name, args, func.call(args), func.name_in(), func.name_out())
 
 
-def export_bundle(step: ca.Function, spec: BundleSpec, out_dir: str | Path,
+def export_bundle(step: DiscreteModel | ca.Function, spec: BundleSpec, out_dir: str | Path,
                   force: bool = False) -> Path:
-    """Write the bundle for ``step`` (signature ``(x, u, p, dt) -> x_next``, or
+    """Write the bundle for ``step`` (a model, or a Function ``(x, u, p, dt) -> x_next``, or
     ``(x, u, p, dt, t)`` for the paper formulation) into ``out_dir``.
 
     The bundle is written into a temporary sibling folder and renamed into place when complete;
@@ -127,11 +134,15 @@ def export_bundle(step: ca.Function, spec: BundleSpec, out_dir: str | Path,
     if spec.rollout_steps and spec.has_time_input:
         raise ValueError("a rollout bundle needs a time-free step (the 'improved' formulation "
                          "or plain RK4)")
+    if isinstance(step, DiscreteModel):
+        if step.dt is not None:
+            step.check_use(spec.dt)
+        step = step.function
     nz = step.size1_in(0)
     if len(spec.state_names) != nz or np.size(spec.x0) != nz:
         raise ValueError(f"step '{step.name()}' has {nz} states; the spec names "
                          f"{len(spec.state_names)} and its x0 has {np.size(spec.x0)} "
-                         "(an augmented step: airframe_bundle_spec)")
+                         "(a model's own spec: model_bundle_spec)")
     with output_folder(out_dir, "export-c", force) as tmp:
         _write_bundle(step, spec, tmp)
     return Path(out_dir)

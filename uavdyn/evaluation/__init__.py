@@ -15,6 +15,7 @@ from uavdyn.evaluation.metrics import (
     predict_windows,
     sortie_altitude,
     sortie_free_run,
+    sortie_p,
     step_states,
 )
 from uavdyn.evaluation.spread import (
@@ -31,6 +32,6 @@ from uavdyn.evaluation.timing import Timing, interleaved_timing, ratio
 __all__ = ["METRIC_STATES", "MODES", "Solver", "error_growth", "error_stats",
            "evaluate_trajectory", "fine_reference", "horizon_predictions", "pitch_rmse",
            "pooled_stats",
-           "predict_windows", "sortie_altitude", "sortie_free_run", "step_states",
+           "predict_windows", "sortie_altitude", "sortie_free_run", "sortie_p", "step_states",
            "PairedComparison", "PooledError", "SortieError", "compare_paired", "pooled_rmse",
            "pooled_with_interval", "squared_error", "Timing", "interleaved_timing", "ratio"]

@@ -6,11 +6,10 @@ A solver step ``dt`` smaller than the log interval runs ``sample_dt/dt`` sub-ste
 control; a larger ``dt`` (e.g. 0.02 s on 100 Hz data) samples the logged control at its own
 step start and is compared at its own grid points only. Every table says which.
 
-A step on the augmented state (actuator lags, transport delays:
-:func:`uavdyn.integrate.physics_step`) is restarted from a recorded body state with the
-actuator and delay-buffer states that the recorded commands imply
-(:func:`uavdyn.integrate.augment_states`); its :class:`Solver` says the layout
-(``structure``). Errors are always computed on the body states. Delays count calls of the
+A :class:`uavdyn.integrate.DiscreteModel` with extra states (actuator lags, transport delays,
+a correction's command memory) is restarted from a recorded body state with the extra states
+that the recorded commands imply (:meth:`DiscreteModel.initial_state`). Errors are always
+computed on the body states. Delays count calls of the
 step, so a step with delays is used at the log interval (finer RK: ``physics_step(...,
 substeps=k)``) and refused at any other step size.
 """
@@ -25,16 +24,15 @@ import numpy as np
 from uavdyn.airframes import Airframe
 from uavdyn.integrate import (
     DEPARTURE_RAD,
+    DiscreteModel,
     EvalGrid,
     GridError,
     StepUseError,
-    augment_states,
-    check_use,
+    body_model,
     free_run,
     physics_step,
     rk4_step,
     rollout,
-    takes_time,
 )
 from uavdyn.model import ModelStructure, build_model, sortie_params, structure_of
 
@@ -44,60 +42,46 @@ MODES = ("one_step", "horizon_1s", "free_run")
 
 @dataclass(frozen=True)
 class Solver:
-    """A named step Function at a step size (a time-dependent step takes its named ``t``).
-
-    ``structure`` is the layout of a step on the augmented state (e.g.
-    ``structure_of(airframe)`` for ``physics_step(airframe)``); None for a step on the body
-    state."""
+    """A named discrete model at a step size (a bare step Function is wrapped as a model on
+    the 4 body states, usable at any step size)."""
 
     name: str
-    step: ca.Function
+    model: DiscreteModel
     dt: float
-    structure: ModelStructure | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, DiscreteModel):
+            raise TypeError(f"solver '{self.name}': give a DiscreteModel (uavdyn.physics_step, "
+                            f"uavdyn.hybrid_step), got {type(self.model).__name__}")
 
     @property
     def time_input(self) -> bool:
-        return takes_time(self.step)
+        return self.model.takes_time
 
 
-def _check_delay_grid(step: ca.Function, structure: ModelStructure, grid: EvalGrid) -> None:
+def _check_delay_grid(model: DiscreteModel, grid: EvalGrid) -> None:
     """Refuse a step with transport delays at a step size other than the log interval."""
-    if structure.n_buffer and (grid.substeps != 1 or grid.stride != 1):
+    if model.structure.n_buffer and (grid.substeps != 1 or grid.stride != 1):
         raise StepUseError(
-            f"step '{step.name()}' carries transport delays counted in calls of the step: use "
+            f"step '{model.name}' carries transport delays counted in calls of the step: use "
             f"it at the log interval {grid.sample_dt:g} s, not {grid.dt:g} s (finer RK inside: "
             "physics_step(..., substeps=k))")
 
 
-def step_states(step: ca.Function, structure: ModelStructure | None, states: np.ndarray,
-                controls: np.ndarray, p, grid: EvalGrid) -> np.ndarray:
-    """The states ``step`` runs on at every recorded sample: ``states`` themselves for a step
-    on the body state, else with the actuator/buffer states the recorded commands imply
-    (:func:`uavdyn.integrate.augment_states`, at rest on the first command).
+def step_states(model: DiscreteModel, states: np.ndarray, controls: np.ndarray, p,
+                grid: EvalGrid) -> np.ndarray:
+    """The states ``model`` runs on at every recorded sample (:meth:`DiscreteModel.
+    initial_state`: the recorded body states with the actuator, buffer and memory states the
+    recorded commands imply, at rest on the first command).
 
     Raises
     ------
-    ValueError
-        If the step is augmented and ``structure`` is missing or has another state size.
     StepUseError
-        If the step has transport delays and ``grid.dt`` is not the log interval.
+        If the model has transport delays and ``grid.dt`` is not the log interval.
     """
-    states = np.atleast_2d(np.asarray(states, float))
-    nz = step.size1_in(0)
-    start = getattr(step, "start_states", None)  # a learned step on its own augmented state
-    if start is not None:
-        if structure is not None:
-            _check_delay_grid(step, structure, grid)
-        return start(states, controls, p, grid.sample_dt)
-    if nz == states.shape[1]:
-        return states
-    if structure is None or structure.nx() != nz:
-        have = "no structure" if structure is None else f"structure with {structure.nx()} states"
-        raise ValueError(f"step '{step.name()}' has {nz} states, the data {states.shape[1]}, "
-                         f"and {have}: give the step's layout (e.g. Solver(..., "
-                         "structure=structure_of(airframe)))")
-    _check_delay_grid(step, structure, grid)
-    return augment_states(structure, states, controls, p, grid.sample_dt)
+    _check_delay_grid(model, grid)
+    return model.initial_state(np.atleast_2d(np.asarray(states, float)), controls, p,
+                               grid.sample_dt)
 
 
 def error_stats(predicted: np.ndarray, target: np.ndarray) -> dict[str, float]:
@@ -120,9 +104,10 @@ def error_stats(predicted: np.ndarray, target: np.ndarray) -> dict[str, float]:
 _window_cache: dict = {}
 
 
-def _window_function(step: ca.Function, n_samples: int, substeps: int, n_windows: int
+def _window_function(model: DiscreteModel, n_samples: int, substeps: int, n_windows: int
                      ) -> ca.Function:
     """``n_windows`` independent rollouts (``map`` over the one ``mapaccum`` rollout)."""
+    step = model.function
     key = (id(step), step.name(), n_samples, substeps, n_windows)
     if key not in _window_cache:
         _window_cache[key] = (step, rollout(step, n_samples, substeps).map(n_windows))
@@ -137,10 +122,10 @@ def predict_windows(solver: Solver, x0s: np.ndarray, controls: np.ndarray, t0s: 
     ``x0s`` are the step's own states (augmented: :func:`step_states`)."""
     g = EvalGrid(sample_dt, solver.dt)
     K, L, nu = controls.shape
-    nz = solver.step.size1_in(0)
+    nz = solver.model.nx
     if np.shape(x0s)[-1] != nz:
         raise ValueError(f"start states have {np.shape(x0s)[-1]} columns, step "
-                         f"'{solver.step.name()}' has {nz} states (augment recorded states "
+                         f"'{solver.model.name}' has {nz} states (augment recorded states "
                          "with step_states)")
     if L % g.stride:
         raise ValueError(f"window of {L} log intervals is not a multiple of the stride "
@@ -148,8 +133,8 @@ def predict_windows(solver: Solver, x0s: np.ndarray, controls: np.ndarray, t0s: 
     U = controls[:, ::g.stride, :]
     n = U.shape[1]
     t0s = np.asarray(t0s, float).reshape(K)
-    check_use(solver.step, solver.dt, float(t0s.min()), float(t0s.max()) + L * sample_dt)
-    F = _window_function(solver.step, n, g.substeps, K)
+    solver.model.check_use(solver.dt, float(t0s.min()), float(t0s.max()) + L * sample_dt)
+    F = _window_function(solver.model, n, g.substeps, K)
     args = [np.asarray(x0s, float).T, U.reshape(K * n, nu).T, np.asarray(p, float),
             float(solver.dt)]
     if solver.time_input:
@@ -165,9 +150,9 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
     ``controls`` row k held over [t_k, t_k+1)). Returns, per mode, ``(predicted, target)``
     arrays of matching shape, plus the free-run time axis. A mode the step refuses (outside
     its trained step size or time range; delays at another step size) is absent and its
-    reason is under ``"refused"``. An augmented step (``solver.structure``) restarts from the
-    recorded states with the actuator/buffer states of the recorded commands; predictions
-    are its body states."""
+    reason is under ``"refused"``. A model with extra states restarts from the recorded states
+    with the actuator/buffer/memory states of the recorded commands; predictions are its body
+    states."""
     sample_dt = float(np.median(np.diff(time)))
     N = len(time)
     grid = EvalGrid(sample_dt, solver.dt)
@@ -177,7 +162,7 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
     refused: dict[str, str] = {}
     nb = states.shape[1]
     try:
-        z = step_states(solver.step, solver.structure, states, controls, p, grid)
+        z = step_states(solver.model, states, controls, p, grid)
     except StepUseError as exc:
         return {"refused": {mode: str(exc) for mode in MODES}}
 
@@ -248,7 +233,7 @@ def horizon_predictions(solver: Solver, time: np.ndarray, states: np.ndarray,
     sample_dt = float(np.median(np.diff(time)))
     grid = EvalGrid(sample_dt, solver.dt)
     time = time - time[0]
-    z = step_states(solver.step, solver.structure, states, controls, p, grid)
+    z = step_states(solver.model, states, controls, p, grid)
     out = {}
     for h in horizons_s:
         windows = _horizon_windows(solver, z, time, states, controls, p, grid, float(h))
@@ -268,18 +253,16 @@ def fine_reference(kind: str | Airframe | ModelStructure, time: np.ndarray, x0: 
     on the first command, and the body states returned."""
     sample_dt = float(np.median(np.diff(time)))
     if isinstance(kind, str):
-        step = rk4_step(build_model(kind).f)
-        return free_run(step, x0, controls[:-1], p, sample_dt / substeps, substeps)
+        model = body_model(rk4_step(build_model(kind).f), kind)
+        return free_run(model, x0, controls[:-1], p, sample_dt / substeps, substeps)
     structure = kind if isinstance(kind, ModelStructure) else structure_of(kind)
     if not structure.augmented:
         return free_run(physics_step(structure), x0, controls[:-1], p, sample_dt / substeps,
                         substeps)
+    model = physics_step(structure, substeps=substeps)
     x0 = np.asarray(x0, float).ravel()
-    z0 = augment_states(structure, x0[None, :], np.asarray(controls, float)[:1], p,
-                        sample_dt)[0]
-    traj = free_run(physics_step(structure, substeps=substeps), z0, controls[:-1], p,
-                    sample_dt)
-    return traj[:, :len(x0)]
+    z0 = model.initial_state(x0, np.asarray(controls, float)[:1], p, sample_dt)
+    return free_run(model, z0, controls[:-1], p, sample_dt)[:, :len(x0)]
 
 
 def sortie_altitude(sortie) -> float | None:
@@ -288,38 +271,30 @@ def sortie_altitude(sortie) -> float | None:
     return None if value is None else float(value)
 
 
-def _params_and_structure(step: ca.Function, sortie, p, structure: ModelStructure | None):
-    """The sortie's parameter vector (an airframe's: its density at the sortie's altitude) and
-    the step's layout (an airframe's structure when the step is augmented)."""
+def sortie_p(sortie, p) -> np.ndarray:
+    """The parameter vector for ``sortie``: ``p`` itself, or for an airframe its parameters at
+    the sortie's altitude (:func:`uavdyn.model.sortie_params`, manifest ``altitude_m``)."""
     if isinstance(p, Airframe):
-        airframe = p
-        p = sortie_params(airframe, sortie_altitude(sortie))
-        if structure is None and step.size1_in(0) != sortie.states.shape[1]:
-            structure = structure_of(airframe)
-    return np.asarray(p, float), structure
+        return np.asarray(sortie_params(p, sortie_altitude(sortie)), float)
+    return np.asarray(p, float)
 
 
-def sortie_free_run(step: ca.Function, sortie, p, dt: float,
-                    structure: ModelStructure | None = None) -> np.ndarray:
-    """Free run of ``step`` through a logged sortie from its first state with its controls
-    (``dt`` must divide the sample interval): body states at the sample times, ``N x 4``. A
-    time-dependent step sees the time since the sortie start.
+def sortie_free_run(model: DiscreteModel, sortie, p, dt: float) -> np.ndarray:
+    """Free run of ``model`` through a logged sortie from its first state with its controls
+    (``dt`` must divide the sample interval; the extra states start at rest on the first
+    command): body states at the sample times, ``N x 4``. A time-dependent step sees the time
+    since the sortie start.
 
     Parameters
     ----------
-    step : casadi.Function
-        A step on the body state or on the augmented state (then ``structure``, or an
-        airframe as ``p``, gives its layout; it starts with the actuators at rest on the first
-        command).
+    model : DiscreteModel
+        The step.
     sortie : Sortie
         The logged flight.
     p : array_like or Airframe
-        Parameters, or an airframe: its parameters at the sortie's altitude
-        (:func:`uavdyn.model.sortie_params`, manifest ``altitude_m``).
+        Parameters, or an airframe (:func:`sortie_p`).
     dt : float
         Step size (s).
-    structure : ModelStructure, optional
-        Layout of an augmented step.
 
     Raises
     ------
@@ -327,24 +302,24 @@ def sortie_free_run(step: ca.Function, sortie, p, dt: float,
         If ``dt`` does not divide the sample interval.
     StepUseError
         If the step has transport delays and ``dt`` is not the sample interval.
+    DivergenceError
+        If the run leaves the finite range.
     """
     sample_dt = float(np.median(np.diff(sortie.time)))
     g = EvalGrid(sample_dt, dt)
     if g.stride != 1:
         raise GridError(f"dt {dt:g} s must divide the sample interval {sample_dt:g} s of "
                         f"sortie '{sortie.name}'")
-    p, structure = _params_and_structure(step, sortie, p, structure)
-    z0 = step_states(step, structure, sortie.states[:1], sortie.controls[:1], p, g)[0]
-    traj = free_run(step, z0, sortie.controls[:-1], p, dt, g.substeps, t0=0.0,
-                    compile=not step.is_a("External"))
+    p = sortie_p(sortie, p)
+    z0 = step_states(model, sortie.states[:1], sortie.controls[:1], p, g)[0]
+    traj = free_run(model, z0, sortie.controls[:-1], p, dt, g.substeps, t0=0.0)
     return traj[:, :sortie.states.shape[1]]
 
 
-def pitch_rmse(step: ca.Function, sorties, p, dt: float,
-               structure: ModelStructure | None = None) -> float:
-    """Free-run pitch RMSE (rad) over all samples of ``sorties`` (pooled); ``p`` and
-    ``structure`` as for :func:`sortie_free_run`."""
-    errs = [sortie_free_run(step, s, p, dt, structure)[:, 3] - s.states[:, 3] for s in sorties]
+def pitch_rmse(model: DiscreteModel, sorties, p, dt: float) -> float:
+    """Free-run pitch RMSE (rad) over all samples of ``sorties`` (pooled); ``p`` as for
+    :func:`sortie_free_run`."""
+    errs = [sortie_free_run(model, s, p, dt)[:, 3] - s.states[:, 3] for s in sorties]
     return float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
 
 

@@ -9,6 +9,7 @@ import numpy as np
 from uavdyn.evaluation import step_states
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import (
+    DiscreteModel,
     EvalGrid,
     StepUseError,
     check_use,
@@ -16,7 +17,6 @@ from uavdyn.integrate import (
     rollout,
     takes_time,
 )
-from uavdyn.model import ModelStructure
 
 FORMULATIONS = ("improved", "paper")
 NOMINAL_PHYSICS = "nominal physics"
@@ -105,22 +105,19 @@ def usable(step, dt: float) -> bool:
     return refusal(step, dt) is None
 
 
-def free_run_runner(step, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
-                    sample_dt: float, dt: float, compiled: bool = True,
-                    structure: ModelStructure | None = None):
+def free_run_runner(step: DiscreteModel, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
+                    sample_dt: float, dt: float, compiled: bool = True):
     """A callable running one whole-sortie free run of ``step`` (``controls`` one row per log
     interval) and returning the body states at the log times (every ``dt/sample_dt``-th one
     when ``dt`` exceeds the log interval): what is timed (inputs converted once, outside the
-    callable). A step on an augmented state starts from the state its own ``start_states``
-    builds from ``x0`` and the first command; a physics step on one (lags, delay buffers)
-    from its actuators at rest on that command (``structure``: its layout)."""
+    callable). A model with extra states (actuators, delay buffers, command memory) starts
+    with them at rest on the first command (:meth:`DiscreteModel.initial_state`)."""
     g = EvalGrid(sample_dt, dt)
     check_use(step, dt, 0.0, len(controls) * sample_dt)
     controls = controls[::g.stride]  # a step longer than the log interval samples its start
     func = rollout(step, len(controls), g.substeps)
     func = compile_function(func) if compiled else func
-    z0 = (x0 if step.size1_in(0) == len(x0)
-          else step_states(step, structure, x0[None, :], controls[:1], p, g)[0])
+    z0 = step_states(step, x0[None, :], controls[:1], p, g)[0]
     args = [ca.DM(z0), ca.DM(np.ascontiguousarray(controls.T)), ca.DM(p), dt]
     if takes_time(step):
         args.append(0.0)

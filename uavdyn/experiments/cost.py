@@ -36,14 +36,16 @@ from uavdyn.evaluation import (
 from uavdyn.experiments.common import flight_mode, free_run_runner, refusal, target_states
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import (
+    DiscreteModel,
     EvalGrid,
     GridError,
     StepUseError,
+    body_model,
     physics_step,
     reference_step,
     rollout,
 )
-from uavdyn.model import ModelStructure, build_model, numpy_rhs, sortie_params, structure_of
+from uavdyn.model import build_model, numpy_rhs, sortie_params, structure_of
 
 NOMINAL = "nominal physics"
 NOMINAL_VM = "nominal physics (CasADi VM)"
@@ -150,19 +152,16 @@ def _scipy_simulator(rhs, p: np.ndarray, sample_dt: float, method: str, rtol: fl
     return simulate
 
 
-def _model_runner(step: ca.Function, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
-                  sample_dt: float, dt: float, compiled: bool,
-                  structure: ModelStructure | None = None
-                  ) -> Callable[[], np.ndarray]:
+def _model_runner(step: DiscreteModel, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
+                  sample_dt: float, dt: float, compiled: bool) -> Callable[[], np.ndarray]:
     """:func:`free_run_runner` on the solver's own grid: for ``dt`` a multiple of the log
     interval the solver samples the logged command at its own step start (as
     :func:`uavdyn.evaluation.evaluate_trajectory` does)."""
     g = EvalGrid(sample_dt, dt)
     if g.stride > 1:
         n = len(controls) - len(controls) % g.stride
-        return free_run_runner(step, x0, controls[:n:g.stride], p, dt, dt, compiled,
-                               structure)
-    return free_run_runner(step, x0, controls, p, sample_dt, dt, compiled, structure)
+        return free_run_runner(step, x0, controls[:n:g.stride], p, dt, dt, compiled)
+    return free_run_runner(step, x0, controls, p, sample_dt, dt, compiled)
 
 
 def _bar_total(progress, n: int) -> None:
@@ -244,25 +243,22 @@ def cost_study(nominal: Airframe, sortie: Sortie,
     points: list[_Point] = []
     missing: list[dict] = []
 
-    def add_steps(family: str, step: ca.Function, af: Airframe, dts, compiled: bool,
+    def add_steps(family: str, step: DiscreteModel, af: Airframe, dts, compiled: bool,
                   table_dts) -> None:
         p = sortie_params(af, alt)
-        nb = truth.shape[1]
-        structure = (structure_of(af) if step.size1_in(0) != nb
-                     and getattr(step, "start_states", None) is None else None)
         for dt in dts:
             why = refusal(step, dt, duration)
             if why is None:
                 try:
                     EvalGrid(sample_dt, dt)
-                    run = _model_runner(step, x0, ctrl, p, sample_dt, dt, compiled, structure)
+                    run = _model_runner(step, x0, ctrl, p, sample_dt, dt, compiled)
                 except (GridError, StepUseError, ValueError) as exc:
                     why = str(exc)
             if why is not None:  # reported missing with the reason, never dropped
                 missing.append({"family": family, "dt": dt, "compiled": compiled,
                                 "missing": why})
                 continue
-            flight, vs_ref, note = _step_accuracy(Solver(family, step, dt, structure), time,
+            flight, vs_ref, note = _step_accuracy(Solver(family, step, dt), time,
                                                   truth, ref, controls, p, mode)
             points.append(_Point(f"{family} @ {dt:g} s", family, f"dt {dt:g} s", dt, compiled,
                                  run, af.name, dt in table_dts, flight=flight,
@@ -293,7 +289,8 @@ def cost_study(nominal: Airframe, sortie: Sortie,
             def run_cvodes(cv=cv) -> np.ndarray:
                 return np.asarray(cv(x_dm, u_dm, p_dm, sample_dt))
 
-            flight, vs_ref, note = _step_accuracy(Solver(CVODES, cv_step, sample_dt), time,
+            flight, vs_ref, note = _step_accuracy(Solver(CVODES, body_model(cv_step, nominal.kind),
+                                                         sample_dt), time,
                                                   truth, ref, controls, p_nom, mode)
             points.append(_Point(f"CVODES (tol {tol:g})", CVODES, f"tol {tol:g}", None, False,
                                  run_cvodes, nominal.name, tol == TABLE3_CVODES_TOL, tol=tol,

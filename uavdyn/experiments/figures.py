@@ -26,7 +26,7 @@ from uavdyn.experiments.cost import (  # noqa: E402
     NOMINAL,
     NOMINAL_VM,
 )
-from uavdyn.integrate import StepUseError, check_use  # noqa: E402
+from uavdyn.integrate import StepUseError  # noqa: E402
 
 STYLES = {"nominal physics": "C0--", "identified physics": "C1-", "corrected": "C3-",
           "hybrid paper": "C2:"}
@@ -39,12 +39,10 @@ def _solvers(rungs, legacy: dict) -> list[tuple[Solver, str, np.ndarray]]:
     out = [(r.solver, STYLES.get(r.label, "C4-."), r.airframe.p) for r in rungs]
     dt = rungs[0].solver.dt
     for label, (step, owner, _) in legacy.items():
-        if "numerical" in label:
-            continue
         for d in (dt, 0.005):
             solver = Solver(label, step, d)
             try:
-                check_use(step, d, 0.0, 0.0)
+                step.check_use(d, 0.0, 0.0)
             except StepUseError:
                 continue
             out.append((solver, STYLES.get(label, "C4-."), owner.p))

@@ -35,7 +35,7 @@ from uavdyn.experiments.common import (
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import physics_step
 from uavdyn.learned import hybrid_step, load_weights
-from uavdyn.model import sortie_params, structure_of
+from uavdyn.model import sortie_params
 
 LADDER = (NOMINAL_PHYSICS, IDENTIFIED_PHYSICS, "corrected")
 CONDITIONS = ("calm", "turbulent")
@@ -79,18 +79,17 @@ def ladder_rungs(nominal: Airframe, identified: Airframe | None,
     else:
         missing["corrected"] = "no identified physics for the correction to run on"
     dt = float(dt if dt is not None else 0.01)
-    rungs = [Rung("nominal physics", Solver("nominal physics", physics_step(nominal), dt,
-                                            structure_of(nominal)), nominal)]
+    rungs = [Rung("nominal physics", Solver("nominal physics", physics_step(nominal), dt),
+                  nominal)]
     if identified is not None:
         rungs.append(Rung("identified physics", Solver(
-            "identified physics", physics_step(identified), dt, structure_of(identified)),
-            identified))
+            "identified physics", physics_step(identified), dt), identified))
     else:
         missing["identified physics"] = "identification not run or refused"
     if net is not None:
         rungs.append(Rung("corrected", Solver("corrected", hybrid_step(net, identified,
-                                                                       compile=False), dt,
-                                              structure_of(identified)), identified))
+                                                                       compile=False), dt),
+                          identified))
     return rungs, missing
 
 

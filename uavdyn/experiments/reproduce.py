@@ -61,8 +61,8 @@ from uavdyn.experiments.report import (
 from uavdyn.flightdata import Dataset, Sortie, excess_rmse, load_dataset, pitch_noise_std
 from uavdyn.integrate import (
     cache_dir,
+    physics_step,
 )
-from uavdyn.integrate.augmented import physics_step
 from uavdyn.learned import (
     WeightFileError,
     hybrid_step,
@@ -74,7 +74,7 @@ from uavdyn.learned import (
     shipped_identified,
     shipped_weights,
 )
-from uavdyn.model import sortie_params, structure_of
+from uavdyn.model import sortie_params
 from uavdyn.outputs import output_folder
 
 PAPER = {"rmse": 1.82e-3, "mae": 1.47e-3, "max": 2.31e-3, "cost_reduction": 0.38,
@@ -136,18 +136,15 @@ def dataset_for(airframe_name: str, config: ReproduceConfig) -> Dataset:
     return load_dataset(folder)
 
 
-def weights_path(airframe: Airframe, formulation: str, target: str,
-                 config: ReproduceConfig) -> Path:
-    """Where the weights of one (formulation, target) live: ``<airframe>_<formulation>.npz``
-    for the shipped default target (flight data), ``<airframe>_<formulation>_reference.npz``
-    for the pure numerical correction."""
+def weights_path(airframe: Airframe, formulation: str, config: ReproduceConfig) -> Path:
+    """Where the weights of the paper's formulation live: ``<airframe>_paper.npz`` shipped
+    with the package, or in ``config.weights_dir``."""
     if config.weights_dir is None:
         try:
-            return shipped_weights(airframe.name, formulation, target)
+            return shipped_weights(airframe.name, formulation)
         except WeightFileError:
-            return Path(f"<no shipped {airframe.name} {formulation} {target} weights>")
-    suffix = "" if target == "data" else "_reference"
-    return Path(config.weights_dir) / f"{airframe.name}_{formulation}{suffix}.npz"
+            return Path(f"<no shipped {airframe.name} {formulation} weights>")
+    return Path(config.weights_dir) / f"{airframe.name}_{formulation}.npz"
 
 
 def identify_physics(airframe: Airframe, ds: Dataset, config: ReproduceConfig, log
@@ -186,16 +183,15 @@ def identify_physics(airframe: Airframe, ds: Dataset, config: ReproduceConfig, l
     return fitted, summary
 
 
-def obtain_weights(airframe: Airframe, ds: Dataset, formulation: str, target: str,
+def obtain_weights(airframe: Airframe, ds: Dataset, formulation: str,
                    config: ReproduceConfig, log) -> Path | None:
     """Shipped weights, or freshly trained ones with ``retrain`` (needs torch) on the physics of
     ``airframe`` (the identified airframe by default)."""
-    path = weights_path(airframe, formulation, target, config)
+    path = weights_path(airframe, formulation, config)
     if config.retrain:
-        suffix = "" if target == "data" else "_reference"
-        path = Path(config.out) / "weights" / f"{airframe.name}_{formulation}{suffix}.npz"
+        path = Path(config.out) / "weights" / f"{airframe.name}_{formulation}.npz"
         path.parent.mkdir(parents=True, exist_ok=True)
-    if config.retrain and formulation == "improved" and target == "data":
+    if config.retrain and formulation == "improved":
         from uavdyn.learned.safe import SafeConfig, train_safe, write_safe_history
 
         out = path
@@ -214,10 +210,10 @@ def obtain_weights(airframe: Airframe, ds: Dataset, formulation: str, target: st
         from uavdyn.learned.train import TrainConfig, train, write_history
 
         out = path
-        cfg = TrainConfig(formulation=formulation, target=target, progress=config.progress)
+        cfg = TrainConfig(formulation=formulation, progress=config.progress)
         if config.quick:
             cfg.epochs, cfg.max_seconds = 8, 40.0
-        log(f"training {formulation}/{target} weights for {airframe.name} ...")
+        log(f"training {formulation} weights for {airframe.name} ...")
         result = train(ds.train, ds.validation, airframe, cfg)
         save_weights(result.net, out)
         write_history(result, out.with_name(out.stem + "_history.json"))
@@ -449,8 +445,8 @@ def perturbed_sorties(airframe: Airframe, missions: list[str], duration: float
 # ----------------------------------------------------------------------------- pipeline
 
 
-LEGACY = {("paper", "data"): "hybrid paper", ("improved", "reference"):
-          "hybrid improved (numerical)", ("paper", "reference"): "hybrid paper (numerical)"}
+# the paper's own method (time and state in, state increment out), compared in its own column
+LEGACY = {"paper": "hybrid paper"}
 
 
 def correction_inputs(airframe: Airframe, ds: Dataset, config: ReproduceConfig, log
@@ -465,7 +461,7 @@ def correction_inputs(airframe: Airframe, ds: Dataset, config: ReproduceConfig, 
         identified, identification = identify_physics(airframe, ds, config, log)
         if identified is None:
             return None, None, identification
-        path = obtain_weights(identified, ds, "improved", "data", config, log)
+        path = obtain_weights(identified, ds, "improved", config, log)
         identification["history"] = str(Path(config.out) / "weights" /
                                         f"{identified.name}_improved_history.json")
         identification["correction"] = (str(path) if path else
@@ -494,16 +490,16 @@ def correction_inputs(airframe: Airframe, ds: Dataset, config: ReproduceConfig, 
 
 def legacy_models(airframe: Airframe, ds: Dataset, config: ReproduceConfig, log
                   ) -> dict[str, tuple[ca.Function, Airframe, Path]]:
-    """The earlier formulations still compared (SPEC section 4: ``paper`` against the default,
-    on flight data and as pure numerical corrections), all on the nominal ``airframe``: that is
+    """The paper's own formulation, compared with the default (SPEC section 4), on the nominal
+    ``airframe``: that is
     what their shipped weights sit on, and the ``paper`` formulation cannot carry the actuator
     states an identified airframe may have. Label -> (step, airframe it runs on, weight file).
     Skipped with ``quick`` unless retraining."""
     if config.quick and not config.retrain:
         return {}
     out = {}
-    for (formulation, target), label in LEGACY.items():
-        path = obtain_weights(airframe, ds, formulation, target, config, log)
+    for formulation, label in LEGACY.items():
+        path = obtain_weights(airframe, ds, formulation, config, log)
         if path is not None:
             out[label] = (hybrid_step(path, airframe, compile=False), airframe, path)
     return out
@@ -517,24 +513,22 @@ def ladder_name(rung) -> str:
 def table1_candidates(airframe: Airframe, rungs, legacy: dict, dts
                       ) -> dict[str, list[Candidate]]:
     """Table 1's solvers per target: the ladder at its step, physics at the other step sizes,
-    and the earlier formulations at every step they accept (the numerical corrections against
-    the fine-step reference of the nominal model)."""
+    and the paper's formulation at every step it accepts."""
     data, reference = [], []
     for rung in rungs:
-        data.append(Candidate(Solver(ladder_name(rung), rung.solver.step,
-                                     rung.solver.dt, rung.solver.structure), rung.airframe,
+        data.append(Candidate(Solver(ladder_name(rung), rung.solver.model, rung.solver.dt),
+                              rung.airframe,
                               "nominal" if rung.airframe is airframe else "identified"))
     for dt in dts:
         for rung in rungs[:1]:  # the nominal physics at the other step sizes
             if abs(dt - rung.solver.dt) > 1e-12:
-                data.append(Candidate(Solver(f"{rung.label} @ {dt:g} s", rung.solver.step, dt,
-                                             rung.solver.structure), rung.airframe,
+                data.append(Candidate(Solver(f"{rung.label} @ {dt:g} s", rung.solver.model,
+                                             dt), rung.airframe,
                                       "nominal" if rung.airframe is airframe else "identified"))
-        reference.append(Candidate(Solver(f"nominal physics @ {dt:g} s", rungs[0].solver.step,
-                                          dt, rungs[0].solver.structure), airframe, "nominal"))
+        reference.append(Candidate(Solver(f"nominal physics @ {dt:g} s",
+                                          rungs[0].solver.model, dt), airframe, "nominal"))
     for label, (step, owner, _) in legacy.items():
-        group = reference if "numerical" in label else data
-        group += [Candidate(Solver(f"{label} @ {dt:g} s", step, dt), owner,
+        data += [Candidate(Solver(f"{label} @ {dt:g} s", step, dt), owner,
                             "nominal" if owner is airframe else "identified")
                   for dt in dts if usable(step, dt)]
     return {"data": data, "reference": reference}
@@ -577,7 +571,7 @@ def run_airframe(name: str, config: ReproduceConfig, log) -> dict:
                     **{k: v[2] for k, v in legacy.items()}}
     table2 = convergence_table(weight_files)
     calm = [s for s in test if condition(s) == "calm"] or test
-    models = {r.label: (r.solver.step, r.airframe) for r in rungs[1:]}
+    models = {r.label: (r.solver.model, r.airframe) for r in rungs[1:]}
     models.update({k: (v[0], v[1]) for k, v in legacy.items()})
     bar = _bar(config, 1, f"[{airframe.name}] cost (interleaved timing)")  # sized by the study
     timing = cost.cost_study(airframe, calm[0], models, repeats=config.cost_repeats,
@@ -691,8 +685,7 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
             raise ValueError(f"identified airframe '{identified.name}' is a {identified.kind}, "
                              f"airframe '{airframe.name}' a {airframe.kind}")
         rungs.append((IDENTIFIED_PHYSICS, identified, "identified"))
-    solvers = [Candidate(Solver(f"{label} @ {dt:g} s", physics_step(af), dt, structure_of(af)),
-                         af, physics)
+    solvers = [Candidate(Solver(f"{label} @ {dt:g} s", physics_step(af), dt), af, physics)
                for label, af, physics in rungs for dt in dts]
     for w in weights:
         net = load_weights(w)
@@ -758,12 +751,12 @@ def _evaluation_ladder(airframe: Airframe, identified: Airframe | None, weights:
     identified physics and the first weight file ("corrected", on the airframe it was
     trained on), per sortie, against horizon, and the headline with bootstrap intervals."""
     dt = float(np.median(np.diff(sorties[0].time)))
-    rungs = [Rung(NOMINAL_PHYSICS, Solver(NOMINAL_PHYSICS, physics_step(airframe), dt,
-                                          structure_of(airframe)), airframe)]
+    rungs = [Rung(NOMINAL_PHYSICS, Solver(NOMINAL_PHYSICS, physics_step(airframe), dt),
+                  airframe)]
     missing = {}
     if identified is not None:
-        rungs.append(Rung(IDENTIFIED_PHYSICS, Solver(IDENTIFIED_PHYSICS, physics_step(identified),
-                                                     dt, structure_of(identified)), identified))
+        rungs.append(Rung(IDENTIFIED_PHYSICS, Solver(IDENTIFIED_PHYSICS,
+                                                     physics_step(identified), dt), identified))
     else:
         missing[IDENTIFIED_PHYSICS] = "no --identified airframe given"
     if weights:
@@ -773,8 +766,7 @@ def _evaluation_ladder(airframe: Airframe, identified: Airframe | None, weights:
         step = hybrid_step(net, owner, compile=False)
         why = refusal(step, dt)
         if why is None:
-            rungs.append(Rung("corrected", Solver("corrected", step, dt, structure_of(owner)),
-                              owner))
+            rungs.append(Rung("corrected", Solver("corrected", step, dt), owner))
         else:
             missing["corrected"] = why
         if len(weights) > 1:
@@ -834,10 +826,9 @@ def per_sortie_safety(candidates: list[Candidate], sorties: list[Sortie], nets: 
                                         else None)
             row["worse"] = [m for m in ("horizon_1s", "free_run")
                             if row[f"{m}_ratio"] is not None and row[f"{m}_ratio"] > 1.0]
-            start = getattr(cand.solver.step, "start_states", None)
             if net is not None and net.envelope is not None:
-                z = (start(s.states, s.controls, p, float(np.median(np.diff(s.time))))
-                     if start is not None else s.states)
+                z = cand.solver.model.initial_state(s.states, s.controls, p,
+                                                    float(np.median(np.diff(s.time))))
                 row["outside_envelope"] = net.envelope.fraction_outside(
                     np.hstack([z, s.controls]))
             rows.append(row)

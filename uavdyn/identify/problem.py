@@ -12,7 +12,7 @@ from tqdm import tqdm
 
 from uavdyn.identify.windows import N_BODY, Windows, window_function
 from uavdyn.integrate import compile_function, find_compiler
-from uavdyn.integrate.augmented import physics_step
+from uavdyn.integrate.augmented import physics_function
 from uavdyn.model import ModelStructure
 
 IPOPT_TOL = 1e-9  # on the gradient of the cost (unit: weighted residual ~ its noise)
@@ -33,7 +33,7 @@ class _Problem:
     def __init__(self, structure: ModelStructure, index: list[int], n_windows: int, L: int,
                  preroll: int, sample_dt: float, substeps: int, rho_index: int | None,
                  estimate_x0: bool):
-        step = physics_step(structure, substeps=substeps)
+        step = physics_function(structure, substeps=substeps)
         nu, n_p = structure.nu, structure.np
         n_lag = structure.n_actuator
         W = n_windows

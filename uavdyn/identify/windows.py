@@ -21,7 +21,7 @@ from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
 from uavdyn.identify.errors import IdentifyError
 from uavdyn.integrate import compile_function, rollout
-from uavdyn.integrate.augmented import actuator_rest, augmented_rk_step, physics_step
+from uavdyn.integrate.augmented import actuator_rest, augmented_rk_step, physics_function
 from uavdyn.model import sortie_params, structure_of
 from uavdyn.model.atmosphere import isa_density_ratio
 from uavdyn.model.ops import NUMPY_OPS
@@ -169,7 +169,7 @@ def compiled_step(structure, substeps: int) -> ca.Function:
     cache keeps the library across runs)."""
     key = (structure, int(substeps))
     if key not in _STEPS:
-        _STEPS[key] = compile_function(physics_step(structure, substeps=substeps),
+        _STEPS[key] = compile_function(physics_function(structure, substeps=substeps),
                                        flags=("-O1", "-fPIC", "-shared"), warn=False)
     return _STEPS[key]
 

@@ -1,14 +1,15 @@
-"""Integration: explicit RK steps from a Butcher tableau, the physics step on the augmented state
-(actuator lags, transport delays), the CVODES reference step, rollouts with ``mapaccum``, the
+"""Integration: explicit RK steps from a Butcher tableau, the discrete model object
+(:class:`DiscreteModel`), the physics step on the augmented state (actuator lags, transport
+delays), the CVODES reference step, rollouts with ``mapaccum``, the
 evaluation grid, input profiles and the compile-to-C cache."""
 
 from uavdyn.integrate.augmented import (
-    actuator_history,
     actuator_rest,
     advance_actuators,
-    augment_states,
     augmented_rk_step,
-    physics_step,
+    memory_state_names,
+    memory_update,
+    physics_function,
 )
 from uavdyn.integrate.codegen import (
     CacheError,
@@ -19,13 +20,23 @@ from uavdyn.integrate.codegen import (
     find_compiler,
     generate_c,
 )
+from uavdyn.integrate.discrete import (
+    DiscreteModel,
+    StateLayout,
+    StepUseError,
+    StepUseWarning,
+    actuator_history,
+    augment_states,
+    body_model,
+    model_function,
+    physics_step,
+    step_jacobians,
+)
 from uavdyn.integrate.rollout import (
     DEPARTURE_RAD,
     DivergenceError,
     EvalGrid,
     GridError,
-    StepUseError,
-    StepUseWarning,
     check_finite,
     check_use,
     estimate_start,
@@ -45,7 +56,9 @@ from uavdyn.integrate.steps import (
 from uavdyn.integrate.tableau import EULER, HEUN, RK4, ButcherTableau, explicit_rk_step
 
 __all__ = ["actuator_history", "actuator_rest", "advance_actuators", "augment_states",
-           "augmented_rk_step", "physics_step",
+           "augmented_rk_step", "memory_state_names", "memory_update", "physics_function",
+           "physics_step", "DiscreteModel", "StateLayout", "body_model", "model_function",
+           "step_jacobians",
            "CacheError", "CodegenWarning", "CompileError", "cache_dir", "compile_function",
            "find_compiler", "generate_c", "DEPARTURE_RAD", "DivergenceError", "EvalGrid",
            "GridError",

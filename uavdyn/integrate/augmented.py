@@ -11,6 +11,7 @@ of the step, so use the step at the sample period the delays were identified at.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import casadi as ca
@@ -105,11 +106,12 @@ def augmented_rk_step(structure: ModelStructure, body_rhs: Callable, z, u, p, dt
     return ops.concat(*blocks)
 
 
-def physics_step(airframe: Airframe | ModelStructure, tableau: ButcherTableau = RK4,
-                 with_position: bool = False, substeps: int = 1, fitting=(),
-                 name: str | None = None) -> ca.Function:
-    """The physics step of an airframe as one SX Function ``(x, u, p, dt) -> x_next``; ``x`` is
-    the augmented state when the airframe has actuator lags or delays (state names:
+def physics_function(airframe: Airframe | ModelStructure, tableau: ButcherTableau = RK4,
+                     with_position: bool = False, substeps: int = 1, fitting=(),
+                     name: str | None = None) -> ca.Function:
+    """The bare SX Function ``(x, u, p, dt) -> x_next`` of :func:`uavdyn.physics_step` (for
+    code that builds on the Function itself, e.g. the identification); ``x`` is the augmented
+    state when the airframe has actuator lags or delays (state names:
     ``structure.state_names()``), else the body state and the plain RK step.
 
     Parameters
@@ -140,6 +142,25 @@ def physics_step(airframe: Airframe | ModelStructure, tableau: ButcherTableau = 
                        ["x_next"])
 
 
+def memory_state_names(control_names: tuple[str, ...], taus: tuple[float, ...]
+                       ) -> tuple[str, ...]:
+    """Names of the command-memory states, in state order (time constant, then command)."""
+    return tuple(f"{c}_memory_{tau:g}s" for tau in taus for c in control_names)
+
+
+def memory_update(memory: list, u, taus: tuple[float, ...], dt, ops) -> list:
+    """Exact update over ``dt`` of each command's low-pass memory (command held): one state per
+    time constant and command, ``m + (u - m)(1 - exp(-dt/tau))``."""
+    out = []
+    nu = len(memory) // max(1, len(taus)) if taus else 0
+    for j, tau in enumerate(taus):
+        decay = math.exp(-dt / tau) if isinstance(dt, (int, float)) else ops.exp(-dt / tau)
+        for c in range(nu):
+            m = memory[j * nu + c]
+            out.append(u[c] + (m - u[c]) * decay)
+    return out
+
+
 def actuator_rest(structure: ModelStructure, u) -> np.ndarray:
     """The actuator and delay-buffer states at rest on the command ``u``: every actuator at
     its command, every buffer full of it (layout: ``structure.state_names()`` after the body)."""
@@ -159,27 +180,3 @@ def advance_actuators(structure: ModelStructure, states, u, p, dt: float) -> np.
     a_next = _lagged(structure, states[:n_act], delayed, p, dt, NUMPY_OPS)
     return np.array([*a_next, *new_buffers], dtype=float)
 
-
-def actuator_history(structure: ModelStructure, controls, p, sample_dt: float) -> np.ndarray:
-    """The actuator and delay-buffer states at every sample of a recorded command history
-    (``N x nu``, row k held over sample k), starting at rest on the first command: row ``k`` is
-    what the step carries at sample ``k`` (append it to the recorded body state there)."""
-    controls = np.atleast_2d(np.asarray(controls, float))
-    n = controls.shape[0]
-    out = np.empty((n, structure.n_actuator + structure.n_buffer))
-    if not n:
-        return out
-    out[0] = actuator_rest(structure, controls[0])
-    for k in range(n - 1):
-        out[k + 1] = advance_actuators(structure, out[k], controls[k], p, sample_dt)
-    return out
-
-
-def augment_states(structure: ModelStructure, states, controls, p, sample_dt: float
-                   ) -> np.ndarray:
-    """Recorded body states (``N x nb``) with the actuator/buffer states of
-    :func:`actuator_history` appended (the step's augmented state at every sample)."""
-    states = np.atleast_2d(np.asarray(states, float))
-    if not structure.augmented:
-        return states
-    return np.hstack([states, actuator_history(structure, controls, p, sample_dt)])

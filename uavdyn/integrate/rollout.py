@@ -1,23 +1,22 @@
-"""Rollouts of any step Function: one ``mapaccum`` loop over a per-sample Function that holds
-its sub-steps, the :class:`EvalGrid` that relates a solver step to a log interval, and numeric
-free runs that report divergence instead of returning it silently.
+"""Rollouts of any discrete model or step Function: one ``mapaccum`` loop over a per-sample
+Function that holds its sub-steps, the :class:`EvalGrid` that relates a solver step to a log
+interval, and numeric free runs that report divergence instead of returning it silently.
 
-A step Function has inputs ``(x, u, p, dt)`` and, when it depends on time, a fifth input named
-``t`` (time since the start of the sortie). :func:`takes_time` tells them apart by name. A step
-may carry the step size and time range it is valid for (attributes ``trained_dt``, ``t_range``,
-``strict``; see :class:`uavdyn.learned.HybridStep`): :func:`check_use` enforces them.
+A step has inputs ``(x, u, p, dt)`` and, when it depends on time, a fifth input named ``t``
+(time since the start of the sortie). A :class:`uavdyn.integrate.DiscreteModel` also knows the
+step size and time range it is valid for: every rollout here enforces them.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
 from uavdyn.integrate.codegen import compile_function
+from uavdyn.integrate.discrete import DiscreteModel, model_function
 
 
 class GridError(ValueError):
@@ -37,42 +36,16 @@ class DivergenceError(RuntimeError):
         self.time = time
 
 
-class StepUseError(ValueError):
-    """A hybrid step was asked for a step size or time it was not trained for."""
+def check_use(step: DiscreteModel | ca.Function, dt: float, t_start: float = 0.0,
+              t_end: float = 0.0) -> None:
+    """:meth:`DiscreteModel.check_use` of a model; a bare Function passes unchecked."""
+    if isinstance(step, DiscreteModel):
+        step.check_use(dt, t_start, t_end)
 
 
-class StepUseWarning(UserWarning):
-    """As :class:`StepUseError`, downgraded on request (``strict=False``)."""
-
-
-def check_use(step: ca.Function, dt: float, t_start: float = 0.0, t_end: float = 0.0) -> None:
-    """Refuse (or warn, for a non-strict step) a use of ``step`` at step size ``dt`` over the
-    times ``[t_start, t_end]`` (s since the sortie start) outside what it was trained for.
-    Plain CasADi Functions pass unchecked.
-
-    Raises
-    ------
-    StepUseError
-        Naming the step, the requested and the trained values.
-    """
-    trained_dt = getattr(step, "trained_dt", None)
-    t_range = getattr(step, "t_range", None)
-    problems = []
-    if trained_dt is not None and abs(dt - trained_dt) > 1e-9 * trained_dt:
-        problems.append(f"step size {dt:g} s but it was trained at {trained_dt:g} s")
-    if t_range is not None and (t_start < t_range[0] - 1e-9 or t_end > t_range[1] + 1e-9):
-        problems.append(f"times {t_start:g}..{t_end:g} s but it was trained on "
-                        f"{t_range[0]:g}..{t_range[1]:g} s since the sortie start")
-    if problems:
-        message = f"step '{step.name()}' used at {' and '.join(problems)}"
-        if getattr(step, "strict", True):
-            raise StepUseError(message + " (build it with strict=False to only warn)")
-        warnings.warn(message, StepUseWarning, stacklevel=2)
-
-
-def takes_time(step: ca.Function) -> bool:
+def takes_time(step: DiscreteModel | ca.Function) -> bool:
     """Whether ``step`` has a time input (named ``t``)."""
-    return "t" in step.name_in()
+    return "t" in model_function(step).name_in()
 
 
 @dataclass(frozen=True)
@@ -126,8 +99,8 @@ class EvalGrid:
         return self.stride * self.sample_dt
 
 
-def rollout(step: ca.Function, n_samples: int, substeps: int = 1, name: str = "rollout"
-            ) -> ca.Function:
+def rollout(step: DiscreteModel | ca.Function, n_samples: int, substeps: int = 1,
+            name: str = "rollout") -> ca.Function:
     """``n_samples`` sample intervals of ``substeps`` steps each, as one MX Function
     ``(x0, u[nu x N], p, dt[, t0]) -> x[nx x N]`` (states at the end of each interval).
 
@@ -142,6 +115,7 @@ def rollout(step: ca.Function, n_samples: int, substeps: int = 1, name: str = "r
     """
     if n_samples < 1 or substeps < 1:
         raise ValueError(f"n_samples and substeps must be >= 1, got {n_samples}, {substeps}")
+    step = model_function(step)
     timed = takes_time(step)
     nx, nu, n_p = (step.size1_in(i) for i in range(3))
     # one sub-step on z = [x; t]
@@ -180,15 +154,15 @@ def check_finite(traj: np.ndarray, time: np.ndarray, what: str = "rollout",
                               f"non-finite or beyond {bound:g}", float(time[k]))
 
 
-def free_run(step: ca.Function, x0, controls, p, dt: float, substeps: int = 1,
+def free_run(step: DiscreteModel | ca.Function, x0, controls, p, dt: float, substeps: int = 1,
              t0: float = 0.0, compile: bool = True, check: bool = True) -> np.ndarray:
     """Open-loop replay of ``controls`` (``N x nu``, row k held over one interval of
     ``substeps * dt``): the ``(N+1) x nx`` states at the interval ends, ``x0`` first.
 
     Parameters
     ----------
-    step : casadi.Function
-        A step ``(x, u, p, dt[, t])``.
+    step : DiscreteModel or casadi.Function
+        A step ``(x, u, p, dt[, t])``; a model is refused outside its step size and time range.
     x0, controls, p : array_like
         Initial state, controls per interval, parameters.
     dt : float
@@ -207,7 +181,8 @@ def free_run(step: ca.Function, x0, controls, p, dt: float, substeps: int = 1,
     x0 = np.asarray(x0, float).ravel()
     check_use(step, dt, t0, t0 + controls.shape[0] * substeps * dt)
     sim = rollout(step, controls.shape[0], substeps)
-    if compile and not step.is_a("External"):  # an already compiled step is called as it is
+    # an already compiled step is called as it is
+    if compile and not model_function(step).is_a("External"):
         sim = compile_function(sim)
     args = [x0, controls.T, np.asarray(p, float), float(dt)]
     if takes_time(step):
@@ -219,7 +194,7 @@ def free_run(step: ca.Function, x0, controls, p, dt: float, substeps: int = 1,
     return traj
 
 
-def estimate_start(step: ca.Function, z0, controls, observed, p, dt: float, scale,
+def estimate_start(step: DiscreteModel | ca.Function, z0, controls, observed, p, dt: float, scale,
                    iterations: int = 8) -> np.ndarray:
     """The start of a free run that best explains the first recorded samples.
 
@@ -277,7 +252,8 @@ def estimate_start(step: ca.Function, z0, controls, observed, p, dt: float, scal
     return np.concatenate([x, z0[m:]]) if np.all(np.isfinite(x)) else z0.copy()
 
 
-def simulate(step: ca.Function, x0, controls, p, dt: float, check: bool = True) -> np.ndarray:
+def simulate(step: DiscreteModel | ca.Function, x0, controls, p, dt: float,
+             check: bool = True) -> np.ndarray:
     """Numeric rollout: the ``(N+1) x nx`` trajectory including ``x0``; ``controls`` is
     ``N x nu`` (row k held over step k). Raises :class:`DivergenceError` if it diverges."""
     return free_run(step, x0, controls, p, dt, compile=False, check=check)

@@ -4,7 +4,6 @@ Training (:mod:`uavdyn.learned.train`, :mod:`uavdyn.learned.torch_model`) needs 
 
 from uavdyn.learned.formulations import DEFAULT_FORMULATION, FORMULATIONS, Formulation, formulation
 from uavdyn.learned.hybrid import (
-           HybridStep,
            hybrid_expression,
            hybrid_jacobian,
            hybrid_step,
@@ -18,7 +17,7 @@ from uavdyn.learned.hybrid import (
 from uavdyn.learned.mlp import ACTIVATIONS, mlp_forward
 from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights, save_weights
 
-__all__ = ["DEFAULT_FORMULATION", "FORMULATIONS", "Formulation", "formulation", "HybridStep",
+__all__ = ["DEFAULT_FORMULATION", "FORMULATIONS", "Formulation", "formulation",
            "hybrid_expression", "hybrid_jacobian", "hybrid_step", "shipped_correction",
            "shipped_corrections", "shipped_history", "shipped_identified", "shipped_weights",
            "not_kept_reason",

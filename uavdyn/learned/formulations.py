@@ -21,11 +21,10 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from uavdyn.integrate.augmented import augmented_rk_step
+from uavdyn.integrate.augmented import augmented_rk_step, memory_state_names, memory_update
 from uavdyn.integrate.tableau import RK4, explicit_rk_step
 from uavdyn.learned.envelope import DEFAULT_GUARD, GUARDS, bounded
 from uavdyn.model import ModelStructure
@@ -112,25 +111,6 @@ class CorrectionLayout:
     def input_names(self) -> tuple[str, ...]:
         names = self.structure.control_names if self.structure is not None else ("u1", "u2")
         return self.state_names() + tuple(names)
-
-
-def memory_state_names(control_names: tuple[str, ...], taus: tuple[float, ...]
-                       ) -> tuple[str, ...]:
-    """Names of the command-memory states, in state order (time constant, then command)."""
-    return tuple(f"{c}_memory_{tau:g}s" for tau in taus for c in control_names)
-
-
-def memory_update(memory: list, u, taus: tuple[float, ...], dt, ops) -> list:
-    """Exact update over ``dt`` of each command's low-pass memory (command held): one state per
-    time constant and command, ``m + (u - m)(1 - exp(-dt/tau))``."""
-    out = []
-    nu = len(memory) // max(1, len(taus)) if taus else 0
-    for j, tau in enumerate(taus):
-        decay = math.exp(-dt / tau) if isinstance(dt, (int, float)) else ops.exp(-dt / tau)
-        for c in range(nu):
-            m = memory[j * nu + c]
-            out.append(u[c] + (m - u[c]) * decay)
-    return out
 
 
 def improved_step(layout: CorrectionLayout, rhs: Callable, z, u, p, dt, net: Callable, ops):

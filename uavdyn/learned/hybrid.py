@@ -3,89 +3,60 @@
 to C, with exact Jacobians for ``nlpsol``/``Opti``.
 
 No torch at run time: the network comes from a weight file (:mod:`uavdyn.learned.weights`).
-A formulation valid only at its trained step size or time range returns a :class:`HybridStep`
-that knows those limits; :func:`uavdyn.integrate.check_use` (called by every rollout of the
-library) refuses a use outside them.
+:func:`hybrid_step` returns a :class:`uavdyn.integrate.DiscreteModel`: a formulation valid
+only at its trained step size or time range carries those limits, and every rollout of the
+library refuses a use outside them.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
-from functools import partial
 from importlib import resources
 from pathlib import Path
 
 import casadi as ca
-import numpy as np
 
 from uavdyn.airframes import Airframe, load_airframe
-from uavdyn.integrate import STEP_INPUTS, augment_states, compile_function
-from uavdyn.learned.formulations import CorrectionLayout, memory_update
+from uavdyn.integrate import (
+    STEP_INPUTS,
+    DiscreteModel,
+    StateLayout,
+    compile_function,
+    step_jacobians,
+)
 from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights
-from uavdyn.model import CASADI_OPS, NUMPY_OPS, ModelStructure, make_rhs, structure_of
+from uavdyn.model import CASADI_OPS, ModelStructure, make_rhs, structure_of
 from uavdyn.model.equations import as_structure
 
 SHIPPED = "uavdyn.learned.shipped"
 
 
-class HybridStep(ca.Function):
-    """A CasADi Function (use it like any other) that also knows the step size and time range
-    its network was trained at (``None`` where the formulation is not tied to them) and, for a
-    step on an augmented state, how to build that state from recorded data
-    (``start_states(states, controls, p, sample_dt)``, else None)."""
-
-    def __init__(self, func: ca.Function, trained_dt: float | None,
-                 t_range: tuple[float, float] | None, strict: bool = True,
-                 start_states: Callable | None = None):
-        super().__init__(func)
-        self.trained_dt = trained_dt
-        self.t_range = t_range
-        self.strict = strict
-        self.start_states = start_states
+SHIPPED_FORMULATIONS = ("safe", "paper")
 
 
-def command_memory(controls, taus: tuple[float, ...], sample_dt: float) -> np.ndarray:
-    """Each command low-passed at each time constant along a recorded history (``N x nu``, row
-    k held over sample k; at rest on the first command): row k is the memory at sample k,
-    laid out ``[tau0: u1 u2, tau1: u1 u2, ...]`` like the step's memory states."""
-    controls = np.atleast_2d(np.asarray(controls, float))
-    out = np.empty((controls.shape[0], controls.shape[1] * len(taus)))
-    memory = list(np.tile(controls[0], len(taus)))
-    for k, u in enumerate(controls):
-        out[k] = memory
-        memory = memory_update(memory, u, taus, sample_dt, NUMPY_OPS)
-    return out
-
-
-def layout_states(layout: CorrectionLayout, states, controls, p, sample_dt: float
-                  ) -> np.ndarray:
-    """The correction step's state at every recorded sample: the recorded body states, the
-    actuator/buffer states and command memory the recorded commands imply (at rest on the first
-    command)."""
-    states = np.atleast_2d(np.asarray(states, float))
-    z = (augment_states(layout.structure, states, controls, p, sample_dt)
-         if layout.structure is not None else states)
-    if layout.memory_tau:
-        z = np.hstack([z, command_memory(controls, layout.memory_tau, sample_dt)])
-    return z
-
-
-def shipped_weights(airframe_name: str, formulation: str = "improved",
-                    target: str = "data") -> Path:
-    """Path of a shipped weight file (package data) for a preset (``aerosonde`` or ``f450``).
+def shipped_weights(airframe_name: str, formulation: str = "safe") -> Path:
+    """Path of a shipped weight file (package data) for a preset (``aerosonde`` or ``f450``):
+    ``"safe"``, the default correction (trained on the preset's identified airframe: pair it
+    with :func:`shipped_identified`, or use :func:`shipped_correction`), or ``"paper"``, the
+    paper's own formulation (time and state in, state increment out) on the nominal preset,
+    kept for the report's Table 1 column of the paper's method.
 
     Raises
     ------
     WeightFileError
-        If no such file ships with the package.
+        If no such file ships with the package (e.g. the preset's training kept no safe
+        correction: the message gives the trainer's reason).
     """
-    suffix = "" if target == "data" else f"_{target}"
-    name = f"{airframe_name}_{formulation}{suffix}.npz"
+    if formulation not in SHIPPED_FORMULATIONS:
+        raise WeightFileError(f"no shipped weights of formulation '{formulation}'; shipped "
+                              f"formulations: {', '.join(SHIPPED_FORMULATIONS)}")
+    if formulation == "safe":
+        return shipped_correction(airframe_name)[0]
+    name = f"{airframe_name}_{formulation}.npz"
     path = Path(str(resources.files(SHIPPED).joinpath(name)))
     if not path.is_file():
         raise WeightFileError(f"{name}: no shipped weights for airframe '{airframe_name}', "
-                              f"formulation '{formulation}', target '{target}'")
+                              f"formulation '{formulation}'")
     return path
 
 
@@ -209,7 +180,7 @@ def hybrid_expression(net: CorrectionNet, relu_smoothing: float | None = None,
 
 def hybrid_step(net: CorrectionNet | str | Path, airframe: Airframe | None = None,
                 compile: bool = True, name: str = "hybrid_step",
-                relu_smoothing: float | None = None, strict: bool = True) -> HybridStep:
+                relu_smoothing: float | None = None, strict: bool = True) -> DiscreteModel:
     """Build the hybrid step of ``net`` (a :class:`CorrectionNet` or a weight-file path).
 
     Parameters
@@ -217,7 +188,8 @@ def hybrid_step(net: CorrectionNet | str | Path, airframe: Airframe | None = Non
     net : CorrectionNet or path
         The correction.
     airframe : Airframe, optional
-        Checked against the weights' airframe hash.
+        Checked against the weights' airframe hash; its structure (actuator lags, delays,
+        tables, density) is the physics the correction runs on.
     compile : bool
         Compile to C (cached); the VM with one warning where no compiler exists.
     relu_smoothing : float, optional
@@ -227,22 +199,22 @@ def hybrid_step(net: CorrectionNet | str | Path, airframe: Airframe | None = Non
 
     Returns
     -------
-    HybridStep
-        One Function ``(x, u, p, dt[, t]) -> x_next``.
+    DiscreteModel
+        ``(x, u, p, dt[, t]) -> x_next`` on the body, actuator, delay-buffer and command-memory
+        states (``state_names``), with the step size and time range it may be used at.
     """
     net = _resolve(net, airframe)
     structure = correction_structure(airframe, net.kind, net.formulation)
-    step = hybrid_expression(net, relu_smoothing, name, structure=structure)
-    if compile:
-        step = compile_function(step)
+    function = hybrid_expression(net, relu_smoothing, name, structure=structure)
     # delay buffers count calls of the step: such a step is tied to the step size it was
     # trained at (the data's sample period), like a formulation that is dt-bound
     tied = net.form.dt_bound or structure.n_buffer > 0
-    start = None
-    if net.formulation == "improved" and net.n_state != 4:
-        start = partial(layout_states, net.layout(structure))
-    return HybridStep(step, net.dt if tied else None,
-                      net.t_range if net.form.takes_time else None, strict, start)
+    memory = tuple(net.memory_tau) if net.formulation == "improved" else ()
+    model = DiscreteModel(function, StateLayout(structure, memory), dt=net.dt if tied else None,
+                          t_range=net.t_range if net.form.takes_time else None, strict=strict,
+                          airframe=airframe,
+                          description=f"physics + {net.formulation} correction")
+    return model.compiled() if compile else model
 
 
 def hybrid_jacobian(net: CorrectionNet | str | Path, airframe: Airframe | None = None,
@@ -252,9 +224,5 @@ def hybrid_jacobian(net: CorrectionNet | str | Path, airframe: Airframe | None =
     net = _resolve(net, airframe)
     step = hybrid_expression(net, structure=correction_structure(airframe, net.kind,
                                                                  net.formulation))
-    args = [ca.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
-    x_next = step(*args)
-    jac = ca.Function(name, args, [x_next, ca.jacobian(x_next, args[0]),
-                                   ca.jacobian(x_next, args[1])],
-                      [step.name_in(i) for i in range(step.n_in())], ["x_next", "A", "B"])
+    jac = step_jacobians(step, name)
     return compile_function(jac) if compile else jac

@@ -25,6 +25,8 @@ from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie, excess_rmse, pitch_noise_std, white_noise_std
 from uavdyn.integrate import (
     DEPARTURE_RAD,
+    DiscreteModel,
+    StateLayout,
     compile_function,
     estimate_start,
     free_run,
@@ -33,14 +35,13 @@ from uavdyn.integrate import (
 )
 from uavdyn.learned.envelope import Envelope
 from uavdyn.learned.formulations import CorrectionLayout
-from uavdyn.learned.hybrid import correction_structure, hybrid_step, layout_states
+from uavdyn.learned.hybrid import correction_structure, hybrid_step
 from uavdyn.learned.stability import (
     DEFAULT_MARGIN,
     StabilityReport,
     body_abscissa,
     check_map_stability,
     envelope_speeds,
-    map_jacobian,
     stability_penalty,
     training_target,
     trims_between,
@@ -135,7 +136,8 @@ def _windows(airframe: Airframe, layout: CorrectionLayout, sorties: list[Sortie]
     z0, us, ys, ps, inputs, which = [], [], [], [], [], []
     for i, s in enumerate(sorties):
         p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
-        z = layout_states(layout, s.states, s.controls, p, sample_dt)
+        z = StateLayout(layout.structure, layout.memory_tau).states(s.states, s.controls, p,
+                                                                    sample_dt)
         inputs.append(np.hstack([z, s.controls]))
         for k in range(0, len(s.time) - H, stride):
             z0.append(z[k])
@@ -171,18 +173,18 @@ def _theta_rmse(pred: np.ndarray, y: np.ndarray, H: int) -> float:
     return float(np.sqrt(np.mean((pred[:, :H, THETA] - y[:, :H, THETA]) ** 2)))
 
 
-def _free_run_errors(step, start, sorties: list[Sortie], airframe: Airframe, sample_dt: float,
-                     body_starts: list[np.ndarray]) -> list[tuple[float, bool]]:
+def _free_run_errors(model: DiscreteModel, sorties: list[Sortie], airframe: Airframe,
+                     sample_dt: float, body_starts: list[np.ndarray]
+                     ) -> list[tuple[float, bool]]:
     """Per sortie: pitch RMSE of the open-loop replay of its commands from ``body_starts[i]``
-    (``start(states, controls, p, dt)`` builds the rest of the step's state from the first
-    recorded sample), and whether the pitch error ever passed
-    :data:`uavdyn.integrate.DEPARTURE_RAD` (or the state stopped being finite)."""
+    (the model's other states at rest on the first recorded command), and whether the pitch
+    error ever passed :data:`uavdyn.integrate.DEPARTURE_RAD` (or the state stopped being
+    finite)."""
     out = []
     for s, body in zip(sorties, body_starts):
         p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
-        z0 = np.array(start(s.states[:1], s.controls[:1], p, sample_dt)[0], dtype=float)
-        z0[:4] = body  # a copy: the sortie's records stay as they are
-        traj = free_run(step, z0, s.controls[:-1], p, sample_dt, compile=False, check=False)
+        z0 = model.initial_state(np.asarray(body, float), s.controls[:1], p, sample_dt)
+        traj = free_run(model, z0, s.controls[:-1], p, sample_dt, compile=False, check=False)
         with np.errstate(all="ignore"):
             err = np.abs(traj[:, THETA] - s.states[:, THETA])
             departed = bool(np.any(~np.isfinite(err) | (err > DEPARTURE_RAD)))
@@ -225,7 +227,7 @@ def _state_noise(sortie: Sortie) -> np.ndarray:
                     + [pitch_noise_std(sortie.time, sortie.states)])
 
 
-def _fitted_start(phys, physics_start, sortie: Sortie, airframe: Airframe, sample_dt: float,
+def _fitted_start(phys: DiscreteModel, sortie: Sortie, airframe: Airframe, sample_dt: float,
                   noise: np.ndarray) -> np.ndarray:
     """Body states to start a validation free run from: fitted through the physics to the
     first :data:`START_FIT_S` of records (:func:`uavdyn.integrate.estimate_start`), each state
@@ -233,7 +235,7 @@ def _fitted_start(phys, physics_start, sortie: Sortie, airframe: Airframe, sampl
     one start there, so neither inherits the noise of the first sample, which would add an
     error common to both and pull their ratio to 1."""
     p = sortie_params(airframe, sortie.meta.get("manifest_entry", {}).get("altitude_m"))
-    z0 = physics_start(sortie.states[:1], sortie.controls[:1], p, sample_dt)[0]
+    z0 = phys.initial_state(sortie.states[0], sortie.controls[:1], p, sample_dt)
     n = max(1, min(len(sortie.time) - 1, int(round(START_FIT_S / sample_dt))))
     spread = np.std(sortie.states[:n + 1, :4], axis=0)
     scale = np.maximum(noise, 1e-6 * (1.0 + spread))
@@ -330,12 +332,12 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     V = {k: _t(getattr(va, k)) for k in ("z0", "u", "y", "p")}
     # trims over the airspeeds the envelope's box spans: where the gate lets the network act,
     # and what `uavdyn modes --hybrid` sweeps
-    trims, skipped = trims_between(airframe, *envelope_speeds(envelope), layout)
+    trims, skipped = trims_between(airframe, *envelope_speeds(envelope),
+                                   StateLayout(structure, tuple(taus)))
     phys_sigma = []
-    jp = map_jacobian(phys)
+    jp = phys.jacobians()
     for t in trims:
-        phys_sigma.append(body_abscissa(np.array(jp(t.z[:layout.n_physics], t.u, t.p, dt)),
-                                        dt)[0])
+        phys_sigma.append(body_abscissa(np.array(jp(t.z[:phys.nx], t.u, t.p, dt)[1]), dt)[0])
     targets = [training_target(s, cfg.stability_margin) for s in phys_sigma]
 
     # The loss mixes two views, each scoring the physics-only step as 1: per window, relative to
@@ -507,9 +509,6 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                 "trims": [t.describe() for t in trims], "trims_skipped": skipped,
                 "memory_tau": list(taus), "train_seconds": time.perf_counter() - start}
 
-    def physics_start(states, controls, p, d):
-        return layout_states(layout0, states, controls, p, d)[:, :layout0.n_physics]
-
     def final_checks(alpha: float, channels: np.ndarray, sel: dict, row: dict, epoch_c: int
                      ) -> tuple | None:
         """The free-run guard and the exact stability check of one candidate (recorded in
@@ -519,13 +518,12 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         step = hybrid_step(net, airframe, compile=False)
         if cfg.free_run_guard:
             if physics_free is None:
-                body_starts = [_fitted_start(phys, physics_start, s, airframe, sample_dt, n)
+                body_starts = [_fitted_start(phys, s, airframe, sample_dt, n)
                                for s, n in zip(val_sorties, state_noise)]
-                physics_free = _free_run_errors(phys, physics_start, val_sorties, airframe,
-                                                sample_dt, body_starts)
-            start_of = step.start_states or (lambda st, u, p, d: st)
+                physics_free = _free_run_errors(phys, val_sorties, airframe, sample_dt,
+                                                body_starts)
             row.update(free_run_verdict(physics_free, _free_run_errors(
-                step, start_of, val_sorties, airframe, sample_dt, body_starts),
+                step, val_sorties, airframe, sample_dt, body_starts),
                 cfg.worst_sortie_ratio, noise))
             if not row["free_run_ok"]:
                 return None

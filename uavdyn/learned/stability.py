@@ -28,14 +28,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
+from uavdyn.integrate import DiscreteModel, StateLayout
 from uavdyn.learned.envelope import Envelope
-from uavdyn.learned.formulations import CorrectionLayout
-from uavdyn.linear import TrimError, point_params, trim, trim_state
+from uavdyn.linear import TrimError, point_params, trim
 
 BODY = 4
 DEFAULT_MARGIN = 0.5
@@ -57,7 +56,7 @@ class TrimSample:
         return f"trim at {self.airspeed:.3g} m/s, gamma {math.degrees(self.gamma):+.3g} deg"
 
 
-def envelope_trims(airframe: Airframe, sorties: list[Sortie], layout: CorrectionLayout,
+def envelope_trims(airframe: Airframe, sorties: list[Sortie], layout: StateLayout,
                    n_speeds: int = 4) -> tuple[list[TrimSample], list[str]]:
     """Trim points over the flown envelope: airspeeds between the 5th and 95th percentile of
     the sorties' airspeed (:func:`trims_between`). Returns the points and why others could not
@@ -78,13 +77,13 @@ def envelope_speeds(envelope: Envelope) -> tuple[float, float]:
     return math.hypot(u_min, w_min), math.hypot(max(map(abs, u)), max(map(abs, w)))
 
 
-def trims_between(airframe: Airframe, lo: float, hi: float, layout: CorrectionLayout,
+def trims_between(airframe: Airframe, lo: float, hi: float, layout: StateLayout,
                   n_speeds: int = 4) -> tuple[list[TrimSample], list[str]]:
     """Trim points at ``n_speeds`` airspeeds spread over the part of ``[lo, hi]`` where the
     airframe can be trimmed level (found on a grid four times finer, so untrimmable ends of
     the range do not use up the points): level and +-3 deg climb for a fixed wing; hover and
-    forward flight for a multirotor. Returns the points and why others could not be
-    trimmed."""
+    forward flight for a multirotor; each with the step's state there (``layout``: at rest
+    on the trim command). Returns the points and why others could not be trimmed."""
     skipped: list[str] = []
     if airframe.kind == "fixed_wing":
         feasible = []
@@ -108,9 +107,9 @@ def trims_between(airframe: Airframe, lo: float, hi: float, layout: CorrectionLa
         except TrimError as exc:
             skipped.append(f"{v:.3g} m/s, gamma {math.degrees(g):+.3g} deg: {exc}")
             continue
-        out.append(TrimSample(float(v), float(g), trim_state(airframe, point,
-                                                         memory_tau=layout.memory_tau),
-                              np.asarray(point.u, float), point_params(airframe, point)))
+        p = point_params(airframe, point)
+        out.append(TrimSample(float(v), float(g), layout.states(point.x, point.u, p, 1.0)[0],
+                              np.asarray(point.u, float), p))
     return out, skipped
 
 
@@ -203,22 +202,16 @@ class StabilityReport:
                            for f in self.findings]}
 
 
-def map_jacobian(step: ca.Function) -> ca.Function:
-    """``(z, u, p, dt) -> d z_next / d z`` of a step Function (exact, SX)."""
-    args = [ca.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(4)]
-    return ca.Function("map_jacobian", args, [ca.jacobian(step(*args), args[0])])
-
-
-def check_map_stability(hybrid: ca.Function, physics: ca.Function, trims: list[TrimSample],
+def check_map_stability(hybrid: DiscreteModel, physics: DiscreteModel, trims: list[TrimSample],
                         dt: float, margin: float = DEFAULT_MARGIN,
                         skipped: list[str] | None = None) -> StabilityReport:
     """Exact check of the rule at every trim point with CasADi Jacobians.
 
     Parameters
     ----------
-    hybrid : casadi.Function
-        The hybrid step ``(z, u, p, dt)`` on the layout's state.
-    physics : casadi.Function
+    hybrid : DiscreteModel
+        The hybrid step ``(z, u, p, dt)``.
+    physics : DiscreteModel
         The physics step on its own augmented state (a prefix of ``z``).
     trims : list of TrimSample
         Points from :func:`envelope_trims`.
@@ -227,12 +220,12 @@ def check_map_stability(hybrid: ca.Function, physics: ca.Function, trims: list[T
     margin : float
         See the module docstring.
     """
-    jh, jp = map_jacobian(hybrid), map_jacobian(physics)
-    n_phys = physics.size1_in(0)
+    jh, jp = hybrid.jacobians(), physics.jacobians()
+    n_phys = physics.nx
     report = StabilityReport(dt, margin, skipped=list(skipped or []))
     for t in trims:
-        sigma_p, _ = body_abscissa(np.array(jp(t.z[:n_phys], t.u, t.p, dt)), dt)
-        sigma_h, lam = body_abscissa(np.array(jh(t.z, t.u, t.p, dt)), dt)
+        sigma_p, _ = body_abscissa(np.array(jp(t.z[:n_phys], t.u, t.p, dt)[1]), dt)
+        sigma_h, lam = body_abscissa(np.array(jh(t.z, t.u, t.p, dt)[1]), dt)
         report.findings.append(Finding(t.describe(), sigma_p, sigma_h,
                                        allowed_abscissa(sigma_p, margin), lam))
     return report
@@ -266,7 +259,7 @@ def stability_penalty(model, trims: list[TrimSample], targets, dt: float):
 
 def envelope_check(net, airframe: Airframe, dt: float | None = None,
                    margin: float = DEFAULT_MARGIN, n_speeds: int = 4,
-                   step: ca.Function | None = None) -> StabilityReport:
+                   model: DiscreteModel | None = None) -> StabilityReport:
     """The stability rule of a trained correction at trims over its own training envelope.
 
     Parameters
@@ -279,7 +272,7 @@ def envelope_check(net, airframe: Airframe, dt: float | None = None,
         Map step (default: the step the network was trained at).
     margin : float
         See the module docstring.
-    step : casadi.Function, optional
+    model : DiscreteModel, optional
         The (uncompiled) hybrid step of ``net`` if the caller has already built it.
 
     Raises
@@ -288,15 +281,13 @@ def envelope_check(net, airframe: Airframe, dt: float | None = None,
         For weights without an envelope (formats 1-2: no training envelope is stored).
     """
     from uavdyn.integrate import physics_step
-    from uavdyn.learned.hybrid import correction_structure, hybrid_step
+    from uavdyn.learned.hybrid import hybrid_step
 
     if net.envelope is None or net.formulation != "improved":
         raise ValueError("these weights store no training envelope (weight formats 3-4, "
                          "'improved' formulation, have one): no envelope sweep")
-    structure = correction_structure(airframe, net.kind, net.formulation)
-    layout = net.layout(structure)
+    model = model if model is not None else hybrid_step(net, airframe, compile=False)
     lo, hi = envelope_speeds(net.envelope)
-    trims, skipped = trims_between(airframe, lo, hi, layout, n_speeds)
-    step = step if step is not None else hybrid_step(net, airframe, compile=False)
-    return check_map_stability(step, physics_step(structure), trims, dt or net.dt, margin,
-                               skipped)
+    trims, skipped = trims_between(airframe, lo, hi, model.layout, n_speeds)
+    return check_map_stability(model, physics_step(model.structure), trims, dt or net.dt,
+                               margin, skipped)

@@ -13,12 +13,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 import scipy.linalg
 
 from uavdyn.airframes import Airframe
-from uavdyn.linear.trim import TrimPoint, body_structure, point_params, trim_state
+from uavdyn.integrate import DiscreteModel
+from uavdyn.linear.trim import TrimPoint, body_structure, point_params
 from uavdyn.model import STATE_NAMES, build_model, structure_of
 
 
@@ -225,45 +225,55 @@ def _match(reference: np.ndarray, values: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
-def discrete_map_modes(step, airframe: Airframe, point: TrimPoint, dt: float,
-                       memory_tau: tuple[float, ...] = ()) -> DiscreteModeComparison:
-    """Linearise a step map (hybrid or plain RK4) at a trim point: eigenvalues of its Jacobian,
+def discrete_map_modes(model: DiscreteModel, point: TrimPoint, dt: float,
+                       airframe: Airframe | None = None) -> DiscreteModeComparison:
+    """Linearise a step map (hybrid or physics) at a trim point: eigenvalues of its Jacobian,
     their continuous equivalents ``log(lambda)/dt``, and the exact ``exp(A dt)`` beside them.
 
-    The state size comes from the step: the body state (4), or the airframe's augmented state
-    (:func:`uavdyn.integrate.physics_step`), linearised at :func:`trim_state`. The exact
-    counterparts of an augmented map are the eigenvalues of ``exp(A dt)`` of the continuous
-    body + actuator model (:func:`linearise`) and one 0 per delay-buffer state (a shift
-    register). The map's continuous-equivalent modes are those of its body + actuator block.
-    A safe correction's step carries command-memory filters after that state (``memory_tau``,
-    one per command each): they sit at the trim command, and their exact eigenvalues are
-    ``exp(-dt/tau)`` (they are driven by the command only, so the map is block triangular).
+    The map is linearised at the model's state at the trim
+    (:meth:`DiscreteModel.initial_state`: actuators, delay buffers and command memory at rest
+    on the trim command). The exact counterparts of the map's eigenvalues are those of
+    ``exp(A dt)`` of the continuous body (+ actuator, when the model carries actuator states)
+    model (:func:`linearise`), one 0 per delay-buffer state (a shift register) and
+    ``exp(-dt/tau)`` per command-memory state (driven by the command only, so the map is
+    block triangular). The map's continuous-equivalent modes are those of its body +
+    actuator block.
+
+    Parameters
+    ----------
+    model : DiscreteModel
+        The step (body state only, or the airframe's augmented state).
+    point : TrimPoint
+        Trim point of the airframe.
+    dt : float
+        Step size the map is taken at.
+    airframe : Airframe, optional
+        The airframe (default the model's own).
 
     Raises
     ------
     ValueError
-        If the step's state size is neither 4 nor the airframe's augmented state size.
+        If no airframe is known, or the model's physics is neither the body state nor the
+        airframe's augmented state.
     """
+    airframe = airframe if airframe is not None else model.airframe
+    if airframe is None:
+        raise ValueError(f"model '{model.name}' has no airframe: give airframe=")
     structure = structure_of(airframe)
-    u_trim = np.asarray(point.u, float)
-    memory = np.tile(u_trim, len(memory_tau))
-    nz = step.size1_in(0) - len(memory)
-    if nz == 4:
-        augmented, z0 = False, np.asarray(point.x, float)
-    elif nz == structure.nx():
-        augmented, z0 = True, trim_state(airframe, point)
+    n_physics = model.layout.n_physics
+    if n_physics == 4:
+        augmented = False
+    elif n_physics == structure.nx():
+        augmented = True
     else:
-        raise ValueError(f"step '{step.name()}' has {nz + len(memory)} states; airframe "
+        raise ValueError(f"model '{model.name}' has {n_physics} physics states; airframe "
                          f"'{airframe.name}' has 4 body states or {structure.nx()} augmented "
-                         f"ones {structure.state_names()}"
-                         + (f", plus {len(memory)} command-memory states" if len(memory)
-                            else ""))
-    z0 = np.concatenate([z0, memory])
-    nz = len(z0)
+                         f"ones {structure.state_names()}")
+    memory_tau = model.layout.memory_tau
+    u_trim = np.asarray(point.u, float)
     p = point_params(airframe, point)
-    x = ca.SX.sym("x", nz)
-    jac = ca.Function("map_jacobian", [x], [ca.jacobian(step(x, point.u, p, dt), x)])
-    F = np.array(jac(z0))
+    z0 = model.initial_state(np.asarray(point.x, float), u_trim, p)
+    F = np.array(model.jacobians()(z0, u_trim, p, dt)[1])
     lam = np.linalg.eigvals(F)
     A, B = linearise(airframe, point, actuators=augmented)
     names = linear_state_names(airframe, actuators=augmented)

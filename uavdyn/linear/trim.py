@@ -24,7 +24,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import Airframe
-from uavdyn.integrate import actuator_history
+from uavdyn.integrate import StateLayout
 from uavdyn.model import (
     CONTROL_NAMES,
     NUMPY_OPS,
@@ -104,15 +104,11 @@ def trim_state(airframe: Airframe, point: TrimPoint, with_position: bool = False
         Time constants of a learned correction's command memory: one state per time constant
         and command, appended at the trim command (at rest, like the actuators).
     """
-    structure = structure_of(airframe, fitting)
-    u = np.asarray(point.u, float)
+    layout = StateLayout(structure_of(airframe, fitting), tuple(memory_tau), with_position)
     x = np.asarray(point.x, float)
     if with_position:
         x = np.concatenate([x, [0.0, point.altitude_m or 0.0]])
-    if structure.augmented:
-        x = np.concatenate([x, actuator_history(structure, u[None, :],
-                                                point_params(airframe, point), 1.0)[0]])
-    return np.concatenate([x, np.tile(u, len(memory_tau))])
+    return layout.states(x, point.u, point_params(airframe, point), 1.0)[0]
 
 
 @cache

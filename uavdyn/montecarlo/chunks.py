@@ -33,8 +33,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import AirframeError
-from uavdyn.learned.hybrid import layout_states
-from uavdyn.linear import TrimError, point_params, trim, trim_state
+from uavdyn.linear import TrimError, point_params, trim
 from uavdyn.montecarlo.batch import N_GUST, SIGNALS, STAT_NAMES, batch_function, run_function
 from uavdyn.montecarlo.dispersions import STATE_KEYS
 from uavdyn.montecarlo.spec import MonteCarloError, StudySpec
@@ -109,20 +108,14 @@ def compiled_batch(spec: StudySpec, n_runs: int, threads: int) -> ca.Function:
     return _COMPILED[key]
 
 
-def _initial(spec: StudySpec, airframe, point, p: np.ndarray, offsets: dict) -> np.ndarray:
+def _initial(spec: StudySpec, point, p: np.ndarray, offsets: dict) -> np.ndarray:
     """The step's state at the start of a run: trim plus the initial-state offsets, with the
     actuator, delay and command-memory states at rest on the trim command."""
-    body = np.asarray(point.x, float).copy()
+    body = np.asarray(point.x, float)[:4].copy()
     for name, dist in spec.dispersions.initial.items():
         i = STATE_KEYS.index(name)
         body[i] = dist.apply(body[i], offsets[f"initial.{name}"])
-    if spec.net is not None and spec.net.formulation == "improved":
-        layout = spec.net.layout(spec.structure)
-        return layout_states(layout, body[None, :], np.asarray(point.u)[None, :], p,
-                             spec.dt)[0]
-    x = trim_state(airframe, point, fitting=spec.fitting)
-    x[:4] = body
-    return x
+    return spec.discrete_model().initial_state(body, point.u, p, spec.dt)
 
 
 def evaluate_chunk(spec: StudySpec, index: int, threads: int = 1) -> ChunkResult:
@@ -159,7 +152,7 @@ def _evaluate_chunk(spec: StudySpec, index: int, threads: int) -> ChunkResult:
     nominal = spec.airframe
     nom_point = trim(nominal, spec.airspeed)
     nom_p = point_params(nominal, nom_point)
-    x0 = np.tile(_initial(spec, nominal, nom_point, nom_p, _zero_offsets(spec))[:, None],
+    x0 = np.tile(_initial(spec, nom_point, nom_p, _zero_offsets(spec))[:, None],
                  (1, n))
     u0 = np.tile(np.asarray(nom_point.u, float)[:, None], (1, n))
     P = np.tile(nom_p[:, None], (1, n))
@@ -193,7 +186,7 @@ def _evaluate_chunk(spec: StudySpec, index: int, threads: int) -> ChunkResult:
         trimmed[j] = True
         table[j, columns.index("trim_ok")] = 1.0
         p = point_params(airframe, point)
-        x0[:, j] = _initial(spec, airframe, point, p, draw.offsets)
+        x0[:, j] = _initial(spec, point, p, draw.offsets)
         u0[:, j] = point.u
         P[:, j] = p
         if spec.gusts and draw.gust_intensity > 0:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import casadi as ca
@@ -22,7 +22,7 @@ import numpy as np
 
 from uavdyn import __version__
 from uavdyn.airframes import Airframe
-from uavdyn.integrate import check_use, physics_step, takes_time
+from uavdyn.integrate import DiscreteModel, physics_step
 from uavdyn.integrate.inputs import PROFILES, control_sequence
 from uavdyn.learned import CorrectionNet, hybrid_step, load_weights, shipped_weights
 from uavdyn.learned.hybrid import correction_structure
@@ -82,7 +82,11 @@ class StudySpec:
         Resolved thresholds ``(pitch rad, alpha rad, airspeed m/s, load factor)``; inf where a
         limit is off.
     weights_digest : str
-        SHA-256 of the weight file ('' for physics).
+        SHA-256 of the weight file, or of the given model's Function ('' for the airframe's
+        own physics).
+    given : DiscreteModel or None
+        A model the caller built (``build_spec(..., model=)``); None: the airframe's physics
+        or the hybrid step of ``net``.
     """
 
     airframe: Airframe
@@ -100,6 +104,7 @@ class StudySpec:
     deviations: np.ndarray
     limits: tuple[float, float, float, float]
     weights_digest: str = ""
+    given: DiscreteModel | None = None
     key: str = field(default="", init=False)
     model_key: str = field(default="", init=False)
 
@@ -133,9 +138,20 @@ class StudySpec:
     @property
     def structure(self) -> ModelStructure:
         """The physics structure the runs are integrated with."""
+        if self.given is not None:
+            return self.given.structure
         if self.net is None:
             return structure_of(self.airframe, self.fitting)
         return correction_structure(self.airframe, self.net.kind, self.net.formulation)
+
+    def discrete_model(self) -> DiscreteModel:
+        """The (uncompiled) model the runs fly, without gusts: its state layout starts each
+        run."""
+        if self.given is not None:
+            return self.given
+        if self.net is None:
+            return replace(physics_step(self.structure), airframe=self.airframe)
+        return hybrid_step(self.net, self.airframe, compile=False)
 
     @property
     def history_time(self) -> np.ndarray:
@@ -153,14 +169,13 @@ class StudySpec:
         return start, min(start + self.chunk_size, self.runs)
 
     def step(self) -> ca.Function:
-        """The (uncompiled) step the runs use: ``(x, u, p, dt)``, ``u`` with gusts appended
-        when the study has turbulence."""
-        structure = self.structure
+        """The (uncompiled) step Function the runs use: ``(x, u, p, dt)``, ``u`` with gusts
+        appended when the study has turbulence."""
+        if not self.gusts:
+            return self.discrete_model().function
         if self.net is None:
-            return gust_step(structure) if self.gusts else physics_step(structure)
-        if self.gusts:
-            return gust_step(structure, self.net, "hybrid_gust_step")
-        return hybrid_step(self.net, self.airframe, compile=False)
+            return gust_step(self.structure)
+        return gust_step(self.structure, self.net, "hybrid_gust_step")
 
     def key_content(self) -> dict:
         """What the study key hashes (everything but the number of runs)."""
@@ -306,11 +321,33 @@ def _weights(weights: str | Path | None, airframe: Airframe
     return net, f"hybrid ({Path(path).name}: {net.describe()})", digest
 
 
+def _given_model(model: DiscreteModel, weights, dispersions: Dispersions, airframe: Airframe
+                 ) -> tuple[str, str]:
+    """The label and content digest of a model handed to :func:`build_spec`."""
+    if not isinstance(model, DiscreteModel):
+        raise MonteCarloError(f"model must be a DiscreteModel (uavdyn.physics_step, "
+                              f"uavdyn.hybrid_step), got {type(model).__name__}")
+    if weights is not None:
+        raise MonteCarloError("give either weights or model, not both")
+    if dispersions.has_gusts:
+        raise MonteCarloError("a study with gusts rebuilds the physics around the correction: "
+                              "give weights (or no model) instead of a model object")
+    if model.kind != airframe.kind or model.layout.with_position:
+        raise MonteCarloError(f"model '{model.name}' is a {model.kind} step"
+                              + (" with position states" if model.layout.with_position else "")
+                              + f"; the airframe '{airframe.name}' is a {airframe.kind}")
+    if model.function.is_a("External"):
+        raise MonteCarloError(f"model '{model.name}' is compiled; give the uncompiled model "
+                              "(compile=False): the study compiles its own batch")
+    digest = hashlib.sha256(model.function.serialize().encode()).hexdigest()
+    return model.description or model.name, digest
+
+
 def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration: float,
                dt: float = 0.01, mission: str = "doublet", weights: str | Path | None = None,
                seed: int | None = None, chunk_size: int = 200,
-               history_dt: float = DEFAULT_HISTORY_DT, airspeed: float | None = None
-               ) -> StudySpec:
+               history_dt: float = DEFAULT_HISTORY_DT, airspeed: float | None = None,
+               model: DiscreteModel | None = None) -> StudySpec:
     """Check a study's settings and gather them in a :class:`StudySpec`.
 
     Parameters
@@ -335,6 +372,11 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
         Interval of the envelope samples (s, rounded to whole steps).
     airspeed : float, optional
         Nominal trim airspeed (default: the airframe's).
+    model : DiscreteModel, optional
+        Fly this model (e.g. ``uavdyn.physics_step(af)`` or ``uavdyn.hybrid_step(w, af)``)
+        instead of building one from ``weights``; it must be built for ``airframe``'s
+        structure, and a study with gusts needs ``weights`` instead (the gust step rebuilds
+        the physics around the network).
 
     Raises
     ------
@@ -361,20 +403,23 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
         trim(airframe, speed)
     except TrimError as exc:
         raise MonteCarloError(f"the nominal airframe does not trim: {exc}") from None
-    net, model, digest = _weights(weights, airframe)
-    if net is not None:
-        step = hybrid_step(net, airframe, compile=False)
-        if takes_time(step):
-            raise MonteCarloError(f"{model}: this correction takes time t as an input; use "
+    if model is not None:
+        label, digest = _given_model(model, weights, dispersions, airframe)
+        net = None
+    else:
+        net, label, digest = _weights(weights, airframe)
+    if net is not None or model is not None:
+        step = model if model is not None else hybrid_step(net, airframe, compile=False)
+        if step.takes_time:
+            raise MonteCarloError(f"{label}: this correction takes time t as an input; use "
                                   "weights of the 'improved' formulation")
-        check_use(step, dt, 0.0, n_steps * dt)
-        structure = correction_structure(airframe, net.kind, net.formulation)
+        step.check_use(dt, 0.0, n_steps * dt)
         needed = structure_of(airframe, tuple(sorted(dispersions.params)))
-        if needed != structure:
+        if needed != step.structure:
             raise MonteCarloError(
                 f"dispersing {', '.join(sorted(dispersions.params))} adds model terms (alpha-"
-                "dot, actuator lag) the hybrid step's physics does not carry at the nominal "
-                "values; disperse them with the physics step")
+                "dot, actuator lag) the model's physics does not carry at the nominal "
+                "values; disperse them with the airframe's own physics step")
     sample_dt = dispersions.gust_sample_dt
     if sample_dt is not None and abs(sample_dt / dt - round(sample_dt / dt)) > 1e-6 * (
             sample_dt / dt) or (sample_dt is not None and sample_dt < dt * (1 - 1e-9)):
@@ -384,8 +429,9 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
     stride = max(1, int(round(history_dt / dt)))
     # a CSV is known by its name (its content is in the key through the deviations)
     name = mission if mission in PROFILES or mission in _missions() else f"csv:{Path(mission).name}"
-    return StudySpec(airframe=airframe, dispersions=dispersions, net=net, model=model,
+    return StudySpec(airframe=airframe, dispersions=dispersions, net=net, model=label,
                      runs=runs, dt=float(dt), n_steps=n_steps, stride=min(stride, n_steps),
                      seed=int(seed), chunk_size=chunk_size, airspeed=speed,
                      input_name=name, deviations=np.ascontiguousarray(deviations, float),
-                     limits=resolve_limits(dispersions, airframe), weights_digest=digest)
+                     limits=resolve_limits(dispersions, airframe), weights_digest=digest,
+                     given=model)

@@ -104,10 +104,10 @@ class Controller:
         """The extra states (actuators, buffers, command memory) at this solve, from the
         controller's own commands: at rest on ``u_prev`` after a reset, else the last solve's
         advanced by ``u_prev`` (the command applied over the interval since)."""
-        carried = self.problem.carried
+        layout = self.problem.model.layout
         if self._extra is None:
-            return carried.rest(u_prev)
-        return carried.advance(self._extra, u_prev, self.p, self.config.dt)
+            return layout.rest(u_prev)
+        return layout.advance(self._extra, u_prev, self.p, self.config.dt)
 
     def warm_plan(self, u_prev) -> np.ndarray:
         """The plan a solve starts from: the last successful plan shifted to now (its last

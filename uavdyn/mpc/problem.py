@@ -35,10 +35,8 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from uavdyn.airframes import Airframe
-from uavdyn.integrate import actuator_rest, advance_actuators
-from uavdyn.learned.formulations import memory_update
-from uavdyn.model import CONTROL_BOUNDS, NUMPY_OPS, ModelStructure, structure_of
+from uavdyn.integrate import DiscreteModel
+from uavdyn.model import CONTROL_BOUNDS
 
 DEFAULT_RATE_LIMITS = {"fixed_wing": (1.0, 1.0), "multirotor": (2.0, 4.0)}  # per second
 MODES = ("sqp", "rti")
@@ -130,63 +128,21 @@ def soft_floor(v, low: float, width: float):
                                                    / (4 * width)))
 
 
-@dataclass(frozen=True)
-class CarriedStates:
-    """The step's extra states the controller carries: the physics structure's actuator lags
-    and delay buffers (``structure``, None: none) then the command memory (``memory_tau``)."""
-
-    structure: ModelStructure | None
-    memory_tau: tuple[float, ...]
-    nu: int = 2
-
-    @property
-    def n_actuator(self) -> int:
-        if self.structure is None or not self.structure.augmented:
-            return 0
-        return self.structure.n_actuator + self.structure.n_buffer
-
-    @property
-    def n(self) -> int:
-        return self.n_actuator + self.nu * len(self.memory_tau)
-
-    def rest(self, u) -> np.ndarray:
-        """Every extra state at rest on the command ``u``."""
-        u = np.asarray(u, float).ravel()
-        act = actuator_rest(self.structure, u) if self.n_actuator else np.empty(0)
-        return np.concatenate([act, np.tile(u, len(self.memory_tau))])
-
-    def advance(self, states, u, p, dt: float) -> np.ndarray:
-        """The extra states one interval later with the command ``u`` applied over it."""
-        states = np.asarray(states, float).ravel()
-        u = np.asarray(u, float).ravel()
-        na = self.n_actuator
-        act = (advance_actuators(self.structure, states[:na], u, p, dt) if na
-               else np.empty(0))
-        mem = (memory_update(list(states[na:]), u, self.memory_tau, dt, NUMPY_OPS)
-               if self.memory_tau else [])
-        return np.concatenate([act, np.asarray(mem, float)])
-
-
 class TrackingProblem:
     """The tracking problem of one airframe and prediction step (see the module docstring).
 
     Parameters
     ----------
-    step : casadi.Function
-        Uncompiled prediction step ``(x, u, p, dt) -> x_next`` (SX: it is inlined into the
-        MPC's Functions), on the body state or an augmented state.
-    kind : str or Airframe
-        Airframe kind, or the airframe (its ``[limits]`` replace the kind's default bounds).
-    p : array
-        Parameter vector of the step.
+    model : DiscreteModel
+        The prediction model (:func:`uavdyn.physics_step`, :func:`uavdyn.hybrid_step` with
+        ``compile=False``): its Function is inlined into the MPC's own Functions; its
+        airframe's ``[limits]`` (actuator travel and rates) replace the kind's defaults
+        wherever the config leaves ``control_bounds``/``rate_limits`` unset.
     u_trim : array
         Trim command (the ``w_u`` term's target).
     config : MPCConfig
-    structure : ModelStructure, optional
-        Layout of the step's actuator/buffer states (default: the airframe's).
-    memory_tau : tuple of float
-        Time constants of the correction's command memory (its extra states after the
-        actuators).
+    p : array, optional
+        Parameter vector of the step (default: the model's airframe's).
     speed_trim : float, optional
         Trim airspeed (m/s) for the default soft bounds and airspeed floor (default: the
         airframe's nominal airspeed, else 25).
@@ -194,12 +150,11 @@ class TrackingProblem:
     Raises
     ------
     ValueError
-        On a bad configuration, a compiled step, or extra states that do not match.
+        On a bad configuration, a compiled step, or a model without an airframe and ``p``.
     """
 
-    def __init__(self, step: ca.Function, kind: str | Airframe, p, u_trim,
-                 config: MPCConfig, structure: ModelStructure | None = None,
-                 memory_tau: tuple[float, ...] = (), speed_trim: float | None = None):
+    def __init__(self, model: DiscreteModel, u_trim, config: MPCConfig, p=None,
+                 speed_trim: float | None = None):
         cfg = self.config = config
         if cfg.horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {cfg.horizon}")
@@ -209,13 +164,19 @@ class TrackingProblem:
             raise ValueError(f"mode must be one of {MODES}, got {cfg.mode!r}")
         if cfg.solver not in ("sqp", "ipopt"):
             raise ValueError(f"solver must be 'sqp' or 'ipopt', got {cfg.solver!r}")
+        step = model.function
         if not step.is_a("SXFunction"):
             raise ValueError(f"prediction step '{step.name()}' must be an uncompiled SX Function "
                              "(e.g. hybrid_step(..., compile=False)): the MPC inlines and "
                              "compiles it itself")
-        airframe = kind if isinstance(kind, Airframe) else None
-        self.kind: str = airframe.kind if airframe is not None else kind  # type: ignore
-        self.p = np.asarray(p, float)
+        if model.layout.with_position:
+            raise ValueError(f"prediction model '{model.name}' carries position states: the "
+                             "MPC adds its own altitude state; build it without position")
+        model.check_use(cfg.dt)
+        airframe = model.airframe
+        self.model = model
+        self.kind: str = model.kind
+        self.p = np.asarray(model.p if p is None else p, float)
         self.u_trim = np.asarray(u_trim, float)
         bounds = airframe.control_bounds() if airframe is not None else CONTROL_BOUNDS[self.kind]
         rates = DEFAULT_RATE_LIMITS[self.kind]
@@ -224,16 +185,7 @@ class TrackingProblem:
             rates = tuple(d if r is None else r for r, d in zip(own, rates))
         self.bounds = np.array(cfg.control_bounds or bounds, float)
         self.rates = np.array(cfg.rate_limits or rates, float)
-        nz = step.size1_in(0)
-        if structure is None and airframe is not None and nz != 4 + 2 * len(memory_tau):
-            structure = structure_of(airframe)
-        self.carried = CarriedStates(structure, tuple(memory_tau))
-        if 4 + self.carried.n != nz:
-            raise ValueError(
-                f"prediction step '{step.name()}' has {nz} states but the body, "
-                f"{self.carried.n_actuator} actuator/buffer state(s) and "
-                f"{2 * len(memory_tau)} command-memory state(s) make {4 + self.carried.n}: "
-                "give the Airframe (or structure=) and memory_tau of its augmented state")
+        nz = model.nx
         self.step = step
         self.n_extra = nz - 4
         self.nx, self.nu, self.N = 5 + self.n_extra, 2, cfg.horizon

@@ -18,12 +18,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import Airframe, list_presets, load_airframe
 from uavdyn.emulation import Emulator
-from uavdyn.integrate import physics_step
+from uavdyn.integrate import DiscreteModel, physics_step
 from uavdyn.learned import (
     WeightFileError,
     hybrid_step,
@@ -45,16 +44,17 @@ class PredictionModel:
     """A prediction step and the airframe, trim and command memory it runs with."""
 
     name: str
-    step: ca.Function
-    airframe: Airframe
+    model: DiscreteModel
     trim: TrimPoint
-    memory_tau: tuple[float, ...] = ()
     description: str = ""
+
+    @property
+    def airframe(self) -> Airframe:
+        return self.model.airframe
 
     def controller(self, config: MPCConfig) -> Controller:
         """A controller of ``config.mode`` predicting with this model."""
-        return build_controller(self.step, self.airframe, self.airframe.p, self.trim.u, config,
-                                memory_tau=self.memory_tau,
+        return build_controller(self.model, self.trim.u, config,
                                 speed_trim=max(self.trim.airspeed, 1.0))
 
 
@@ -126,12 +126,10 @@ def prediction_models(airframe: str, weights: str | Path | None = None,
         smoothing = RELU_SMOOTHING if mode == "sqp" else None
         step = hybrid_step(net, model_af, compile=False, relu_smoothing=smoothing)
         how = "exact ReLU" if smoothing is None else f"ReLU smoothed to softplus k={smoothing:g}"
-        out["hybrid"] = PredictionModel("hybrid", step, model_af, model_trim,
-                                        tuple(net.memory_tau),
+        out["hybrid"] = PredictionModel("hybrid", step, model_trim,
                                         f"{Path(weights).name} on {model_af.name} ({how})")
     if "physics" in models:
-        out["physics"] = PredictionModel("physics", physics_step(model_af), model_af,
-                                         model_trim, (),
+        out["physics"] = PredictionModel("physics", physics_step(model_af), model_trim,
                                          f"RK4 of {model_af.name} (no correction)")
     return StudySetup(plant, trim(plant), out, weights, missing)
 

@@ -25,8 +25,7 @@ import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.emulation import open_loop_references
-from uavdyn.integrate import physics_step
-from uavdyn.model import ModelStructure
+from uavdyn.integrate import DiscreteModel, physics_step
 from uavdyn.mpc.policy import HELD, SHIFTED, SOLVED, Controller, MPCResult, SolveOutcome
 from uavdyn.mpc.problem import DEFAULT_RATE_LIMITS, MPCConfig, TrackingProblem
 
@@ -46,36 +45,28 @@ class TrackingMPC(Controller):
 
     Parameters
     ----------
-    step : casadi.Function
-        Uncompiled prediction step ``(x, u, p, dt) -> x_next``.
-    kind : str or Airframe
-        Airframe kind or the airframe: given an airframe, its own ``[limits]`` (actuator
-        travel and rates) replace the kind's defaults wherever the config leaves
+    model : DiscreteModel
+        Prediction model with an uncompiled SX Function (:func:`uavdyn.physics_step`,
+        :func:`uavdyn.hybrid_step` with ``compile=False``); its airframe's ``[limits]``
+        (actuator travel and rates) replace the kind's defaults wherever the config leaves
         ``control_bounds``/``rate_limits`` unset, so the MPC never plans beyond them.
-    p : array
-        Parameters of the step.
     u_trim : array
         Trim command.
     config : MPCConfig, optional
-    structure : ModelStructure, optional
-        Layout of an augmented step's actuator/buffer states (default: the airframe's).
-    memory_tau : tuple of float
-        Command-memory time constants of a learned correction's step.
+    p : array, optional
+        Parameters of the step (default: the model's airframe's).
     speed_trim : float, optional
         Trim airspeed (default soft bounds, airspeed floor).
 
     Raises
     ------
     ValueError
-        On a bad configuration, or an augmented step without a matching structure.
+        On a bad configuration or a compiled step.
     """
 
-    def __init__(self, step: ca.Function, kind: str | Airframe, p, u_trim,
-                 config: MPCConfig | None = None, structure: ModelStructure | None = None,
-                 memory_tau: tuple[float, ...] = (), speed_trim: float | None = None):
-        problem = TrackingProblem(step, kind, p, u_trim, config or MPCConfig(), structure,
-                                  memory_tau, speed_trim)
-        self.structure = problem.carried.structure if problem.carried.n_actuator else None
+    def __init__(self, model: DiscreteModel, u_trim, config: MPCConfig | None = None,
+                 p=None, speed_trim: float | None = None):
+        problem = TrackingProblem(model, u_trim, config or MPCConfig(), p, speed_trim)
         self._build(problem)
         super().__init__(problem)
 
@@ -153,16 +144,14 @@ class TrackingMPC(Controller):
                             int(stats.get("iter_count", -1)), w[nx * (N + 1) + nu * N:])
 
 
-def build_controller(step: ca.Function, kind: str | Airframe, p, u_trim, config: MPCConfig,
-                     structure: ModelStructure | None = None,
-                     memory_tau: tuple[float, ...] = (),
+def build_controller(model: DiscreteModel, u_trim, config: MPCConfig, p=None,
                      speed_trim: float | None = None) -> Controller:
     """The controller of ``config.mode``: :class:`uavdyn.mpc.rti.SQPController` (``"sqp"``,
     full Gauss-Newton SQP) or :class:`uavdyn.mpc.rti.RTIController` (``"rti"``), both on the
     compiled condensed QP; arguments as for :class:`TrackingMPC` (the ``nlpsol`` reference)."""
     from uavdyn.mpc.rti import RTIController, SQPController
 
-    problem = TrackingProblem(step, kind, p, u_trim, config, structure, memory_tau, speed_trim)
+    problem = TrackingProblem(model, u_trim, config, p, speed_trim)
     return RTIController(problem) if config.mode == "rti" else SQPController(problem)
 
 
@@ -303,8 +292,8 @@ def emulator_plant(emulator, dt: float):
     return step
 
 
-def step_plant(step: ca.Function, p, dt: float):
-    """Wrap a step with position states (``physics_step(airframe, with_position=True)``:
+def step_plant(step: DiscreteModel, p, dt: float):
+    """Wrap a model with position states (``physics_step(airframe, with_position=True)``:
     ``[u, w, q, theta, x_n, h, actuator/buffer states...]``) as a ``plant_step`` for
     :func:`fly_closed_loop`: one call per MPC interval, ``[u, w, q, theta, h]`` fed back. Its
     initial state is the whole step state, e.g. ``trim_state(airframe, point, True)``."""
@@ -317,7 +306,7 @@ def step_plant(step: ca.Function, p, dt: float):
         z = np.asarray(z, float).ravel()
         if u is None:
             return z, observe(z)
-        z_next = np.array(step(z, u, p, dt)).ravel()
+        z_next = np.array(step.function(z, u, p, dt)).ravel()
         return z_next, observe(z_next)
 
     return plant
