@@ -48,7 +48,7 @@ def _rmse(err: np.ndarray) -> float:
 def score(solver: Solver, airframe, sorties) -> list[dict]:
     rows = []
     for s in sorties:
-        p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
+        p = sortie_params(airframe, s.altitude_m)
         res = evaluate_trajectory(solver, s.time, s.true_states if s.true_states is not None
                                   else s.states, s.controls, p)
         row = {"sortie": s.name, "condition": s.meta.get("condition", "") or "unknown"}

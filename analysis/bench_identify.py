@@ -33,7 +33,8 @@ import numpy as np
 from uavdyn.airframes import load_airframe
 from uavdyn.experiments.common import IDENTIFY_PARAMS
 from uavdyn.experiments.reproduce import ReproduceConfig, dataset_for
-from uavdyn.identify import free_run_sortie, identify, make_windows, predict_windows
+from uavdyn.identify import identify, make_windows, physics_windows
+from uavdyn.integrate import physics_step, sortie_free_run
 
 PARAMS = {kind: list(names) for kind, names in IDENTIFY_PARAMS.items()}  # the pipeline's lists
 ACTUATORS = {  # the transport delays each kind has in the model structure
@@ -64,8 +65,9 @@ def score(airframe, sorties) -> dict:
         target = s if s.true_states is None else dataclasses.replace(s, states=s.true_states)
         L = int(round(HORIZON_S / s.dt))
         w = make_windows([target], L)
-        horizon = (predict_windows(airframe, w, s.dt, SUBSTEPS) - w.y)[..., 3].ravel()
-        free = free_run_sortie(airframe, target, SUBSTEPS)[:, 3] - target.states[1:, 3]
+        horizon = (physics_windows(airframe, w, s.dt, SUBSTEPS) - w.y)[..., 3].ravel()
+        free = (sortie_free_run(physics_step(airframe, substeps=SUBSTEPS), target, airframe,
+                                target.dt, check=False)[1:, 3] - target.states[1:, 3])
         cond = condition(s)
         g = groups.setdefault(cond, {"horizon_1s": [], "free_run": []})
         g["horizon_1s"].append(horizon)

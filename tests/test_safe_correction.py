@@ -385,7 +385,7 @@ def chosen_state_ok(validation: dict, cfg) -> bool:
 def test_free_run_rule_counts_new_departures_and_ratios_only_where_the_physics_follows():
     """The validation free-run rule: ratios only over sorties whose physics run stayed with the
     data, a departure of the corrected run where the physics' did not always fails."""
-    from uavdyn.learned.safe import free_run_verdict
+    from uavdyn.learned.rules import free_run_verdict
 
     physics = [(0.10, False), (0.20, False), (3.0, True)]
     ok = free_run_verdict(physics, [(0.105, False), (0.15, False), (math.inf, True)], 1.1)
@@ -405,7 +405,7 @@ def test_free_run_rule_compares_errors_with_the_measurement_noise_taken_off():
     1.07x and passes 1.1; with the noise given the rule sees the 1.23x and refuses. A sortie the
     physics follows to within the noise is not scored."""
     from uavdyn.flightdata import excess_rmse
-    from uavdyn.learned.safe import free_run_verdict
+    from uavdyn.learned.rules import free_run_verdict
 
     sigma, truth_p, truth_c = 0.002, 0.0013, 0.0016
     physics = [(math.hypot(truth_p, sigma), False), (0.0019, False)]
@@ -484,7 +484,7 @@ def test_pooled_state_errors_recover_the_error_against_the_truth_from_noisy_reco
     (known): the pooled RMSE with the noise taken off equals the prediction's RMSE against the
     truth (to sampling accuracy), where the raw RMSE against the records is inflated; a
     prediction that is not finite scores inf."""
-    from uavdyn.learned.safe import pooled_state_errors
+    from uavdyn.learned.rules import pooled_state_errors
 
     rng = np.random.default_rng(3)
     W, H = 2000, 50

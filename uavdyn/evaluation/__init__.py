@@ -12,11 +12,7 @@ from uavdyn.evaluation.metrics import (
     horizon_predictions,
     pitch_rmse,
     pooled_stats,
-    predict_windows,
-    sortie_altitude,
-    sortie_free_run,
-    sortie_p,
-    step_states,
+    solver_windows,
 )
 from uavdyn.evaluation.spread import (
     PairedComparison,
@@ -28,10 +24,11 @@ from uavdyn.evaluation.spread import (
     squared_error,
 )
 from uavdyn.evaluation.timing import Timing, interleaved_timing, ratio
+from uavdyn.integrate import sortie_free_run, sortie_p, step_states
 
 __all__ = ["METRIC_STATES", "MODES", "Solver", "error_growth", "error_stats",
            "evaluate_trajectory", "fine_reference", "horizon_predictions", "pitch_rmse",
            "pooled_stats",
-           "predict_windows", "sortie_altitude", "sortie_free_run", "sortie_p", "step_states",
+           "solver_windows", "sortie_free_run", "sortie_p", "step_states",
            "PairedComparison", "PooledError", "SortieError", "compare_paired", "pooled_rmse",
            "pooled_with_interval", "squared_error", "Timing", "interleaved_timing", "ratio"]

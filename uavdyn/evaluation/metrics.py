@@ -18,23 +18,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.integrate import (
     DEPARTURE_RAD,
+    DIVERGENCE_BOUND,
     DiscreteModel,
     EvalGrid,
-    GridError,
     StepUseError,
     body_model,
     free_run,
     physics_step,
+    predict_windows,
     rk4_step,
-    rollout,
+    sortie_free_run,
+    step_states,
 )
-from uavdyn.model import ModelStructure, build_model, sortie_params, structure_of
+from uavdyn.model import ModelStructure, build_model, structure_of
 
 METRIC_STATES = {"theta": 3, "q": 2, "u": 0}
 MODES = ("one_step", "horizon_1s", "free_run")
@@ -59,38 +60,13 @@ class Solver:
         return self.model.takes_time
 
 
-def _check_delay_grid(model: DiscreteModel, grid: EvalGrid) -> None:
-    """Refuse a step with transport delays at a step size other than the log interval."""
-    if model.structure.n_buffer and (grid.substeps != 1 or grid.stride != 1):
-        raise StepUseError(
-            f"step '{model.name}' carries transport delays counted in calls of the step: use "
-            f"it at the log interval {grid.sample_dt:g} s, not {grid.dt:g} s (finer RK inside: "
-            "physics_step(..., substeps=k))")
-
-
-def step_states(model: DiscreteModel, states: np.ndarray, controls: np.ndarray, p,
-                grid: EvalGrid) -> np.ndarray:
-    """The states ``model`` runs on at every recorded sample (:meth:`DiscreteModel.
-    initial_state`: the recorded body states with the actuator, buffer and memory states the
-    recorded commands imply, at rest on the first command).
-
-    Raises
-    ------
-    StepUseError
-        If the model has transport delays and ``grid.dt`` is not the log interval.
-    """
-    _check_delay_grid(model, grid)
-    return model.initial_state(np.atleast_2d(np.asarray(states, float)), controls, p,
-                               grid.sample_dt)
-
-
 def error_stats(predicted: np.ndarray, target: np.ndarray) -> dict[str, float]:
     """RMSE, MAE and maximum absolute error of pitch, pitch rate and forward speed."""
     out = {}
     for name, i in METRIC_STATES.items():
         with np.errstate(over="ignore", invalid="ignore"):
             err = predicted[..., i] - target[..., i]
-            err = np.where(np.abs(err) < 1e100, err, np.inf)  # a diverged run is infinite
+            err = np.where(np.abs(err) <= DIVERGENCE_BOUND, err, np.inf)  # diverged: infinite
         if not np.all(np.isfinite(err)):
             out.update({f"{name}_rmse": float("inf"), f"{name}_mae": float("inf"),
                         f"{name}_max": float("inf")})
@@ -101,46 +77,25 @@ def error_stats(predicted: np.ndarray, target: np.ndarray) -> dict[str, float]:
     return out
 
 
-_window_cache: dict = {}
-
-
-def _window_function(model: DiscreteModel, n_samples: int, substeps: int, n_windows: int
-                     ) -> ca.Function:
-    """``n_windows`` independent rollouts (``map`` over the one ``mapaccum`` rollout)."""
-    step = model.function
-    key = (id(step), step.name(), n_samples, substeps, n_windows)
-    if key not in _window_cache:
-        _window_cache[key] = (step, rollout(step, n_samples, substeps).map(n_windows))
-    return _window_cache[key][1]
-
-
-def predict_windows(solver: Solver, x0s: np.ndarray, controls: np.ndarray, t0s: np.ndarray,
-                    p: np.ndarray, sample_dt: float) -> tuple[np.ndarray, int]:
-    """Roll ``solver`` from each start state ``x0s[k]`` through ``controls[k]`` (``K x L x nu``,
-    one row per log interval); ``t0s`` are the start times since the sortie start. Returns the
-    predicted states at the solver's grid points (``K x L/stride x nx``) and the stride.
-    ``x0s`` are the step's own states (augmented: :func:`step_states`)."""
+def solver_windows(solver: Solver, x0s: np.ndarray, controls: np.ndarray, t0s: np.ndarray,
+                   p: np.ndarray, sample_dt: float) -> tuple[np.ndarray, int]:
+    """:func:`uavdyn.integrate.predict_windows` of a solver on logged data: each window's
+    commands are one row per log interval (``K x L x nu``); a solver step longer than the log
+    interval samples every ``stride``-th command. Returns the predicted states at the
+    solver's grid points (``K x L/stride x nx``) and the stride. ``x0s`` are the step's own
+    states (:func:`step_states`)."""
     g = EvalGrid(sample_dt, solver.dt)
-    K, L, nu = controls.shape
-    nz = solver.model.nx
-    if np.shape(x0s)[-1] != nz:
+    K, L, _ = controls.shape
+    if np.shape(x0s)[-1] != solver.model.nx:
         raise ValueError(f"start states have {np.shape(x0s)[-1]} columns, step "
-                         f"'{solver.model.name}' has {nz} states (augment recorded states "
-                         "with step_states)")
+                         f"'{solver.model.name}' has {solver.model.nx} states (augment "
+                         "recorded states with step_states)")
     if L % g.stride:
         raise ValueError(f"window of {L} log intervals is not a multiple of the stride "
                          f"{g.stride}")
-    U = controls[:, ::g.stride, :]
-    n = U.shape[1]
-    t0s = np.asarray(t0s, float).reshape(K)
-    solver.model.check_use(solver.dt, float(t0s.min()), float(t0s.max()) + L * sample_dt)
-    F = _window_function(solver.model, n, g.substeps, K)
-    args = [np.asarray(x0s, float).T, U.reshape(K * n, nu).T, np.asarray(p, float),
-            float(solver.dt)]
-    if solver.time_input:
-        args.append(t0s.reshape(1, K))
-    out = np.asarray(F(*args))  # nx x (K*n)
-    return out.T.reshape(K, n, -1), g.stride
+    pred = predict_windows(solver.model, x0s, controls[:, ::g.stride, :], p, solver.dt,
+                           g.substeps, t0s)
+    return pred, g.stride
 
 
 def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
@@ -168,7 +123,7 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
 
     def one_step() -> None:  # one solver step from every recorded state on the solver's grid
         starts = np.arange(0, N - stride, stride)
-        pred, _ = predict_windows(solver, z[starts],
+        pred, _ = solver_windows(solver, z[starts],
                                   np.stack([controls[k:k + stride] for k in starts]),
                                   time[starts], p, sample_dt)
         results["one_step"] = (pred[:, 0, :nb], states[starts + stride])
@@ -180,7 +135,7 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
 
     def whole() -> None:  # the whole sortie from its first state
         L = (N - 1) - (N - 1) % stride
-        pred, _ = predict_windows(solver, z[:1], controls[None, :L], time[:1], p,
+        pred, _ = solver_windows(solver, z[:1], controls[None, :L], time[:1], p,
                                   sample_dt)
         idx = stride * (1 + np.arange(L // stride))
         results["free_run"] = (pred[0, :, :nb], states[idx])
@@ -211,7 +166,7 @@ def _horizon_windows(solver: Solver, z: np.ndarray, time: np.ndarray, states: np
     starts = np.arange(0, N - L, L)
     if not len(starts):
         return None
-    pred, _ = predict_windows(solver, z[starts], np.stack([controls[k:k + L] for k in starts]),
+    pred, _ = solver_windows(solver, z[starts], np.stack([controls[k:k + L] for k in starts]),
                               time[starts], p, grid.sample_dt)
     idx = starts[:, None] + grid.stride * (1 + np.arange(L // grid.stride))[None, :]
     return pred[..., :nb].reshape(-1, nb), states[idx].reshape(-1, nb), time[idx].reshape(-1)
@@ -265,57 +220,6 @@ def fine_reference(kind: str | Airframe | ModelStructure, time: np.ndarray, x0: 
     return free_run(model, z0, controls[:-1], p, sample_dt)[:, :len(x0)]
 
 
-def sortie_altitude(sortie) -> float | None:
-    """The sortie's manifest ``altitude_m`` (None if it has none)."""
-    value = sortie.meta.get("manifest_entry", {}).get("altitude_m")
-    return None if value is None else float(value)
-
-
-def sortie_p(sortie, p) -> np.ndarray:
-    """The parameter vector for ``sortie``: ``p`` itself, or for an airframe its parameters at
-    the sortie's altitude (:func:`uavdyn.model.sortie_params`, manifest ``altitude_m``)."""
-    if isinstance(p, Airframe):
-        return np.asarray(sortie_params(p, sortie_altitude(sortie)), float)
-    return np.asarray(p, float)
-
-
-def sortie_free_run(model: DiscreteModel, sortie, p, dt: float) -> np.ndarray:
-    """Free run of ``model`` through a logged sortie from its first state with its controls
-    (``dt`` must divide the sample interval; the extra states start at rest on the first
-    command): body states at the sample times, ``N x 4``. A time-dependent step sees the time
-    since the sortie start.
-
-    Parameters
-    ----------
-    model : DiscreteModel
-        The step.
-    sortie : Sortie
-        The logged flight.
-    p : array_like or Airframe
-        Parameters, or an airframe (:func:`sortie_p`).
-    dt : float
-        Step size (s).
-
-    Raises
-    ------
-    GridError
-        If ``dt`` does not divide the sample interval.
-    StepUseError
-        If the step has transport delays and ``dt`` is not the sample interval.
-    DivergenceError
-        If the run leaves the finite range.
-    """
-    sample_dt = float(np.median(np.diff(sortie.time)))
-    g = EvalGrid(sample_dt, dt)
-    if g.stride != 1:
-        raise GridError(f"dt {dt:g} s must divide the sample interval {sample_dt:g} s of "
-                        f"sortie '{sortie.name}'")
-    p = sortie_p(sortie, p)
-    z0 = step_states(model, sortie.states[:1], sortie.controls[:1], p, g)[0]
-    traj = free_run(model, z0, sortie.controls[:-1], p, dt, g.substeps, t0=0.0)
-    return traj[:, :sortie.states.shape[1]]
-
-
 def pitch_rmse(model: DiscreteModel, sorties, p, dt: float) -> float:
     """Free-run pitch RMSE (rad) over all samples of ``sorties`` (pooled); ``p`` as for
     :func:`sortie_free_run`."""
@@ -340,7 +244,7 @@ def error_growth(time: np.ndarray, predicted: np.ndarray, target: np.ndarray,
         err = np.abs(predicted[:, 3] - target[:, 3])
     bad = ~np.isfinite(err) | (err > divergence_rad)
     k_div = int(np.argmax(bad)) if bad.any() else len(err)
-    finite = np.isfinite(err) & (err < 1e100)
+    finite = np.isfinite(err) & (err <= DIVERGENCE_BOUND)
     upto = slice(0, max(k_div, 2))
     ok = finite[upto]
     t, e = (time - time[0])[upto][ok], err[upto][ok]

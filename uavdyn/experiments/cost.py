@@ -31,7 +31,6 @@ from uavdyn.evaluation import (
     fine_reference,
     interleaved_timing,
     ratio,
-    sortie_altitude,
 )
 from uavdyn.experiments.common import flight_mode, free_run_runner, refusal, target_states
 from uavdyn.flightdata import Sortie
@@ -237,7 +236,7 @@ def cost_study(nominal: Airframe, sortie: Sortie,
     x0 = truth[0]
     duration = float(time[-1] - time[0])
     mode = flight_mode(nominal.kind)
-    alt = sortie_altitude(sortie)
+    alt = sortie.altitude_m
     p_nom = sortie_params(nominal, alt)
     ref = fine_reference(nominal, time, x0, controls, p_nom)
     points: list[_Point] = []

@@ -23,7 +23,6 @@ from uavdyn.evaluation import (
     evaluate_trajectory,
     horizon_predictions,
     pooled_with_interval,
-    sortie_altitude,
     squared_error,
 )
 from uavdyn.experiments.common import (
@@ -109,7 +108,7 @@ def per_sortie_rows(rungs: list[Rung], sorties: list[Sortie], horizons_s=HORIZON
     for s in sorties:
         truth = target_states(s)
         for rung in rungs:
-            p = sortie_params(rung.airframe, sortie_altitude(s))
+            p = sortie_params(rung.airframe, s.altitude_m)
             res = evaluate_trajectory(rung.solver, s.time, truth, s.controls, p)
             if keep is not None:
                 keep[(rung.label, s.name)] = res

@@ -30,7 +30,6 @@ from uavdyn.evaluation import (
     evaluate_trajectory,
     fine_reference,
     pooled_stats,
-    sortie_altitude,
 )
 from uavdyn.experiments.common import (
     IDENTIFIED_PHYSICS,
@@ -58,7 +57,7 @@ from uavdyn.experiments.report import (
     headline_lines,
     write_report,
 )
-from uavdyn.flightdata import Dataset, Sortie, excess_rmse, load_dataset, pitch_noise_std
+from uavdyn.flightdata import Dataset, Sortie, load_dataset, pitch_noise_std
 from uavdyn.integrate import (
     cache_dir,
     physics_step,
@@ -74,6 +73,7 @@ from uavdyn.learned import (
     shipped_identified,
     shipped_weights,
 )
+from uavdyn.learned.rules import is_worse, sortie_ratio
 from uavdyn.model import sortie_params
 from uavdyn.outputs import output_folder
 
@@ -265,7 +265,7 @@ def accuracy_tables(airframe: Airframe, sorties: list[Sortie], solvers: dict,
                 res = (known or {}).get((solver.name, s.name)) if tgt == "data" else None
                 if res is None:
                     res = evaluate_trajectory(solver, s.time, states, s.controls,
-                                              sortie_params(cand.airframe, sortie_altitude(s)))
+                                              sortie_params(cand.airframe, s.altitude_m))
                 for m in MODES:
                     if m in res:
                         pairs[m].append(res[m])
@@ -402,7 +402,7 @@ def robustness_table(airframe: Airframe, ds: Dataset, rungs, config: ReproduceCo
                 if res is None:
                     res = evaluate_trajectory(rung.solver, s.time, target_states(s),
                                               s.controls, sortie_params(rung.airframe,
-                                                                        sortie_altitude(s)))
+                                                                        s.altitude_m))
                 if "free_run" not in res:  # outside what the step was trained for
                     refused = res.get("refused", {}).get("free_run", "not evaluated")
                     break
@@ -719,7 +719,7 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
             if solver.dt != 0.005:
                 continue
             runs = [evaluate_trajectory(solver, s.time, target_states(s), s.controls,
-                                        sortie_params(cand.airframe, sortie_altitude(s)))
+                                        sortie_params(cand.airframe, s.altitude_m))
                     for s in members]
             refused = next((r["refused"]["free_run"] for r in runs
                             if "free_run" not in r and "refused" in r), None)
@@ -809,7 +809,7 @@ def per_sortie_safety(candidates: list[Candidate], sorties: list[Sortie], nets: 
                     and cand.solver.name.startswith(f"hybrid {n.formulation}")), None)
         rows = []
         for s in sorties:
-            p = sortie_params(cand.airframe, sortie_altitude(s))
+            p = sortie_params(cand.airframe, s.altitude_m)
             truth = target_states(s)
             rh = evaluate_trajectory(cand.solver, s.time, truth, s.controls, p)
             rp = evaluate_trajectory(physics.solver, s.time, truth, s.controls, p)
@@ -820,12 +820,9 @@ def per_sortie_safety(candidates: list[Candidate], sorties: list[Sortie], nets: 
             for mode in ("horizon_1s", "free_run"):
                 a, b = _pitch_rmse(rp, mode), _pitch_rmse(rh, mode)
                 row[f"{mode}_physics"], row[f"{mode}_corrected"] = a, b
-                e_a = excess_rmse(a, noise) if a is not None else 0.0
-                row[f"{mode}_ratio"] = (excess_rmse(b, noise) / e_a
-                                        if e_a and b is not None and math.isfinite(e_a)
-                                        else None)
+                row[f"{mode}_ratio"] = sortie_ratio(a, b, noise)
             row["worse"] = [m for m in ("horizon_1s", "free_run")
-                            if row[f"{m}_ratio"] is not None and row[f"{m}_ratio"] > 1.0]
+                            if is_worse(row[f"{m}_ratio"])]
             if net is not None and net.envelope is not None:
                 z = cand.solver.model.initial_state(s.states, s.controls, p,
                                                     float(np.median(np.diff(s.time))))

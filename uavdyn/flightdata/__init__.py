@@ -2,7 +2,8 @@
 
 The public names of the submodules: :mod:`.sortie`, :mod:`.errors`, :mod:`.csvio` and
 :mod:`.manifest` (the interchange format), :mod:`.dataset` (loading), :mod:`.checks`,
-:mod:`.noise`, :mod:`.preprocess`, :mod:`.ulog` (PX4 ULog) and :mod:`.alfa` (ALFA folders).
+:mod:`.noise`, :mod:`.preprocess`, :mod:`.windows` (stretches restarted from a record),
+:mod:`.ulog` (PX4 ULog) and :mod:`.alfa` (ALFA folders).
 """
 
 from uavdyn.flightdata.alfa import import_alfa
@@ -15,9 +16,10 @@ from uavdyn.flightdata.noise import excess_rmse, pitch_noise_std, white_noise_st
 from uavdyn.flightdata.preprocess import Normalisation, lowpass, normalisation
 from uavdyn.flightdata.sortie import SPLIT_NAMES, Sortie, csv_columns
 from uavdyn.flightdata.ulog import import_ulog
+from uavdyn.flightdata.windows import Windows, make_windows
 
 __all__ = ["SPLIT_NAMES", "Dataset", "FlightDataError", "Normalisation", "Sortie",
            "check_kinematics", "check_values", "csv_columns", "excess_rmse", "export",
            "kinematic_residual", "load_dataset", "lowpass", "normalisation", "pitch_noise_std",
            "read_csv", "read_manifest", "white_noise_std", "write_csv", "write_manifest",
-           "import_alfa", "import_ulog"]
+           "import_alfa", "import_ulog", "Windows", "make_windows"]

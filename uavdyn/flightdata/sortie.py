@@ -45,6 +45,14 @@ class Sortie:
         return float(self.time[-1] - self.time[0])
 
     @property
+    def altitude_m(self) -> float | None:
+        """The sortie's altitude for the standard atmosphere (manifest ``altitude_m``; None if
+        the data do not give one)."""
+        entry = self.meta.get("manifest_entry", {}) or {}
+        value = entry.get("altitude_m", self.meta.get("altitude_m"))
+        return None if value is None else float(value)
+
+    @property
     def split(self) -> str:
         """``train``/``validation``/``test`` as recorded in the manifest ('' if none)."""
         return str(self.meta.get("split", ""))

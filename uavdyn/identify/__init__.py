@@ -12,8 +12,8 @@ from uavdyn.identify.output_error import (
     measurement_noise,
 )
 from uavdyn.identify.report import airframe_toml, write_outputs
-from uavdyn.identify.windows import Windows, free_run_sortie, make_windows, predict_windows
+from uavdyn.identify.windows import Windows, make_windows, physics_windows
 
 __all__ = ["Estimate", "IdentificationResult", "IdentifyError", "Windows", "identify",
-           "make_windows", "measurement_noise", "predict_windows", "free_run_sortie",
+           "make_windows", "measurement_noise", "physics_windows",
            "airframe_toml", "write_outputs"]

@@ -52,7 +52,13 @@ from uavdyn.identify.unknowns import (
     control_names,
     scaled_unknowns,
 )
-from uavdyn.identify.windows import N_BODY, Windows, make_windows, predict_windows
+from uavdyn.identify.windows import (
+    N_BODY,
+    Windows,
+    make_windows,
+    physics_windows,
+    window_density_ratios,
+)
 from uavdyn.integrate import EvalGrid
 from uavdyn.model import LAG_PARAMS, ModelStructure, structure_of
 
@@ -256,7 +262,7 @@ def _nominal_weights(airframe: Airframe, windows: Windows, interval: float, subs
                      ) -> np.ndarray:
     """State weights: the nominal model's residual RMS per state (puts every state on one
     scale)."""
-    resid0 = (predict_windows(airframe, windows, interval, substeps)
+    resid0 = (physics_windows(airframe, windows, interval, substeps)
               - windows.y).reshape(-1, N_BODY)
     with np.errstate(all="ignore"):
         rms0 = np.sqrt(np.nanmean(np.where(np.abs(resid0) < 1e6, resid0, np.nan)**2, axis=0))
@@ -284,7 +290,7 @@ def _prepare(airframe: Airframe, train: list[Sortie], continuous: list[str],
     unknowns = scaled_unknowns(airframe, continuous, relative_bound)
     rho_index = airframe.param_names.index("rho") if airframe.atmosphere == "isa" else None
     fit = _Fit(airframe, continuous, searched, structure, w_train, L, interval, S, stride,
-               unknowns, rho_index, w_train.density_ratios(airframe),
+               unknowns, rho_index, window_density_ratios(w_train, airframe),
                measurement_noise(train)[:N_BODY], weights, weights, estimate_x0)
     tau_top = max([0.0, *fit.taus_of(unknowns.theta0)])  # extended after the fit if longer
     fit.new_problem(_preroll_samples(tau_top, interval) if structure.n_actuator else 0)
@@ -450,7 +456,7 @@ def _fit_summary(nominal: Airframe, fitted: Airframe, sorties: list[Sortie], int
             continue  # a sortie shorter than one window
         row = {"sortie": s.name, "condition": s.meta.get("condition", "")}
         for label, af in (("nominal", nominal), ("identified", fitted)):
-            err = predict_windows(af, w, interval, substeps)[..., 3] - w.y[..., 3]
+            err = physics_windows(af, w, interval, substeps)[..., 3] - w.y[..., 3]
             with np.errstate(all="ignore"):
                 value = float(np.sqrt(np.mean(err**2)))
             row[f"theta_rmse_{label}"] = value if math.isfinite(value) else math.inf

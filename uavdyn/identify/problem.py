@@ -10,7 +10,13 @@ import casadi as ca
 import numpy as np
 from tqdm import tqdm
 
-from uavdyn.identify.windows import N_BODY, Windows, window_function
+from uavdyn.identify.windows import (
+    N_BODY,
+    Windows,
+    window_commands,
+    window_function,
+    window_preroll,
+)
 from uavdyn.integrate import compile_function, find_compiler
 from uavdyn.integrate.augmented import physics_function
 from uavdyn.model import ModelStructure
@@ -84,9 +90,9 @@ class _Problem:
              ) -> np.ndarray:
         """The data vector for the windows with the commands delayed by ``delays``."""
         W, L, M = self.W, self.L, self.M
-        v = windows.preroll(M, delays, structure.lag_indices) if self.n_lag else None
+        v = window_preroll(windows, M, delays, structure.lag_indices) if self.n_lag else None
         blocks = {
-            "x0": windows.x0.T, "u": windows.controls(delays).reshape(W * L, -1).T,
+            "x0": windows.x0.T, "u": window_commands(windows, delays).reshape(W * L, -1).T,
             "v": v.reshape(W * M, -1).T if v is not None else np.zeros((0, 0)),
             "y": windows.y.reshape(W * L, -1).T, "ratio": ratios[None, :],
             "weights": weights[:, None], "noise": noise[:, None], "p_ref": p_ref[:, None],

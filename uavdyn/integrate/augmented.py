@@ -51,10 +51,17 @@ def _shift_buffers(structure: ModelStructure, buffers: list, u) -> tuple[list, l
     return delayed, new_buffers
 
 
+def lag_toward(value, command, decay):
+    """The exact first-order lag over an interval with the command held: ``value`` moves to
+    ``command`` by the factor ``decay = exp(-interval / tau)`` (any ``ops`` type). The one
+    formula of every lag: actuators, command memory, identification's pre-roll."""
+    return command + (value - command) * decay
+
+
 def _lagged(structure: ModelStructure, a0: list, delayed: list, p, s, ops) -> list:
     """Each actuator ``s`` seconds into the call, following its (delayed) command exactly; a
     time constant at 0 (a lag about to be fitted) jumps: ``exp(-s/0+) = 0``."""
-    return [delayed[c] + (a - delayed[c]) * ops.exp(-s / ops.fmax(p[i], TAU_FLOOR))
+    return [lag_toward(a, delayed[c], ops.exp(-s / ops.fmax(p[i], TAU_FLOOR)))
             for a, c, i in zip(a0, structure.lag_indices, structure.tau_indices)]
 
 
@@ -155,9 +162,7 @@ def memory_update(memory: list, u, taus: tuple[float, ...], dt, ops) -> list:
     nu = len(memory) // max(1, len(taus)) if taus else 0
     for j, tau in enumerate(taus):
         decay = math.exp(-dt / tau) if isinstance(dt, (int, float)) else ops.exp(-dt / tau)
-        for c in range(nu):
-            m = memory[j * nu + c]
-            out.append(u[c] + (m - u[c]) * decay)
+        out += [lag_toward(memory[j * nu + c], u[c], decay) for c in range(nu)]
     return out
 
 
@@ -170,13 +175,18 @@ def actuator_rest(structure: ModelStructure, u) -> np.ndarray:
                     dtype=float)
 
 
-def advance_actuators(structure: ModelStructure, states, u, p, dt: float) -> np.ndarray:
-    """The actuator and delay-buffer states one call of the step later, the command ``u``
-    given over it (NumPy; what the step does to them: they do not depend on the body)."""
-    states = list(np.asarray(states, float).ravel())
-    u = np.asarray(u, float).ravel()
+def advance_actuators_ops(structure: ModelStructure, states: list, u, p, dt, ops) -> list:
+    """The actuator and delay-buffer states (a list of rows) one call of the step later, the
+    command ``u`` given over it (what the step does to them: they do not depend on the
+    body), in any ``ops``."""
     n_act = structure.n_actuator
     delayed, new_buffers = _shift_buffers(structure, states[n_act:], u)
-    a_next = _lagged(structure, states[:n_act], delayed, p, dt, NUMPY_OPS)
-    return np.array([*a_next, *new_buffers], dtype=float)
+    return [*_lagged(structure, states[:n_act], delayed, p, dt, ops), *new_buffers]
+
+
+def advance_actuators(structure: ModelStructure, states, u, p, dt: float) -> np.ndarray:
+    """:func:`advance_actuators_ops` in NumPy on an array of states."""
+    states = list(np.asarray(states, float).ravel())
+    u = np.asarray(u, float).ravel()
+    return np.array(advance_actuators_ops(structure, states, u, p, dt, NUMPY_OPS), dtype=float)
 

@@ -15,14 +15,19 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from uavdyn.airframes import Airframe
 from uavdyn.integrate.codegen import compile_function
-from uavdyn.integrate.discrete import DiscreteModel, model_function
+from uavdyn.integrate.discrete import DiscreteModel, StepUseError, model_function
+from uavdyn.model import sortie_params
 
 
 class GridError(ValueError):
     """A solver step does not fit the sample interval of the data."""
 
 
+# A state beyond this magnitude (or not finite) has diverged (SPEC section 9): every rollout
+# of the library (free runs, Monte-Carlo runs) reports it with its time.
+DIVERGENCE_BOUND = 1e6
 # Pitch error (rad) past which a free run has left the data: its error says nothing any more
 # (the evaluation's divergence flag, the trainer's free-run guard, the report's departures).
 DEPARTURE_RAD = 0.5
@@ -144,8 +149,68 @@ def rollout(step: DiscreteModel | ca.Function, n_samples: int, substeps: int = 1
     return ca.Function(name, inputs, [Z[:nx, :]], names, ["x"])
 
 
+_WINDOW_FUNCTIONS: dict = {}
+
+
+def window_rollouts(step: DiscreteModel | ca.Function, n_samples: int, substeps: int = 1,
+                    n_windows: int = 1, threads: int = 1) -> ca.Function:
+    """``n_windows`` independent rollouts of ``n_samples`` intervals (``map`` of the one
+    ``mapaccum`` :func:`rollout`, over ``threads`` threads): inputs ``(x0[nx x W],
+    u[nu x W*N], p[np x W or 1], dt[, t0[1 x W]])``, output ``x[nx x W*N]``. Built once per
+    step and shape in a process."""
+    function = model_function(step)
+    key = (id(function), function.name(), n_samples, substeps, n_windows, threads)
+    if key not in _WINDOW_FUNCTIONS:
+        sim = rollout(function, n_samples, substeps)
+        mapped = sim.map(n_windows, "thread", threads) if threads > 1 else sim.map(n_windows)
+        _WINDOW_FUNCTIONS[key] = (function, mapped)  # the step is kept: its id stays its own
+    return _WINDOW_FUNCTIONS[key][1]
+
+
+def predict_windows(step: DiscreteModel | ca.Function, z0s, controls, p, dt: float,
+                    substeps: int = 1, t0s=None, threads: int = 1) -> np.ndarray:
+    """Windowed prediction: the step restarted from each start state and rolled through its
+    window's commands.
+
+    Parameters
+    ----------
+    step : DiscreteModel or casadi.Function
+        The step (a model is refused outside its step size and time range).
+    z0s : array_like, shape (W, nx)
+        The step's state at each window start.
+    controls : array_like, shape (W, L, nu)
+        Commands, row k held over interval k of the window.
+    p : array_like, shape (np,) or (W, np)
+        Parameters, shared or per window.
+    dt : float
+        Step size (s); each interval is ``substeps`` steps.
+    t0s : array_like, shape (W,), optional
+        Start times since the sortie start (a time-dependent step needs them).
+    threads : int
+        CasADi ``thread`` map over the windows.
+
+    Returns
+    -------
+    ndarray, shape (W, L, nx)
+        The states at the end of each interval (not finite where a window diverged).
+    """
+    controls = np.asarray(controls, float)
+    W, L, nu = controls.shape
+    t0s = np.zeros(W) if t0s is None else np.asarray(t0s, float).reshape(W)
+    check_use(step, dt, float(t0s.min()), float(t0s.max()) + L * substeps * dt)
+    F = window_rollouts(step, L, substeps, W, threads)
+    p = np.asarray(p, float)
+    args = [np.asarray(z0s, float).T, controls.reshape(W * L, nu).T,
+            p.T if p.ndim == 2 else p, float(dt)]
+    if takes_time(step):
+        args.append(t0s.reshape(1, W))
+    with np.errstate(all="ignore"):
+        out = np.asarray(F(*args))
+    return out.T.reshape(W, L, -1)
+
+
 def check_finite(traj: np.ndarray, time: np.ndarray, what: str = "rollout",
-                 bound: float = 1e6) -> None:
+                 bound: float = DIVERGENCE_BOUND) -> None:
     """Raise :class:`DivergenceError` at the first non-finite (or ``|x| > bound``) sample."""
     bad = ~np.all(np.isfinite(traj) & (np.abs(traj) <= bound), axis=1)
     if bad.any():
@@ -192,6 +257,95 @@ def free_run(step: DiscreteModel | ca.Function, x0, controls, p, dt: float, subs
     if check:
         check_finite(traj, t0 + substeps * dt * np.arange(len(traj)), "free run")
     return traj
+
+
+def check_delay_grid(model: DiscreteModel, grid: EvalGrid) -> None:
+    """Refuse a step with transport delays at a step size other than the log interval (its
+    delays count calls of the step).
+
+    Raises
+    ------
+    StepUseError
+        Naming the step, the log interval and the step size.
+    """
+    if model.structure.n_buffer and (grid.substeps != 1 or grid.stride != 1):
+        raise StepUseError(
+            f"step '{model.name}' carries transport delays counted in calls of the step: use "
+            f"it at the log interval {grid.sample_dt:g} s, not {grid.dt:g} s (finer RK inside: "
+            "physics_step(..., substeps=k))")
+
+
+def step_states(model: DiscreteModel, states: np.ndarray, controls: np.ndarray, p,
+                grid: EvalGrid) -> np.ndarray:
+    """The states ``model`` runs on at every recorded sample (:meth:`DiscreteModel.
+    initial_state`: the recorded body states with the actuator, buffer and memory states the
+    recorded commands imply, at rest on the first command).
+
+    Raises
+    ------
+    StepUseError
+        If the model has transport delays and ``grid.dt`` is not the log interval.
+    """
+    check_delay_grid(model, grid)
+    return model.initial_state(np.atleast_2d(np.asarray(states, float)), controls, p,
+                               grid.sample_dt)
+
+
+def sortie_p(sortie, p) -> np.ndarray:
+    """The parameter vector for ``sortie``: ``p`` itself, or for an airframe its parameters at
+    the sortie's altitude (:func:`uavdyn.model.sortie_params`, manifest ``altitude_m``)."""
+    if isinstance(p, Airframe):
+        return np.asarray(sortie_params(p, sortie.altitude_m), float)
+    return np.asarray(p, float)
+
+
+def sortie_free_run(model: DiscreteModel, sortie, p, dt: float, body0=None,
+                    check: bool = True) -> np.ndarray:
+    """The free run of a logged sortie: ``model`` replays the sortie's commands open loop
+    from its first state (``dt`` must divide the sample interval; the extra states start at
+    rest on the first command). A time-dependent step sees the time since the sortie start.
+
+    Parameters
+    ----------
+    model : DiscreteModel
+        The step.
+    sortie : Sortie
+        The logged flight (``time``, ``states``, ``controls``, ``altitude_m``).
+    p : array_like or Airframe
+        Parameters, or an airframe (:func:`sortie_p`).
+    dt : float
+        Step size (s).
+    body0 : array_like, optional
+        The body state to start from (default the first record, e.g. a fitted start:
+        :func:`estimate_start`).
+    check : bool
+        Raise :class:`DivergenceError` on a non-finite or exploding state (else return it).
+
+    Returns
+    -------
+    ndarray, shape (N, 4)
+        Body states at the sample times, the start first.
+
+    Raises
+    ------
+    GridError
+        If ``dt`` does not divide the sample interval.
+    StepUseError
+        If the step has transport delays and ``dt`` is not the sample interval.
+    DivergenceError
+        If the run leaves the finite range (with ``check``).
+    """
+    sample_dt = float(np.median(np.diff(sortie.time)))
+    g = EvalGrid(sample_dt, dt)
+    if g.stride != 1:
+        raise GridError(f"dt {dt:g} s must divide the sample interval {sample_dt:g} s of "
+                        f"sortie '{sortie.name}'")
+    p = sortie_p(sortie, p)
+    start = sortie.states[:1] if body0 is None else np.asarray(body0, float).reshape(1, -1)
+    z0 = step_states(model, start, sortie.controls[:1], p, g)[0]
+    traj = free_run(model, z0, sortie.controls[:-1], p, dt, g.substeps, t0=0.0,
+                    compile=not model.function.is_a("External"), check=check)
+    return traj[:, :sortie.states.shape[1]]
 
 
 def estimate_start(step: DiscreteModel | ca.Function, z0, controls, observed, p, dt: float, scale,

@@ -22,20 +22,27 @@ import torch
 from tqdm import tqdm
 
 from uavdyn.airframes import Airframe
-from uavdyn.flightdata import Sortie, excess_rmse, pitch_noise_std, white_noise_std
+from uavdyn.flightdata import Sortie
 from uavdyn.integrate import (
-    DEPARTURE_RAD,
     DiscreteModel,
     StateLayout,
     compile_function,
     estimate_start,
-    free_run,
     physics_step,
     rollout,
+    sortie_free_run,
 )
 from uavdyn.learned.envelope import Envelope
 from uavdyn.learned.formulations import CorrectionLayout
 from uavdyn.learned.hybrid import correction_structure, hybrid_step
+from uavdyn.learned.rules import (
+    departed,
+    free_run_verdict,
+    pooled_state_errors,
+    sortie_ratio,
+    summarise_ratios,
+)
+from uavdyn.learned.rules import state_noise as sortie_state_noise
 from uavdyn.learned.stability import (
     DEFAULT_MARGIN,
     StabilityReport,
@@ -135,7 +142,7 @@ def _windows(airframe: Airframe, layout: CorrectionLayout, sorties: list[Sortie]
              H: int, stride: int, sample_dt: float, physics_sim) -> _Windows:
     z0, us, ys, ps, inputs, which = [], [], [], [], [], []
     for i, s in enumerate(sorties):
-        p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
+        p = sortie_params(airframe, s.altitude_m)
         z = StateLayout(layout.structure, layout.memory_tau).states(s.states, s.controls, p,
                                                                     sample_dt)
         inputs.append(np.hstack([z, s.controls]))
@@ -176,91 +183,36 @@ def _theta_rmse(pred: np.ndarray, y: np.ndarray, H: int) -> float:
 def _free_run_errors(model: DiscreteModel, sorties: list[Sortie], airframe: Airframe,
                      sample_dt: float, body_starts: list[np.ndarray]
                      ) -> list[tuple[float, bool]]:
-    """Per sortie: pitch RMSE of the open-loop replay of its commands from ``body_starts[i]``
-    (the model's other states at rest on the first recorded command), and whether the pitch
-    error ever passed :data:`uavdyn.integrate.DEPARTURE_RAD` (or the state stopped being
-    finite)."""
+    """Per sortie: pitch RMSE of its free run (:func:`uavdyn.integrate.sortie_free_run`) from
+    ``body_starts[i]``, and whether it departed from the data
+    (:func:`uavdyn.learned.rules.departed`)."""
     out = []
     for s, body in zip(sorties, body_starts):
-        p = sortie_params(airframe, s.meta.get("manifest_entry", {}).get("altitude_m"))
-        z0 = model.initial_state(np.asarray(body, float), s.controls[:1], p, sample_dt)
-        traj = free_run(model, z0, s.controls[:-1], p, sample_dt, compile=False, check=False)
+        traj = sortie_free_run(model, s, airframe, sample_dt, body0=body, check=False)
         with np.errstate(all="ignore"):
             err = np.abs(traj[:, THETA] - s.states[:, THETA])
-            departed = bool(np.any(~np.isfinite(err) | (err > DEPARTURE_RAD)))
             rmse = float(np.sqrt(np.mean(err**2))) if np.all(np.isfinite(err)) else math.inf
-        out.append((rmse, departed))
+        out.append((rmse, departed(traj[:, THETA], s.states[:, THETA])))
     return out
 
 
 START_FIT_S = 1.0  # the free-run guard fits each run's start to this much of the sortie
 
 
-def pooled_state_errors(pred: np.ndarray, records: np.ndarray, noise: np.ndarray
-                        ) -> np.ndarray:
-    """Pooled RMSE of each body state of windowed predictions against noisy records, with the
-    records' white noise taken off (:func:`uavdyn.flightdata.excess_rmse`).
-
-    Parameters
-    ----------
-    pred, records : ndarray, shape (W, H, 4)
-        Predicted and recorded ``u, w, q, theta`` over W windows of H samples.
-    noise : ndarray, shape (W, 4)
-        Standard deviation of each window's measurement noise per state (its sortie's).
-
-    Returns
-    -------
-    ndarray, shape (4,)
-        The RMSE the truth would show (inf where the prediction is not finite).
-    """
-    with np.errstate(over="ignore", invalid="ignore"):
-        mse = np.mean((pred - records) ** 2, axis=(0, 1))
-    noise_var = np.mean(np.asarray(noise, float) ** 2, axis=0)
-    return np.array([excess_rmse(math.sqrt(m), math.sqrt(v)) if math.isfinite(m)
-                     else math.inf for m, v in zip(mse, noise_var)])
-
-
-def _state_noise(sortie: Sortie) -> np.ndarray:
-    """The white measurement noise of a sortie's body states ``u, w, q, theta`` from its
-    records alone (pitch: the kinematic estimate; u, w, q: the second-difference one)."""
-    return np.array([white_noise_std(sortie.states[:, i]) for i in range(3)]
-                    + [pitch_noise_std(sortie.time, sortie.states)])
-
-
 def _fitted_start(phys: DiscreteModel, sortie: Sortie, airframe: Airframe, sample_dt: float,
                   noise: np.ndarray) -> np.ndarray:
     """Body states to start a validation free run from: fitted through the physics to the
     first :data:`START_FIT_S` of records (:func:`uavdyn.integrate.estimate_start`), each state
-    weighted by its ``noise`` (:func:`_state_noise`). Both the physics' run and the corrected
-    one start there, so neither inherits the noise of the first sample, which would add an
-    error common to both and pull their ratio to 1."""
-    p = sortie_params(airframe, sortie.meta.get("manifest_entry", {}).get("altitude_m"))
+    weighted by its ``noise`` (:func:`uavdyn.learned.rules.state_noise`). Both the physics'
+    run and the corrected one start there, so neither inherits the noise of the first sample,
+    which would add an error common to both and pull their ratio to 1."""
+    p = sortie_params(airframe, sortie.altitude_m)
     z0 = phys.initial_state(sortie.states[0], sortie.controls[:1], p, sample_dt)
     n = max(1, min(len(sortie.time) - 1, int(round(START_FIT_S / sample_dt))))
     spread = np.std(sortie.states[:n + 1, :4], axis=0)
     scale = np.maximum(noise, 1e-6 * (1.0 + spread))
     return estimate_start(phys, z0, sortie.controls[:n], sortie.states[:n + 1], p, sample_dt,
                           scale)[:4]
-
-
-def free_run_verdict(physics: list[tuple[float, bool]], corrected: list[tuple[float, bool]],
-                     worst_ratio: float, noise_std: list[float] | None = None) -> dict:
-    """The free-run rule over validation sorties: no corrected run departs where the physics'
-    did not, and where the physics' stayed with the data the corrected pitch RMSE is at most
-    ``worst_ratio`` times the physics'. Sorties where the physics departed only count for
-    departures (their RMSE says nothing). With ``noise_std`` (per sortie, rad), the RMSEs are
-    compared after the measurement noise is taken off (:func:`uavdyn.flightdata.excess_rmse`);
-    a sortie the physics follows to within the noise is not scored."""
-    noise = noise_std if noise_std is not None else [0.0] * len(physics)
-    excess = [(excess_rmse(p[0], n), excess_rmse(c[0], n))
-              for p, c, n in zip(physics, corrected, noise)]
-    ratios = [e_c / e_p for p, c, (e_p, e_c) in zip(physics, corrected, excess)
-              if not p[1] and e_p > 0 and not c[1]]
-    new_departures = sum(1 for p, c in zip(physics, corrected) if c[1] and not p[1])
-    worst = max(ratios) if ratios else None
-    return {"free_run_worst": worst, "free_run_new_departures": new_departures,
-            "free_run_scored": len(ratios),
-            "free_run_ok": new_departures == 0 and (worst is None or worst <= worst_ratio)}
 
 
 def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
@@ -374,20 +326,19 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     # per-sortie and per-state ratios compare errors against the truth: each sortie's state
     # noise (estimated from its own records) is taken off (excess_rmse); the pooled pitch RMSE
     # stays as measured
-    state_noise = np.array([_state_noise(s) for s in val_sorties])     # (n_val, 4)
+    state_noise = np.array([sortie_state_noise(s) for s in val_sorties])     # (n_val, 4)
     noise = [float(n) for n in state_noise[:, THETA]]
 
     def state_errors(pred: np.ndarray) -> np.ndarray:
         return pooled_state_errors(pred, va.y[:, :H_sel, :4], state_noise[va.sortie])
 
-    def sortie_error(err: np.ndarray, i: int) -> float:
-        """Validation sortie ``i``'s pitch RMSE over its windows, its noise taken off."""
-        return excess_rmse(math.sqrt(float(np.mean(err[va.sortie == i]))), noise[i])
+    def sortie_rmse(err: np.ndarray, i: int) -> float | None:
+        """Validation sortie ``i``'s pitch RMSE over its windows (None: no window)."""
+        mine = err[va.sortie == i]
+        return math.sqrt(float(np.mean(mine))) if len(mine) else None
 
     err_val = (va.physics[:, :H_sel, THETA] - va.y[:, :H_sel, THETA]) ** 2
-    phys_sortie = np.array([sortie_error(err_val, i) if np.any(va.sortie == i) else math.nan
-                            for i in range(n_val)])
-    scored = np.isfinite(phys_sortie) & (phys_sortie > 0)
+    phys_sortie = [sortie_rmse(err_val, i) for i in range(n_val)]
 
     phys_states = state_errors(va.physics[:, :H_sel])
     phys_states = np.where(phys_states > 0, phys_states, np.inf)
@@ -405,19 +356,16 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         with np.errstate(over="ignore", invalid="ignore"):
             states = state_errors(pred)
             state_ratios = states / phys_states
-            ratios = np.array([sortie_error(err, i) / phys_sortie[i] if scored[i] else math.nan
-                               for i in range(n_val)])
-            r = ratios[scored]
-            geo = float(np.exp(np.mean(np.log(r)))) if len(r) else math.inf
-            worst = float(np.max(r)) if len(r) else math.inf
-        finite = math.isfinite(geo) and math.isfinite(worst)
+            ratios = [sortie_ratio(phys_sortie[i], sortie_rmse(err, i), noise[i])
+                      for i in range(n_val)]
+        summary = summarise_ratios(ratios)
         worst_state = float(np.max(state_ratios))
         return {"val_theta_rmse": float(np.sqrt(np.mean(err))),
                 "val_state_ratios": [float(v) for v in state_ratios],
                 "val_state_ratio_worst": worst_state if math.isfinite(worst_state) else math.inf,
-                "val_ratio_geomean": geo if finite else math.inf,
-                "val_ratio_worst": worst if finite else math.inf,
-                "val_sortie_ratios": [None if not math.isfinite(v) else float(v)
+                "val_ratio_geomean": summary.geomean,
+                "val_ratio_worst": summary.worst,
+                "val_sortie_ratios": [None if v is None or not math.isfinite(v) else float(v)
                                       for v in ratios]}
 
     def rank(sel: dict) -> tuple:

@@ -28,7 +28,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import Airframe, param_names
-from uavdyn.integrate import augmented_rk_step, compile_function
+from uavdyn.integrate import DIVERGENCE_BOUND, augmented_rk_step, compile_function
 from uavdyn.learned.weights import CorrectionNet
 from uavdyn.model import CASADI_OPS, ModelStructure, body_forces, build_model, rigid_body_rates
 
@@ -39,7 +39,6 @@ STAT_NAMES = ("max_abs_pitch", "max_alpha", "min_airspeed", "max_load_factor",
               "time_load_over", "t_diverged")
 N_LIMITS = 4  # pitch (rad), alpha (rad), airspeed minimum (m/s), load factor maximum
 N_GUST = 3
-DIVERGENCE_BOUND = 1e6  # as uavdyn.integrate.check_finite
 
 
 def gust_step(structure: ModelStructure, net: CorrectionNet | None = None,

@@ -1,0 +1,140 @@
+"""The rules a correction is judged by against the physics it sits on, torch-free: one
+definition each, shared by the safe trainer (which refuses a correction that breaks them) and
+``uavdyn evaluate`` (which reports where one does). They live here, not in ``evaluation``,
+because the arrows point from ``learned`` to ``evaluation`` (SPEC section 1) and the trainer
+needs them.
+
+Errors against recorded (noisy) data are compared with each sortie's measurement noise taken
+off (:func:`uavdyn.flightdata.excess_rmse`): noise adds the same amount to every model's error
+and pulls a ratio towards 1, hiding a correction that is really worse.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from uavdyn.flightdata import Sortie, excess_rmse, pitch_noise_std, white_noise_std
+from uavdyn.integrate import DEPARTURE_RAD
+
+WORSE_THAN = 1.0  # a ratio above this: the correction is worse on that sortie
+
+
+def sortie_ratio(physics_rmse: float | None, corrected_rmse: float | None,
+                 noise_std: float = 0.0) -> float | None:
+    """The corrected / physics ratio of one sortie's errors, the sortie's noise taken off
+    both; None where it cannot be scored (a missing error, or physics within the noise).
+
+    Parameters
+    ----------
+    physics_rmse, corrected_rmse : float or None
+        RMSE of each model against the sortie's records (inf for a diverged run).
+    noise_std : float
+        Standard deviation of the records' measurement noise (0: records are the truth).
+    """
+    if physics_rmse is None or corrected_rmse is None:
+        return None
+    if math.isnan(corrected_rmse):  # a prediction that stopped being a number is worst
+        corrected_rmse = math.inf
+    e_p = excess_rmse(physics_rmse, noise_std)
+    if not (e_p > 0 and math.isfinite(e_p)):
+        return None
+    return excess_rmse(corrected_rmse, noise_std) / e_p
+
+
+def is_worse(ratio: float | None, limit: float = WORSE_THAN) -> bool:
+    """Whether a sortie's ratio (:func:`sortie_ratio`) says the correction is worse there."""
+    return ratio is not None and ratio > limit
+
+
+@dataclass(frozen=True)
+class RatioSummary:
+    """Per-sortie ratios summarised: their geometric mean (what selects a correction), the
+    worst one (what guards it) and how many sorties were scored."""
+
+    geomean: float
+    worst: float
+    scored: int
+
+
+def summarise_ratios(ratios) -> RatioSummary:
+    """:class:`RatioSummary` of the scored ratios (None and NaN are unscored); inf for both
+    figures if none was scored or one is not finite."""
+    r = np.array([v for v in ratios if v is not None and not math.isnan(v)], float)
+    if not len(r) or not np.all(np.isfinite(r)):
+        return RatioSummary(math.inf, math.inf, len(r))
+    return RatioSummary(float(np.exp(np.mean(np.log(r)))), float(np.max(r)), len(r))
+
+
+def state_noise(sortie: Sortie) -> np.ndarray:
+    """The white measurement noise of a sortie's body states ``u, w, q, theta`` from its
+    records alone (pitch: the kinematic estimate; u, w, q: the second-difference one)."""
+    return np.array([white_noise_std(sortie.states[:, i]) for i in range(3)]
+                    + [pitch_noise_std(sortie.time, sortie.states)])
+
+
+def pooled_state_errors(pred: np.ndarray, records: np.ndarray, noise: np.ndarray
+                        ) -> np.ndarray:
+    """Pooled RMSE of each body state of windowed predictions against noisy records, with the
+    records' white noise taken off (:func:`uavdyn.flightdata.excess_rmse`).
+
+    Parameters
+    ----------
+    pred, records : ndarray, shape (W, H, 4)
+        Predicted and recorded ``u, w, q, theta`` over W windows of H samples.
+    noise : ndarray, shape (W, 4)
+        Standard deviation of each window's measurement noise per state (its sortie's).
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        The RMSE the truth would show (inf where the prediction is not finite).
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        mse = np.mean((pred - records) ** 2, axis=(0, 1))
+    noise_var = np.mean(np.asarray(noise, float) ** 2, axis=0)
+    return np.array([excess_rmse(math.sqrt(m), math.sqrt(v)) if math.isfinite(m)
+                     else math.inf for m, v in zip(mse, noise_var)])
+
+
+def departed(predicted_pitch: np.ndarray, recorded_pitch: np.ndarray) -> bool:
+    """Whether a free run left the data: its pitch error passed :data:`DEPARTURE_RAD` or its
+    state stopped being finite (after that its error says nothing)."""
+    with np.errstate(all="ignore"):
+        err = np.abs(np.asarray(predicted_pitch) - np.asarray(recorded_pitch))
+        return bool(np.any(~np.isfinite(err) | (err > DEPARTURE_RAD)))
+
+
+def free_run_verdict(physics: list[tuple[float, bool]], corrected: list[tuple[float, bool]],
+                     worst_ratio: float, noise_std: list[float] | None = None) -> dict:
+    """The free-run rule over sorties: no corrected run departs where the physics' did not,
+    and where the physics' stayed with the data the corrected pitch RMSE is at most
+    ``worst_ratio`` times the physics' (:func:`sortie_ratio`). Sorties where the physics
+    departed only count for departures (their RMSE says nothing); a sortie the physics
+    follows to within the noise is not scored.
+
+    Parameters
+    ----------
+    physics, corrected : list of (float, bool)
+        Per sortie: pitch RMSE of the free run and whether it departed (:func:`departed`).
+    worst_ratio : float
+        The largest ratio allowed on any scored sortie.
+    noise_std : list of float, optional
+        Per sortie pitch noise (rad) taken off both RMSEs.
+
+    Returns
+    -------
+    dict
+        ``free_run_worst``, ``free_run_new_departures``, ``free_run_scored``, ``free_run_ok``.
+    """
+    noise = noise_std if noise_std is not None else [0.0] * len(physics)
+    ratios = [sortie_ratio(p[0], c[0], n) for p, c, n in zip(physics, corrected, noise)
+              if not p[1] and not c[1]]
+    ratios = [r for r in ratios if r is not None]
+    new_departures = sum(1 for p, c in zip(physics, corrected) if c[1] and not p[1])
+    worst = max(ratios) if ratios else None
+    return {"free_run_worst": worst, "free_run_new_departures": new_departures,
+            "free_run_scored": len(ratios),
+            "free_run_ok": new_departures == 0 and (worst is None or worst <= worst_ratio)}
