@@ -1,0 +1,187 @@
+"""The discrete model object: what it says about its state matches what its Function does,
+it starts from logged data by the exact lag formula, its Jacobians are the finite differences
+of its step, and the same object goes into free runs, the MPC, Monte Carlo and the C bundle."""
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+import uavdyn
+from uavdyn.deploy import export_bundle, model_bundle_spec
+from uavdyn.evaluation import Solver
+from uavdyn.integrate import DiscreteModel, StepUseError, StepUseWarning, find_compiler
+from uavdyn.learned import load_weights, shipped_correction, shipped_identified
+from uavdyn.montecarlo import MonteCarloError, build_spec, load_dispersions, run_study
+from uavdyn.mpc import MPCConfig, build_controller
+
+DT = 0.01
+
+
+@pytest.fixture(scope="module")
+def identified():
+    return shipped_identified("aerosonde")
+
+
+@pytest.fixture(scope="module")
+def safe():
+    weights, airframe = shipped_correction("aerosonde")
+    return uavdyn.hybrid_step(weights, airframe, compile=False), load_weights(weights, airframe)
+
+
+def test_physics_step_of_a_lagged_airframe_names_its_actuator_states(identified):
+    """The shipped identified Aerosonde has an elevator and a throttle lag: the model carries
+    both, after the body states, and its Function has exactly that many states."""
+    assert identified.params.tau_elevator > 0 and identified.params.tau_throttle > 0
+    model = uavdyn.physics_step(identified)
+    assert isinstance(model, DiscreteModel)
+    assert model.state_names == ("u", "w", "q", "theta", "elevator_actuator",
+                                 "throttle_actuator")
+    assert model.function.size1_in(0) == model.nx == 6 and model.dt is None
+    assert model.control_names == ("elevator", "throttle")
+    assert model.param_names == identified.param_names and model.function.size1_in(2) == len(
+        identified.p)
+    np.testing.assert_array_equal(model.p, identified.p)
+
+
+def test_hybrid_step_names_body_actuator_and_memory_states_in_order(safe):
+    model, net = safe
+    n_memory = 2 * len(net.memory_tau)
+    assert model.state_names[:6] == ("u", "w", "q", "theta", "elevator_actuator",
+                                     "throttle_actuator")
+    assert model.state_names[6:] == tuple(f"{c}_memory_{tau:g}s" for tau in net.memory_tau
+                                          for c in ("elevator", "throttle"))
+    assert model.nx == model.function.size1_in(0) == 6 + n_memory
+    assert not model.takes_time and model.t_range is None
+
+
+def test_initial_state_follows_the_exact_first_order_lag(identified):
+    """From a logged command history the actuator states are the exact solution of
+    tau a' = u - a with u held over each sample (written out here), at rest on the first."""
+    model = uavdyn.physics_step(identified)
+    rng = np.random.default_rng(3)
+    n = 200
+    body = rng.normal(size=(n, 4))
+    controls = np.column_stack([rng.normal(0.0, 0.05, n), rng.uniform(0.3, 0.8, n)])
+    z = model.initial_state(body, controls, identified.p, DT)
+    assert z.shape == (n, 6)
+    np.testing.assert_array_equal(z[:, :4], body)
+    taus = np.array([identified.params.tau_elevator, identified.params.tau_throttle])
+    a = controls[0].copy()
+    for k in range(n):
+        np.testing.assert_allclose(z[k, 4:], a, rtol=0, atol=1e-14)
+        a = controls[k] + (a - controls[k]) * np.exp(-DT / taus)
+    # one sample: at rest on its command
+    np.testing.assert_array_equal(model.initial_state(body[0], controls[0]),
+                                  np.concatenate([body[0], controls[0]]))
+    with pytest.raises(ValueError, match="give the commands"):
+        model.initial_state(body[0])
+    with pytest.raises(ValueError, match="4 body states"):
+        model.initial_state(np.zeros(6), controls[0])
+
+
+def test_jacobians_are_the_finite_differences_of_the_step(safe):
+    model, _ = safe
+    af = model.airframe
+    point = uavdyn.trim(af, 25.0)
+    z = model.initial_state(point.x, point.u) + 1e-3
+    u = np.asarray(point.u) + [0.01, 0.02]
+    x_next, A, B = (np.array(v) for v in model.jacobians()(z, u, af.p, DT))
+    np.testing.assert_allclose(x_next.ravel(), np.array(model(z, u, af.p, DT)).ravel(),
+                               rtol=0, atol=0)
+    h = 1e-6
+    for j in range(model.nx):
+        e = np.zeros(model.nx)
+        e[j] = h
+        fd = (np.array(model(z + e, u, af.p, DT)) - np.array(model(z - e, u, af.p, DT))) / (2 * h)
+        np.testing.assert_allclose(A[:, j], fd.ravel(), rtol=1e-6, atol=1e-7)
+    for j in range(2):
+        e = np.zeros(2)
+        e[j] = h
+        fd = (np.array(model(z, u + e, af.p, DT)) - np.array(model(z, u - e, af.p, DT))) / (2 * h)
+        np.testing.assert_allclose(B[:, j], fd.ravel(), rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.skipif(find_compiler() is None, reason="no C compiler")
+def test_compiled_twin_agrees_with_the_vm(safe):
+    model, _ = safe
+    compiled = model.compiled()
+    assert compiled.function.is_a("External") and compiled.state_names == model.state_names
+    assert model.compiled() is compiled  # built once
+    af = model.airframe
+    point = uavdyn.trim(af, 25.0)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        z = model.initial_state(point.x, point.u) + rng.normal(0.0, 0.05, model.nx)
+        np.testing.assert_allclose(np.array(compiled(z, point.u, af.p, DT)),
+                                   np.array(model(z, point.u, af.p, DT)), rtol=0, atol=1e-12)
+
+
+def test_a_step_size_policy_is_enforced_by_every_rollout(identified):
+    tied = uavdyn.physics_step(identified, dt=0.01)
+    point = uavdyn.trim(identified, 25.0)
+    z0 = tied.initial_state(point.x, point.u)
+    controls = np.tile(point.u, (10, 1))
+    with pytest.raises(StepUseError, match="step size 0.02 s but it is made for 0.01 s"):
+        uavdyn.free_run(tied, z0, controls, identified.p, 0.02)
+    lenient = uavdyn.physics_step(identified, dt=0.01)
+    lenient = DiscreteModel(lenient.function, lenient.layout, dt=0.01, strict=False,
+                            airframe=identified)
+    with pytest.warns(StepUseWarning, match="made for 0.01 s"):
+        uavdyn.free_run(lenient, z0, controls, identified.p, 0.02)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        uavdyn.free_run(tied, z0, controls, identified.p, 0.01)
+    with pytest.raises(TypeError, match="give a DiscreteModel"):
+        Solver("bare", tied.function, 0.01)
+    with pytest.raises(ValueError, match="has 6 states but the layout names 4"):
+        DiscreteModel(tied.function, uavdyn.physics_step(uavdyn.load_airframe("aerosonde"))
+                      .layout)
+
+
+@pytest.mark.parametrize("which", ["physics", "hybrid"])
+def test_the_same_object_goes_into_free_run_mpc_monte_carlo_and_c(which, identified, safe,
+                                                                  tmp_path):
+    model = uavdyn.physics_step(identified) if which == "physics" else safe[0]
+    af = model.airframe
+    point = uavdyn.trim(af, 25.0)
+    # free run from trim: the physics holds its trim; the correction (not zero at the
+    # physics' trim) moves it a little, not away
+    z0 = model.initial_state(point.x, point.u)
+    traj = uavdyn.free_run(model, z0, np.tile(point.u, (100, 1)), af.p, DT)
+    np.testing.assert_allclose(traj[-1, :4], point.x, atol=1e-6 if which == "physics" else 0.01)
+    # MPC: one real-time iteration from a pitch offset
+    mpc = build_controller(model, point.u, MPCConfig(horizon=10, dt=0.05, mode="rti",
+                                                     compile=False))
+    x0 = np.concatenate([point.x + [0.0, 0.0, 0.0, 0.02], [100.0]])
+    result = mpc.solve(x0, point.u, point.x[3], 100.0, 25.0)
+    assert result.success and mpc.nx == model.nx + 1
+    # Monte Carlo: a short study flies the object itself
+    disp = tmp_path / "d.toml"
+    disp.write_text('[params.mass]\ndist = "uniform"\nlow = -0.1\nhigh = 0.1\n')
+    study = run_study(build_spec(af, load_dispersions(disp, af), runs=4, duration=1.0,
+                                 dt=DT, chunk_size=4, model=model), progress=False)
+    assert np.all(np.isfinite(study.history)) and study.spec.given is model
+    # C bundle: the spec is the model's own
+    spec = model_bundle_spec("m", model, point, DT, example_steps=10)
+    assert spec.state_names == model.state_names and len(spec.x0) == model.nx
+    np.testing.assert_allclose(spec.x0, z0)
+    folder = export_bundle(model, spec, tmp_path / "bundle")
+    header = (folder / "m.h").read_text()
+    assert f"x = [{', '.join(model.state_names)}]" in header
+
+
+def test_monte_carlo_refuses_a_model_it_cannot_fly(identified, tmp_path):
+    model = uavdyn.physics_step(identified)
+    disp = tmp_path / "d.toml"
+    disp.write_text('[params.mass]\ndist = "uniform"\nlow = -0.1\nhigh = 0.1\n')
+    d = load_dispersions(disp, identified)
+    with pytest.raises(MonteCarloError, match="is compiled"):
+        build_spec(identified, d, runs=2, duration=1.0, model=model.compiled())
+    quad = uavdyn.load_airframe("f450")
+    with pytest.raises(MonteCarloError, match="is a fixed_wing step"):
+        build_spec(quad, load_dispersions(disp, quad), runs=2, duration=1.0, model=model)
+    with pytest.raises(MonteCarloError, match="either weights or model"):
+        build_spec(identified, d, runs=2, duration=1.0, model=model, weights="shipped")
+    assert math.isfinite(DT)
