@@ -1,9 +1,10 @@
 """Linearised stability of the hybrid discrete map at the presets' trim points: a mode table
-(Markdown + JSON) and a pole plot (PNG) comparing the hybrid map, the plain RK4 map, exp(A dt)
+(Markdown + JSON) and a pole plot (PNG) comparing the hybrid map, the physics map, exp(A dt)
 and the continuous physics poles.
 
-Usage: ``python analysis/stability.py [--dt 0.005] [--out results/stability]``
-(uses the shipped weights ``data/weights/<airframe>_improved.npz`` unless ``--weights`` given).
+Usage: ``python analysis/stability.py [--dt 0.01] [--out docs/stability]`` (each preset's
+shipped safe correction on its identified airframe, unless ``--airframes FILE... --weights
+FILE...`` are given; ``docs/stability/`` is this command's output).
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ def plot(results: list[dict], path: Path) -> None:
         ax.plot(np.cos(theta), np.sin(theta), "k-", lw=0.6, label="unit circle")
         ax.plot(r.exact_eigenvalues.real, r.exact_eigenvalues.imag, "ko", mfc="none", ms=10,
                 label="exp(A dt)")
-        ax.plot(r.map_eigenvalues.real, r.map_eigenvalues.imag, "b+", ms=10, label="RK4 map")
+        ax.plot(r.map_eigenvalues.real, r.map_eigenvalues.imag, "b+", ms=10, label="physics map")
         ax.plot(h.map_eigenvalues.real, h.map_eigenvalues.imag, "rx", ms=8, label="hybrid map")
         lam = np.concatenate([r.exact_eigenvalues, h.map_eigenvalues])
         span = max(np.abs(lam - 1).max() * 1.5, 1e-3)
@@ -75,7 +76,7 @@ def plot(results: list[dict], path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dt", type=float, default=0.005)
+    parser.add_argument("--dt", type=float, default=0.01)
     parser.add_argument("--out", default="results/stability")
     parser.add_argument("--airframes", nargs="+", default=["aerosonde", "f450"])
     parser.add_argument("--weights", nargs="*", default=None,
@@ -94,7 +95,7 @@ def main() -> None:
     for res in results:
         h, r = res["hybrid"], res["rk4"]
         lines += [f"## {res['airframe'].name} at {res['point'].airspeed:g} m/s, dt = {h.dt:g} s",
-                  f"weights: `{res['weights']}`", "", "Physics model (continuous):", "",
+                  f"weights: `{Path(res['weights']).name}`", "", "Physics model (continuous):", "",
                   mode_table(h.physics_modes), "", "Hybrid map, continuous equivalents:", "",
                   mode_table(h.map_modes), "", "Hybrid map eigenvalues:", "", h.table(), ""]
         verdict = ("every mode of the hybrid map is stable" if not h.unstable else
@@ -110,7 +111,9 @@ def main() -> None:
             "physics_modes": [m.as_dict() for m in h.physics_modes],
             "unstable": h.unstable, "made_unstable": h.made_unstable,
         })
-    (out / "modes.md").write_text("# Modes of the hybrid discrete map\n\n" + "\n".join(lines))
+    (out / "modes.md").write_text("# Modes of the hybrid discrete map\n\nWritten by `python "
+                                  f"analysis/stability.py --dt {args.dt:g} --out {args.out}`.\n\n"
+                                  + "\n".join(lines))
     (out / "modes.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
     plot(results, out / "poles.png")
     print("\n".join(lines))
