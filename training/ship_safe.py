@@ -45,7 +45,7 @@ def ship(out: Path, kinds: list[str], progress: bool = True, quick: bool = False
         identified, summary = identify_physics(nominal, ds, config, print)
         if identified is None:
             raise SystemExit(f"{nominal.name}: {summary['missing']}")
-        weights = obtain_weights(identified, ds, "improved", "data", config, print)
+        weights = obtain_weights(identified, ds, "improved", config, print)
         history = out / "weights" / f"{identified.name}_improved_history.json"
         pairs = [(out / "identified" / f"{nominal.name}.toml",
                   out / f"{nominal.name}_identified.toml"),
