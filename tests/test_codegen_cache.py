@@ -404,3 +404,56 @@ def test_a_graph_calling_a_compiled_function_is_refused_not_crashed(tmp_path):
         compile_function(rollout(step, 5), directory=tmp_path)
     assert compile_function(rollout(physics_step(airframe), 5), directory=tmp_path).is_a(
         "External")
+
+
+def test_a_compiler_that_never_exits_is_killed_and_the_vm_used(tmp_path, monkeypatch):
+    """A compiler that hangs (and starts a child that hangs too) is killed, with its child,
+    after $UAVDYN_CC_TIMEOUT seconds; the Function runs in the VM with one warning naming the
+    compiler and the Function, and the hung compiler is not called again in this process."""
+    import time
+    import warnings
+
+    import casadi as ca
+
+    pid_file = tmp_path / "pids"
+    hung = tmp_path / "hung-cc"
+    hung.write_text(f"#!/bin/sh\necho $$ >> {pid_file}\nsleep 1000 &\necho $! >> {pid_file}\n"
+                    "wait\n")
+    hung.chmod(0o755)
+    monkeypatch.setenv("UAVDYN_CC", str(hung))
+    monkeypatch.setenv("UAVDYN_CC_TIMEOUT", "1.5")
+    monkeypatch.setattr(codegen, "_timed_out", {})
+    x = ca.SX.sym("x")
+    f = ca.Function("hang_probe", [x], [ca.sin(x)])
+    start = time.perf_counter()
+    with pytest.warns(codegen.CodegenWarning) as caught:
+        g = codegen.compile_function(f, directory=tmp_path / "cache")
+    elapsed = time.perf_counter() - start
+    assert g is f and float(g(0.5)) == pytest.approx(np.sin(0.5))
+    assert 1.5 <= elapsed < 15.0, elapsed
+    message = str(caught[0].message)
+    assert str(hung) in message and "'hang_probe'" in message and "within 1.5 s" in message
+    for pid in map(int, pid_file.read_text().split()):  # the compiler and its child are gone
+        for _ in range(50):
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.05)
+        else:
+            pytest.fail(f"process {pid} of the hung compiler is still running")
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert codegen.compile_function(f, directory=tmp_path / "cache") is f
+    assert time.perf_counter() - start < 1.0  # not called again
+    assert not list((tmp_path / "cache").glob("*.so"))  # nothing half-built under the name
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "soon", "inf"])
+def test_a_bad_compiler_timeout_is_refused_naming_the_variable(value, monkeypatch):
+    from uavdyn.integrate.compiler import compile_timeout
+
+    monkeypatch.setenv("UAVDYN_CC_TIMEOUT", value)
+    with pytest.raises(ValueError, match="UAVDYN_CC_TIMEOUT must be a positive number"):
+        compile_timeout()

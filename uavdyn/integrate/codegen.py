@@ -64,6 +64,7 @@ from uavdyn.integrate.compiler import (
     DEFAULT_FLAGS,
     CodegenWarning,
     CompileError,
+    CompileTimeout,
     find_compiler,
 )
 from uavdyn.integrate.compiler import _compiler_id as _compiler_id
@@ -86,6 +87,7 @@ __all__ = ["CACHE_ENV", "COMPILER_ENV", "DEFAULT_FLAGS", "MAX_SIDECAR_BYTES", "S
 # in this module's globals.
 
 _warned = False
+_timed_out: dict[str, str] = {}  # compiler -> the message of its timeout in this process
 
 
 def compile_function(func: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS,
@@ -95,7 +97,9 @@ def compile_function(func: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS,
     The generated source is hashed together with the compiler, flags and CasADi version; a
     library already built for that hash is reused only after its SHA-256 matches the sidecar
     written by the build that produced it. If no compiler is available, ``func`` itself is
-    returned and a :class:`CodegenWarning` is issued once per process.
+    returned and a :class:`CodegenWarning` is issued once per process; so it is when the
+    compiler does not finish within :func:`compile_timeout` seconds (``$UAVDYN_CC_TIMEOUT``),
+    and that compiler is not called again in this process.
 
     Parameters
     ----------
@@ -124,6 +128,8 @@ def compile_function(func: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS,
     """
     global _warned
     compiler = find_compiler()
+    if compiler in _timed_out:
+        return func
     if compiler is None:
         if warn and not _warned:
             warnings.warn("no C compiler found (cc/gcc/clang or $UAVDYN_CC); using the CasADi "
@@ -151,6 +157,11 @@ def compile_function(func: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS,
             if reason is not None:
                 try:
                     _build(source, compiler, flags, lib, key, name, signature)
+                except CompileTimeout as exc:
+                    _timed_out[compiler] = str(exc)
+                    warnings.warn(f"{exc}; using the CasADi virtual machine instead of compiled "
+                                  "code", CodegenWarning, stacklevel=2)
+                    return func
                 except CompileError as exc:
                     if reason == _ABSENT:
                         raise

@@ -6,6 +6,8 @@ import os
 import shutil
 
 COMPILER_ENV = "UAVDYN_CC"
+TIMEOUT_ENV = "UAVDYN_CC_TIMEOUT"
+DEFAULT_TIMEOUT_S = 600.0  # the largest generated sources (identification) build in minutes
 DEFAULT_FLAGS = ("-O3", "-fPIC", "-shared")
 
 
@@ -42,6 +44,32 @@ class CompileError(RuntimeError):
         self.stderr = stderr
         if stderr.strip() and hasattr(self, "add_note"):  # Python >= 3.11
             self.add_note(f"compiler output:\n{stderr.rstrip()}")
+
+
+class CompileTimeout(CompileError):
+    """The compiler did not finish within :func:`compile_timeout` seconds (it was killed)."""
+
+
+def compile_timeout() -> float:
+    """Seconds a compiler call may take: ``$UAVDYN_CC_TIMEOUT`` if set to a positive number,
+    else :data:`DEFAULT_TIMEOUT_S`.
+
+    Raises
+    ------
+    ValueError
+        If ``$UAVDYN_CC_TIMEOUT`` is set but not a positive number of seconds.
+    """
+    raw = os.environ.get(TIMEOUT_ENV)
+    if raw is None or not raw.strip():
+        return DEFAULT_TIMEOUT_S
+    try:
+        value = float(raw)
+    except ValueError:
+        value = float("nan")
+    if not (value > 0 and value < float("inf")):
+        raise ValueError(f"environment variable {TIMEOUT_ENV} must be a positive number of "
+                         f"seconds, got {raw!r}")
+    return value
 
 
 def find_compiler() -> str | None:

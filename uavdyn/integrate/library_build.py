@@ -23,7 +23,13 @@ from uavdyn.integrate.compile_cache import (
     _signature,
     _verify_link,
 )
-from uavdyn.integrate.compiler import CompileError, _compiler_id
+from uavdyn.integrate.compiler import (
+    TIMEOUT_ENV,
+    CompileError,
+    CompileTimeout,
+    _compiler_id,
+    compile_timeout,
+)
 
 STALE_TEMP_SECONDS = 24 * 3600
 
@@ -107,6 +113,30 @@ def _summary(stderr: str) -> str:
     return line if len(line) <= 200 else line[:197] + "..."
 
 
+def run_compiler(cmd: list[str], timeout: float) -> subprocess.CompletedProcess:
+    """Run a compiler command in its own process group, killed whole (with anything it
+    started) after ``timeout`` seconds.
+
+    Raises
+    ------
+    subprocess.TimeoutExpired
+        If it did not finish in time.
+    OSError
+        If it cannot be started.
+    """
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                          stdin=subprocess.DEVNULL, start_new_session=True) as proc:
+        try:
+            out, err = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(OSError):
+                os.killpg(proc.pid, 9)
+            proc.communicate()
+            raise
+    return subprocess.CompletedProcess(cmd, proc.returncode, out.decode(errors="replace"),
+                                       err.decode(errors="replace"))
+
+
 def _build(source: Path, compiler: str, flags: tuple[str, ...], lib: Path, key: str, name: str,
            signature: list) -> None:
     """Compile to a unique temporary sibling, check it, then rename library and sidecar into
@@ -120,9 +150,13 @@ def _build(source: Path, compiler: str, flags: tuple[str, ...], lib: Path, key: 
     cmd = [compiler, *flags, str(source), "-o", str(partial), "-lm"]
     err = {"compiler": compiler, "function": name, "command": cmd}
     try:
+        timeout = compile_timeout()
         try:
-            proc = subprocess.run(cmd, capture_output=True, text=True, errors="replace",
-                                  stdin=subprocess.DEVNULL)
+            proc = run_compiler(cmd, timeout)
+        except subprocess.TimeoutExpired:
+            raise CompileTimeout(f"compiler {compiler} did not finish CasADi Function '{name}' "
+                                 f"within {timeout:g} s (killed; ${TIMEOUT_ENV} sets the "
+                                 "limit)", **err) from None
         except OSError as exc:
             raise CompileError(f"cannot run compiler {compiler} for CasADi Function '{name}': "
                                f"{exc.strerror or exc}", **err) from None
