@@ -10,6 +10,7 @@ same inputs, whatever the thread, process or chunk it runs in.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 import subprocess
@@ -434,3 +435,63 @@ def test_cli_command_writes_results_and_resumes(tmp_path, capsys):
     args = parser.parse_args([*argv[:-2], str(foreign), "--no-progress"])
     with pytest.raises(ValueError, match="not a uavdyn output"):
         args.func(args)
+
+
+def test_the_study_key_covers_every_field_that_changes_a_run(tmp_path, aerosonde):
+    """Resuming after an edit of the airframe's limits reused every chunk (the key hashed the
+    parameters only). The key now hashes the whole airframe and the step Function: changing
+    any one of these makes another study, and a resume into the old folder is refused."""
+    disp = _dispersions(tmp_path, '[params.mass]\ndist = "uniform"\nlow = -0.1\nhigh = 0.1\n',
+                        aerosonde)
+
+    def limited(**limits):
+        return dataclasses.replace(aerosonde, limits={**aerosonde.limits, **limits})
+
+    def spec(af=aerosonde, **kw):
+        args = dict(runs=4, duration=1.0, dt=0.01, chunk_size=4)
+        args.update(kw)
+        return build_spec(af, disp, **args)
+
+    base = spec()
+    assert spec().key == base.key  # and it is stable
+    variants = {
+        "elevator travel": spec(limited(elevator=(-0.13, 0.13))),
+        "elevator rate": spec(limited(elevator_rate=0.5)),
+        "throttle travel": spec(limited(throttle=(0.1, 0.9))),
+        "elevator lag": spec(aerosonde.replace(tau_elevator=0.05)),
+        "elevator delay": spec(aerosonde.with_delays(elevator=2)),
+        "a coefficient": spec(aerosonde.replace(C_m_q=-30.0)),
+        "mission": spec(mission="3211"),
+        "step size": spec(dt=0.005),
+        "seed": spec(seed=7),
+        "airspeed": spec(airspeed=22.0),
+        "chunk size": spec(chunk_size=2),
+    }
+    keys = {name: v.key for name, v in variants.items()}
+    assert all(k != base.key for k in keys.values()), keys
+    assert len(set(keys.values())) == len(keys)
+    out = tmp_path / "study"
+    run_study(base, out, progress=False)
+    with pytest.raises(MonteCarloError, match="holds another Monte-Carlo study"):
+        run_study(variants["elevator travel"], out, progress=False)
+    # the runs numbers were unchanged by renaming the airframe: same key
+    assert spec(dataclasses.replace(aerosonde, name="my copy")).key == base.key
+
+
+@pytest.mark.parametrize("name", ["aerosonde_pm15", "aerosonde_gusty", "f450_pm15"])
+def test_the_projects_dispersion_files_run_a_two_run_study_to_the_end(name, tmp_path):
+    """Two runs of a narrow dispersion can agree to the last digits in a metric; the histogram
+    of that metric used to crash the report (numpy cannot bin a zero-width range) after the
+    chunks were written."""
+    from pathlib import Path
+
+    from uavdyn.airframes import load_airframe
+
+    af = load_airframe(name.split("_")[0])
+    disp = load_dispersions(Path(__file__).resolve().parents[1] / "data" / "dispersions"
+                            / f"{name}.toml", af)
+    out = tmp_path / "out"
+    run_study(build_spec(af, disp, runs=2, duration=1.0, dt=0.01, chunk_size=2), out,
+              progress=False)
+    assert (out / "figures" / "distributions.png").stat().st_size > 1000
+    assert (out / "summary.md").is_file()

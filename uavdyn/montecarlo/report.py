@@ -151,6 +151,15 @@ def envelope_figure(result: MonteCarloResult, path: Path) -> Path:
     return path
 
 
+def _histogram_range(values: np.ndarray) -> tuple[float, float]:
+    """The x range of a histogram: the values' own, widened where they (nearly) coincide so
+    the bins have a finite width (a few runs of a narrow dispersion can agree to the last
+    digits, which numpy cannot bin)."""
+    lo, hi = float(np.min(values)), float(np.max(values))
+    pad = max(1e-6 * max(abs(lo), abs(hi), 1.0), 0.0)
+    return (lo - pad, hi + pad) if hi - lo < pad else (lo, hi)
+
+
 def distribution_figure(result: MonteCarloResult, path: Path) -> Path:
     """Histograms of the per-run metrics, with the active limits."""
     plt = _pyplot()
@@ -163,7 +172,8 @@ def distribution_figure(result: MonteCarloResult, path: Path) -> Path:
     for ax, column in zip(axes, METRIC_COLUMNS):
         values = table[column][keep]
         if len(values):
-            ax.hist(values, bins=min(50, max(5, len(values) // 20)), color="C0", alpha=0.8)
+            ax.hist(values, bins=min(50, max(5, len(values) // 20)), color="C0", alpha=0.8,
+                    range=_histogram_range(values))
         if column in limits and math.isfinite(limits[column]):
             ax.axvline(limits[column], color="C3", ls="--", lw=1)
         ax.set_xlabel(column)

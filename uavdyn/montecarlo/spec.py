@@ -21,7 +21,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn import __version__
-from uavdyn.airframes import Airframe
+from uavdyn.airframes import Airframe, to_toml_dict
 from uavdyn.integrate import DiscreteModel, physics_step
 from uavdyn.integrate.inputs import PROFILES, control_sequence
 from uavdyn.learned import CorrectionNet, hybrid_step, load_weights, shipped_weights
@@ -32,7 +32,7 @@ from uavdyn.montecarlo.batch import gust_step
 from uavdyn.montecarlo.dispersions import LIMIT_KEYS, Dispersions
 from uavdyn.safefiles import UnreadableFile, read_regular
 
-SPEC_FORMAT = 1
+SPEC_FORMAT = 2  # 2: the key hashes the whole airframe and the step Function
 MISSION_LOG_RATE_HZ = 100.0   # the emulator flies a mission at this log rate
 DEFAULT_HISTORY_DT = 0.1      # s between two envelope samples
 MAX_STEPS = 10_000_000        # per run
@@ -178,11 +178,21 @@ class StudySpec:
         return gust_step(self.structure, self.net, "hybrid_gust_step")
 
     def key_content(self) -> dict:
-        """What the study key hashes (everything but the number of runs)."""
+        """What the study key hashes: everything but the number of runs, by construction the
+        whole airframe as its file would hold it (parameters, limits, rate limits, delays,
+        atmosphere, tables) and the serialised step Function the runs integrate (its
+        structure: actuator lags, delay buffers, gusts, the correction), not a hand-picked
+        list of fields."""
+        content = to_toml_dict(self.airframe)
+        content["params"] = {n: repr(float(v["value"])) for n, v in content["params"].items()}
+        for label in ("name", "description"):
+            content.pop(label, None)
+        step = hashlib.sha256(self.step().serialize().encode()).hexdigest()
         return {
             "format": SPEC_FORMAT, "uavdyn": __version__, "casadi": ca.__version__,
-            "airframe": {"name": self.airframe.name, "kind": self.airframe.kind,
-                         "param_hash": self.airframe.param_hash()},
+            "airframe": {"kind": self.airframe.kind, "param_hash": self.airframe.param_hash(),
+                         "content": content},
+            "step_sha256": step,
             "model": self.model, "weights_sha256": self.weights_digest,
             "dispersions": self.dispersions.to_dict(), "seed": self.seed, "dt": self.dt,
             "n_steps": self.n_steps, "stride": self.stride, "chunk_size": self.chunk_size,
@@ -194,7 +204,8 @@ class StudySpec:
 
     def describe(self) -> dict:
         """JSON-friendly description (``study.json``)."""
-        return {"key": self.key, "runs": self.runs, "duration_s": self.duration,
+        return {"key": self.key, "airframe_name": self.airframe.name, "runs": self.runs,
+                "duration_s": self.duration,
                 "dispersion_file": self.dispersions.origin,
                 "dispersions": self.dispersions.describe(),
                 "limits": dict(zip(("pitch_deg", "alpha_deg", "airspeed_min_mps",
