@@ -100,3 +100,56 @@ def test_perturb_scales_only_chosen_keys(aerosonde):
         perturb(aerosonde, 1.1, names=["wingspan"])
     with pytest.raises(AirframeError, match="'mass' must be > 0"):
         perturb(aerosonde, -1.0, names=["mass"])
+
+
+SLIPS = [  # (preset, parameter, value as a unit slip would write it, parameter named)
+    ("aerosonde", "mass", 13500.0, "mass"),            # grams
+    ("aerosonde", "Jy", 1e-300, "Jy"),
+    ("aerosonde", "Jy", 1.135e4, "Jy"),                # kg cm^2
+    ("aerosonde", "C_m_alpha", -2.74 / 57.3, "C_m_alpha"),   # per degree
+    ("aerosonde", "C_m_delta_e", -0.99 / 57.3, "C_m_delta_e"),
+    ("aerosonde", "C_L_alpha", 5.61 / 57.3, "C_L_alpha"),
+    ("f450", "mass", 1400.0, "Jy"),                    # grams: the inertia radius collapses
+    ("f450", "Jy", 1e-300, "Jy"),
+    ("f450", "arm", 1e-300, "arm"),
+    ("f450", "pitch_mix", 0.0, "pitch_mix"),
+]
+
+
+@pytest.mark.parametrize("preset, key, value, named", SLIPS)
+def test_implausible_values_warn_naming_the_parameter_and_refuse_when_strict(
+        tmp_path, preset, key, value, named):
+    """Values inside their bounds but impossible together (a mass in grams, a derivative per
+    degree, an inertia of 1e-300) used to load silently; the failure came later from trim
+    without naming the parameter."""
+    import warnings
+
+    from uavdyn.airframes import AirframeError, AirframePlausibilityWarning, load_airframe
+
+    data = to_toml_dict(load_airframe(preset))
+    data["params"][key]["value"] = value
+    path = _write(tmp_path, data)
+    with pytest.warns(AirframePlausibilityWarning) as caught:
+        load_airframe(path)
+    assert any(f"parameter '{named}'" in str(w.message) for w in caught), caught
+    with pytest.raises(AirframeError, match=f"parameter '{named}'.*--strict"):
+        load_airframe(path, strict=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name in ("aerosonde", "f450"):  # the presets are plausible
+            load_airframe(name, strict=True)
+
+
+def test_no_pitch_authority_is_refused_where_pitch_must_be_controlled(tmp_path):
+    import warnings
+
+    from uavdyn.airframes import load_airframe
+    from uavdyn.linear import TrimError, trim
+
+    data = to_toml_dict(load_airframe("f450"))
+    data["params"]["pitch_mix"]["value"] = 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        af = load_airframe(_write(tmp_path, data))
+    with pytest.raises(TrimError, match="'pitch_mix' = 0"):
+        trim(af, 5.0)

@@ -35,6 +35,12 @@ from uavdyn.airframes.params import (
     ParamsType,
     param_names,
 )
+from uavdyn.airframes.plausibility import (
+    AirframePlausibilityWarning,
+    check_plausible,
+    has_pitch_authority,
+    plausibility_findings,
+)
 from uavdyn.airframes.presets import ALIASES, PERTURBATION_KEYS, PRESETS, list_presets, perturb
 
 __all__ = ["AIRFRAME_MAX_BYTES", "ALIASES", "ALPHA_DOT_DENOMINATOR_MIN", "ATMOSPHERES", "BOUNDS",
@@ -43,4 +49,5 @@ __all__ = ["AIRFRAME_MAX_BYTES", "ALIASES", "ALPHA_DOT_DENOMINATOR_MIN", "ATMOSP
            "PERTURBATION_KEYS", "POSITIVE_KEYS", "PRESETS", "RATE_SUFFIX", "TOP_LEVEL_KEYS",
            "Airframe", "AirframeError", "Bound", "FixedWingParams", "MultirotorParams",
            "ParamsType", "alpha_dot_denominator", "list_presets", "load_airframe",
-           "param_names", "perturb", "to_toml_dict", "tomllib"]
+           "param_names", "perturb", "to_toml_dict", "tomllib", "AirframePlausibilityWarning",
+           "check_plausible", "has_pitch_authority", "plausibility_findings"]

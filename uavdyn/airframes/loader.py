@@ -77,6 +77,7 @@ from uavdyn.airframes.params import (
     PARAM_CLASSES,
     param_names,
 )
+from uavdyn.airframes.plausibility import check_plausible
 from uavdyn.airframes.presets import ALIASES, PRESETS, list_presets
 from uavdyn.airframes.tables import TableError, parse_tables
 from uavdyn.safefiles import DuplicateKey, UnreadableFile, no_duplicate_keys, read_regular
@@ -152,14 +153,21 @@ def _decode(text: str, is_json: bool, origin: str) -> object:
     raise AirframeError(f"{origin}: cannot parse parameter file as {fmt}: {where}{msg}")
 
 
-def load_airframe(name_or_path: str | Path) -> Airframe:
+def load_airframe(name_or_path: str | Path, strict: bool = False) -> Airframe:
     """Load a preset by name or a user's own TOML/JSON parameter file of the same schema.
+
+    Values within their bounds but implausible as a whole (a mass in grams, a derivative per
+    degree: :mod:`uavdyn.airframes.plausibility`) give one
+    :class:`~uavdyn.airframes.plausibility.AirframePlausibilityWarning` each, naming the
+    parameter and the likely slip, or an error with ``strict``.
 
     Parameters
     ----------
     name_or_path : str or Path
         A preset (``aerosonde``, ``f450``, or the aliases ``quadrotor``/``fixed_wing``) or the
         path of a parameter file (``.json`` is read as JSON, anything else as TOML).
+    strict : bool
+        Refuse implausible values instead of warning.
 
     Returns
     -------
@@ -170,8 +178,15 @@ def load_airframe(name_or_path: str | Path) -> Airframe:
     AirframeError
         On one line naming the file and the key: unreadable, oversized or special files,
         parse errors (with the line), unknown or missing keys, wrong types, values outside
-        :data:`BOUNDS`, a ``name`` that is not an identifier.
+        :data:`BOUNDS`, a ``name`` that is not an identifier; with ``strict``, implausible
+        values.
     """
+    airframe = _load(name_or_path)
+    check_plausible(airframe, strict)
+    return airframe
+
+
+def _load(name_or_path: str | Path) -> Airframe:
     if isinstance(name_or_path, str):
         key = ALIASES.get(name_or_path, name_or_path)
         if key in PRESETS:

@@ -24,6 +24,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import Airframe
+from uavdyn.airframes.plausibility import has_pitch_authority
 from uavdyn.integrate import StateLayout
 from uavdyn.model import (
     CONTROL_NAMES,
@@ -219,6 +220,11 @@ def trim(airframe: Airframe, airspeed: float | None = None, gamma: float = 0.0,
                 f"(C_L max {cl_max:.3f} at alpha {math.degrees(alpha_max):.1f} deg)")
     elif gamma != 0.0 and V == 0.0:
         raise TrimError("hover has no flight-path angle: use gamma = 0 with airspeed 0")
+    if not has_pitch_authority(airframe):
+        which = "pitch_mix" if airframe.kind == "multirotor" else "C_m_delta_e"
+        raise TrimError(f"airframe '{airframe.name}': parameter '{which}' = 0 gives the pitch "
+                        "command no authority over the pitching moment; nothing can hold a "
+                        "trim (check the file)")
     p = sortie_params(airframe, altitude_m)
     g, solver = _trim_functions(body_structure(airframe))
     pars = np.concatenate([[V, gamma], p])

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from uavdyn.airframes import has_pitch_authority
 from uavdyn.integrate import DiscreteModel
 from uavdyn.model import CONTROL_BOUNDS
 
@@ -174,6 +175,9 @@ class TrackingProblem:
                              "MPC adds its own altitude state; build it without position")
         model.check_use(cfg.dt)
         airframe = model.airframe
+        if airframe is not None and not has_pitch_authority(airframe):
+            raise ValueError(f"airframe '{airframe.name}' has no pitch authority (pitch_mix or "
+                             "C_m_delta_e is 0): the MPC cannot control its pitch")
         self.model = model
         self.kind: str = model.kind
         self.p = np.asarray(model.p if p is None else p, float)
