@@ -164,3 +164,47 @@ def test_evaluate_checks_its_output_before_the_work(tmp_path, monkeypatch, capsy
     assert not (tmp_path / "sub").exists()
 
 
+
+
+def test_an_interrupt_during_a_forced_commit_never_leaves_a_mix(tmp_path, monkeypatch):
+    """--force into a folder that is not a uavdyn output used to move the new files in one by
+    one: an interrupt between two moves left new sorties beside the old manifest, a mixed
+    dataset that loads as valid. Now the new folder (with the user's own files) is swapped in
+    whole: interrupted at every rename in turn, the folder is all old or all new, and the
+    user's files are kept."""
+    import uavdyn.outputs as outputs
+
+    def build(folder, tag):
+        with output_folder(folder, "generate-data", force=True) as tmp:
+            for name in ("manifest.json", "s1.csv", "s2.csv"):
+                (tmp / name).write_text(tag)
+
+    real_replace = os.replace
+    outcomes = set()
+    for n in range(1, 12):
+        folder = tmp_path / f"run{n}"
+        folder.mkdir()
+        for name in ("manifest.json", "s1.csv", "s2.csv", "notes.txt"):  # a foreign folder
+            (folder / name).write_text("old" if name != "notes.txt" else "mine")
+        calls = {"n": 0}
+
+        def flaky(src, dst, calls=calls, n=n):
+            calls["n"] += 1
+            if calls["n"] == n:
+                raise KeyboardInterrupt
+            return real_replace(src, dst)
+
+        monkeypatch.setattr(outputs.os, "replace", flaky)
+        try:
+            build(folder, "new")
+            outcomes.add("completed")
+        except KeyboardInterrupt:
+            outcomes.add("interrupted")
+        monkeypatch.setattr(outputs.os, "replace", real_replace)
+        contents = {p.read_text() for p in folder.iterdir()
+                    if p.name in ("manifest.json", "s1.csv", "s2.csv")}
+        assert contents in ({"old"}, {"new"}), (n, contents)
+        assert (folder / "notes.txt").read_text() == "mine"
+        if contents == {"new"}:
+            assert (folder / MARKER).exists()
+    assert outcomes == {"completed", "interrupted"}

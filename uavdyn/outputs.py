@@ -4,7 +4,8 @@ output of the same command is never overwritten without ``force``.
 
 An output folder carries a small marker (``.uavdyn-output.json``: command, files) so a later run
 of the same command may replace it, and ``force`` into a foreign folder removes only the stale
-files of that command, never the user's own.
+files of that command, never the user's own. Either way the folder is swapped in whole: an
+interrupt leaves the old folder or the new one, never a mix.
 """
 
 from __future__ import annotations
@@ -127,10 +128,9 @@ def check_output_folder(path: str | Path, command: str, force: bool = False) -> 
 
 @contextmanager
 def output_folder(path: str | Path, command: str, force: bool = False,
-                  last: tuple[str, ...] = (), create_parents: bool = True) -> Iterator[Path]:
-    """Yield a temporary sibling folder to fill; when the block ends without error it becomes
-    ``path`` (see the module docstring for what happens to an existing ``path``). Files named
-    in ``last`` (e.g. a manifest) are moved in after all others.
+                  create_parents: bool = True) -> Iterator[Path]:
+    """Yield a temporary sibling folder to fill; when the block ends without error it replaces
+    ``path`` whole (see the module docstring for what happens to an existing ``path``).
 
     Raises
     ------
@@ -146,14 +146,45 @@ def output_folder(path: str | Path, command: str, force: bool = False,
         yield tmp
         files = sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file())
         (tmp / MARKER).write_text(json.dumps({"command": command, "files": files}, indent=1))
-        _commit(tmp, path, command, files, last)
+        _commit(tmp, path, command, files)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _commit(tmp: Path, path: Path, command: str, files: list[str], last: tuple[str, ...]
-            ) -> None:
+def _swap(tmp: Path, path: Path) -> None:
+    """Put the complete folder ``tmp`` in place of ``path`` (two atomic renames; an interrupt
+    between them puts the old folder back, so ``path`` is always one or the other)."""
+    old = _temp_sibling(path, "old")
+    os.replace(path, old)
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        if not path.exists():
+            os.replace(old, path)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _carry_over(path: Path, tmp: Path, skip: set[str]) -> None:
+    """Link (or copy) every entry of ``path`` not named in ``skip`` into ``tmp``: the user's own
+    files of a foreign folder survive the swap unchanged."""
+    for src in sorted(path.rglob("*")):
+        rel = str(src.relative_to(path))
+        if rel in skip or src.is_dir() and not src.is_symlink():
+            continue
+        dst = tmp / rel
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        if src.is_symlink():
+            os.symlink(os.readlink(src), dst)
+            continue
+        try:
+            os.link(src, dst)
+        except OSError:
+            shutil.copy2(src, dst)
+
+
+def _commit(tmp: Path, path: Path, command: str, files: list[str]) -> None:
     marker = _marker(path) if path.exists() else None
     own = marker is not None and marker.get("command") == command
     if own:  # only a folder holding nothing but that output may be swapped whole
@@ -164,22 +195,11 @@ def _commit(tmp: Path, path: Path, command: str, files: list[str], last: tuple[s
             path.rmdir()
         os.replace(tmp, path)
         return
-    if own:  # our previous output: swap whole folders (each rename is atomic)
-        old = _temp_sibling(path, "old")
-        os.replace(path, old)
-        os.replace(tmp, path)
-        shutil.rmtree(old, ignore_errors=True)
-        return
-    # --force into a foreign folder: move our files in, the manifest-like ones and the marker
-    # last; remove stale files of an earlier run of this command only
-    same = marker is not None and marker.get("command") == command
-    stale = set(marker.get("files", [])) - set(files) if same else set()
-    order = [f for f in files if f not in last] + [f for f in files if f in last] + [MARKER]
-    for rel in order:
-        dst = path / rel
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(tmp / rel, dst)
-    for rel in stale:
-        target = (path / rel)
-        if target.is_file() and path.resolve() in target.resolve().parents:
-            target.unlink()
+    if not own:
+        # --force into a foreign folder: the new folder gets the user's own files too (not
+        # the stale files of an earlier run of this command), then is swapped in whole, so an
+        # interrupt never leaves a mix of old and new outputs
+        same = marker is not None and marker.get("command") == command
+        stale = set(marker.get("files", [])) if same else set()
+        _carry_over(path, tmp, set(files) | stale | {MARKER})
+    _swap(tmp, path)

@@ -400,7 +400,7 @@ def cmd_import_log(args: argparse.Namespace) -> int:
     else:
         sortie = import_alfa(source, **({"rate_hz": args.rate} if args.rate else {}))
     name = "".join(c if c.isalnum() or c in "_-" else "_" for c in sortie.name)[:64] or "log"
-    with output_folder(args.out, "import-log", args.force, last=("manifest.json",)) as tmp:
+    with output_folder(args.out, "import-log", args.force) as tmp:
         write_csv(sortie, tmp / f"{name}.csv")
         write_manifest(tmp, airframe="", kind=sortie.kind,
                        sample_rate_hz=round(1.0 / float(np.median(np.diff(sortie.time))), 9),

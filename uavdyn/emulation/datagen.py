@@ -249,7 +249,7 @@ def generate_dataset(recipe: Recipe, out: str | Path, workers: int | None = None
     """
     airframe = load_airframe(recipe.airframe)
     recipe.validate(airframe)
-    with output_folder(out, "generate-data", force, last=("manifest.json",)) as tmp:
+    with output_folder(out, "generate-data", force) as tmp:
         _generate_into(recipe, airframe, tmp, workers, progress)
     return Path(out) / "manifest.json"
 
