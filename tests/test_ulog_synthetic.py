@@ -998,3 +998,21 @@ def test_fuzz_cases_raise_naming_the_file(tmp_path):
         message = str(err.value)
         assert (case.names or path.name) in message and "\n" not in message, (case.name,
                                                                              message)
+
+
+@needs_pyulog
+def test_ulog_timestamps_going_backwards_are_refused(tmp_path):
+    """Two attitude samples swapped in the file (a corrupt or spliced log) used to be sorted
+    silently; the import now refuses it naming the topic and where. The same samples in time
+    order import."""
+    topics = {**state_topics(stamps(N, RATE_HZ)), **actuator_controls(control_stamps())}
+    att = topics["vehicle_attitude"]
+    swapped = att["timestamp"].copy()
+    swapped[[100, 101]] = swapped[[101, 100]]
+    topics["vehicle_attitude"] = {**att, "timestamp": swapped}
+    path = write_log(tmp_path / "back.ulg", topics, merge=False)
+    with pytest.raises(FlightDataError, match="back.ulg.*go backwards at its sample 101") as err:
+        import_ulog(path)
+    assert err.value.column == "vehicle_attitude.timestamp"
+    topics["vehicle_attitude"] = att
+    assert len(import_ulog(write_log(tmp_path / "ok.ulg", topics, merge=False)).time) == N

@@ -111,17 +111,17 @@ def _topic_layout(name: str, fields: Mapping[str, np.ndarray]
 def write_ulog(path: str | Path, topics: Mapping[TopicKey, Mapping[str, np.ndarray]],
                params: Mapping[str, float | int] | None = None,
                info: Mapping[str, str] | None = None, start_us: int = 0,
-               flag_bits: bool = True) -> Path:
+               flag_bits: bool = True, merge: bool = True) -> Path:
     """Write a ULog file (the bytes of :func:`ulog_bytes`) and return its path."""
     path = Path(path)
-    path.write_bytes(ulog_bytes(topics, params, info, start_us, flag_bits))
+    path.write_bytes(ulog_bytes(topics, params, info, start_us, flag_bits, merge))
     return path
 
 
 def ulog_bytes(topics: Mapping[TopicKey, Mapping[str, np.ndarray]],
                params: Mapping[str, float | int] | None = None,
                info: Mapping[str, str] | None = None, start_us: int = 0,
-               flag_bits: bool = True) -> bytes:
+               flag_bits: bool = True, merge: bool = True) -> bytes:
     """The bytes of a ULog file, built in memory (the fuzz cases mutate them).
 
     ``topics`` maps a topic name (or ``(name, multi_id)``) to its fields: ``timestamp``
@@ -129,7 +129,9 @@ def ulog_bytes(topics: Mapping[TopicKey, Mapping[str, np.ndarray]],
     (float32 -> ``float``, float64 -> ``double``, ...). ``params`` become the initial
     parameters (int -> int32_t, float -> float), ``info`` string info messages; ``start_us``
     is the header's start timestamp. Instances of one topic name share one format, so their
-    fields must agree."""
+    fields must agree. ``merge``: the samples of all topics in timestamp order, as a logger
+    writes them; False: each topic's samples in the order given, topic after topic (to write
+    samples whose timestamps go backwards)."""
     params = dict(params or {})
     info = dict(info or {})
     formats: dict[str, str] = {}
@@ -159,7 +161,7 @@ def ulog_bytes(topics: Mapping[TopicKey, Mapping[str, np.ndarray]],
                            ) if subscriptions else np.zeros(0, int)
     row = np.concatenate([np.arange(len(s[3])) for s in subscriptions]
                          ) if subscriptions else np.zeros(0, int)
-    for k in np.argsort(stamps, kind="stable"):
+    for k in (np.argsort(stamps, kind="stable") if merge else range(len(stamps))):
         msg_id = int(owner[k])
         record = subscriptions[msg_id][2][row[k]].tobytes()
         out.append(_message(b"D", struct.pack("<H", msg_id) + record))

@@ -117,6 +117,7 @@ class _Topics:
                 keep = main_block(raw_stamps)
                 if len(keep) < 2:
                     return None
+                _check_time_order(raw_stamps, keep, name, self.path)
                 if int(raw_stamps[keep].max()) >= _MAX_STAMP_US:
                     raise FlightDataError(f"corrupt timestamp {int(raw_stamps[keep].max())} us",
                                           self.path, column=f"{name}.timestamp")
@@ -184,6 +185,20 @@ def _check_ulog_options(path: Path, rate_hz: object, kind: object, pitch_mix: ob
     _check_name(name, path)
     for option, value in flags.items():
         _check_bool(value, option, path)
+
+
+def _check_time_order(raw_stamps: np.ndarray, keep: np.ndarray, name: str, path: Path) -> None:
+    """Refuse a topic whose used samples go back in time in the file (a corrupt or spliced log:
+    sorting them would silently reorder the flight)."""
+    in_file_order = np.sort(keep)
+    stamps = raw_stamps[in_file_order].astype(np.int64)
+    back = np.flatnonzero(np.diff(stamps) < 0)
+    if len(back):
+        k = int(back[0])
+        raise FlightDataError(
+            f"timestamps of topic '{name}' go backwards at its sample {int(in_file_order[k + 1])}"
+            f" ({int(stamps[k + 1])} us after {int(stamps[k])} us): a log's samples are in time "
+            "order, so the log is corrupt or spliced", path, column=f"{name}.timestamp")
 
 
 def _state_topics(topics: _Topics, path: Path) -> tuple[tuple, tuple, tuple, dict[str, str]]:
