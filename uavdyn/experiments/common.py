@@ -3,6 +3,8 @@ sortie's target states are and which condition it was flown in."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import casadi as ca
 import numpy as np
 
@@ -58,7 +60,6 @@ def provenance() -> dict:
     checkout (None for a wheel install), and the versions of the numerical stack."""
     import platform
     import subprocess
-    from pathlib import Path
 
     import casadi
 
@@ -105,16 +106,29 @@ def usable(step, dt: float) -> bool:
     return refusal(step, dt) is None
 
 
+def history_path(path) -> Path:
+    """The training history beside a weight file (``<stem>_history.json``), or ``path`` itself
+    when it is one (a run that kept no weights leaves only its history)."""
+    path = Path(path)
+    return path if path.name.endswith("_history.json") else path.with_name(
+        path.stem + "_history.json")
+
+
 def free_run_runner(step: DiscreteModel, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
                     sample_dt: float, dt: float, compiled: bool = True):
     """A callable running one whole-sortie free run of ``step`` (``controls`` one row per log
-    interval) and returning the body states at the log times (every ``dt/sample_dt``-th one
-    when ``dt`` exceeds the log interval): what is timed (inputs converted once, outside the
-    callable). A model with extra states (actuators, delay buffers, command memory) starts
-    with them at rest on the first command (:meth:`DiscreteModel.initial_state`)."""
+    interval) and returning the body states at the log times, or, when ``dt`` is a multiple
+    of the log interval, at the solver's own grid points: the solver samples the logged
+    command at its own step start, whole steps only (as
+    :func:`uavdyn.evaluation.evaluate_trajectory` does). This is what is timed (inputs
+    converted once, outside the callable). A model with extra states (actuators, delay
+    buffers, command memory) starts with them at rest on the first command
+    (:meth:`DiscreteModel.initial_state`)."""
     g = EvalGrid(sample_dt, dt)
-    check_use(step, dt, 0.0, len(controls) * sample_dt)
-    controls = controls[::g.stride]  # a step longer than the log interval samples its start
+    if g.stride > 1:  # the solver's own grid: one command per solver step
+        controls = controls[:len(controls) - len(controls) % g.stride:g.stride]
+        g = EvalGrid(dt, dt)
+    check_use(step, dt, 0.0, len(controls) * g.sample_dt)
     func = rollout(step, len(controls), g.substeps)
     func = compile_function(func) if compiled else func
     z0 = step_states(step, x0[None, :], controls[:1], p, g)[0]

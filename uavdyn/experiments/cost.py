@@ -36,7 +36,6 @@ from uavdyn.experiments.common import flight_mode, free_run_runner, refusal, tar
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import (
     DiscreteModel,
-    EvalGrid,
     GridError,
     StepUseError,
     body_model,
@@ -151,24 +150,152 @@ def _scipy_simulator(rhs, p: np.ndarray, sample_dt: float, method: str, rtol: fl
     return simulate
 
 
-def _model_runner(step: DiscreteModel, x0: np.ndarray, controls: np.ndarray, p: np.ndarray,
-                  sample_dt: float, dt: float, compiled: bool) -> Callable[[], np.ndarray]:
-    """:func:`free_run_runner` on the solver's own grid: for ``dt`` a multiple of the log
-    interval the solver samples the logged command at its own step start (as
-    :func:`uavdyn.evaluation.evaluate_trajectory` does)."""
-    g = EvalGrid(sample_dt, dt)
-    if g.stride > 1:
-        n = len(controls) - len(controls) % g.stride
-        return free_run_runner(step, x0, controls[:n:g.stride], p, dt, dt, compiled)
-    return free_run_runner(step, x0, controls, p, sample_dt, dt, compiled)
-
-
 def _bar_total(progress, n: int) -> None:
     owner = getattr(progress, "__self__", None)  # tqdm's bound ``update``: size the bar
     if owner is not None and hasattr(owner, "total"):
         owner.total = n
         if hasattr(owner, "refresh"):
             owner.refresh()
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """The timed and scored stretch of the sortie: what every configuration runs on."""
+
+    name: str
+    time: np.ndarray
+    truth: np.ndarray
+    controls: np.ndarray  # N+1 rows: row n is never applied (states at t_0..t_n)
+    sample_dt: float
+    altitude: float | None
+    mode: str  # how accuracy against the flight data is measured (:func:`flight_mode`)
+    reference: np.ndarray  # the nominal model's fine-step free run
+
+    @property
+    def applied(self) -> np.ndarray:
+        """The commands applied (one per log interval), contiguous."""
+        return np.ascontiguousarray(self.controls[:-1])
+
+    @property
+    def x0(self) -> np.ndarray:
+        return self.truth[0]
+
+    @property
+    def duration(self) -> float:
+        return float(self.time[-1] - self.time[0])
+
+
+def _segment_of(nominal: Airframe, sortie: Sortie, segment_s: float | None) -> _Segment:
+    n = _segment(sortie, segment_s)
+    time, truth = sortie.time[:n + 1], target_states(sortie)[:n + 1]
+    controls = sortie.controls[:n + 1]
+    ref = fine_reference(nominal, time, truth[0], controls,
+                         sortie_params(nominal, sortie.altitude_m))
+    return _Segment(sortie.name, time, truth, controls, sortie.dt, sortie.altitude_m,
+                    flight_mode(nominal.kind), ref)
+
+
+def _step_points(seg: _Segment, family: str, step: DiscreteModel, af: Airframe, dts,
+                 compiled: bool, table_dts) -> tuple[list[_Point], list[dict]]:
+    """A discrete model's free runs at every step size of ``dts`` it accepts (compiled
+    rollouts, or the CasADi VM), and the step sizes it refuses with the reason."""
+    p = sortie_params(af, seg.altitude)
+    points, missing = [], []
+    for dt in dts:
+        why = refusal(step, dt, seg.duration)
+        if why is None:
+            try:
+                run = free_run_runner(step, seg.x0, seg.applied, p, seg.sample_dt, dt,
+                                      compiled)
+            except (GridError, StepUseError, ValueError) as exc:
+                why = str(exc)
+        if why is not None:  # reported missing with the reason, never dropped
+            missing.append({"family": family, "dt": dt, "compiled": compiled, "missing": why})
+            continue
+        flight, vs_ref, note = _step_accuracy(Solver(family, step, dt), seg.time, seg.truth,
+                                              seg.reference, seg.controls, p, seg.mode)
+        points.append(_Point(f"{family} @ {dt:g} s", family, f"dt {dt:g} s", dt, compiled,
+                             run, af.name, dt in table_dts, flight=flight, reference=vs_ref,
+                             note=note))
+    return points, missing
+
+
+def _reference_solver_points(seg: _Segment, nominal: Airframe
+                             ) -> tuple[list[_Point], list[dict]]:
+    """CVODES at :data:`CVODES_TOLS` and scipy at :data:`SCIPY_RUNS` on the rigid body, or
+    all of them missing where the airframe has actuator lags or delays."""
+    structure = structure_of(nominal)
+    if structure.augmented:  # CVODES and scipy integrate the rigid body on the logged commands
+        why = ("the reference solvers integrate the rigid body on the logged commands; "
+               f"airframe '{nominal.name}' has actuator lags or delays")
+        return [], ([{"family": CVODES, "dt": None, "tol": t, "missing": why}
+                     for t in CVODES_TOLS] +
+                    [{"family": f"scipy {m}", "dt": None, "tol": r, "missing": why}
+                     for m, r in SCIPY_RUNS])
+    p_nom = sortie_params(nominal, seg.altitude)
+    f = build_model(nominal).f
+    u_dm, p_dm, x_dm = ca.DM(seg.applied.T), ca.DM(p_nom), ca.DM(seg.x0)
+    points = []
+    for tol in CVODES_TOLS:
+        cv_step = reference_step(f, tol=tol)
+        cv = rollout(cv_step, len(seg.applied))
+
+        def run_cvodes(cv=cv) -> np.ndarray:
+            return np.asarray(cv(x_dm, u_dm, p_dm, seg.sample_dt))
+
+        flight, vs_ref, note = _step_accuracy(
+            Solver(CVODES, body_model(cv_step, nominal.kind), seg.sample_dt), seg.time,
+            seg.truth, seg.reference, seg.controls, p_nom, seg.mode)
+        points.append(_Point(f"CVODES (tol {tol:g})", CVODES, f"tol {tol:g}", None, False,
+                             run_cvodes, nominal.name, tol == TABLE3_CVODES_TOL, tol=tol,
+                             flight=flight, reference=vs_ref, note=note))
+    rhs = numpy_rhs(structure)
+    for method, rtol in SCIPY_RUNS:
+        sim = _scipy_simulator(rhs, p_nom, seg.sample_dt, method, rtol)
+
+        def run_scipy(sim=sim) -> np.ndarray:
+            return sim(seg.x0, seg.controls)
+
+        flight, vs_ref = _sim_accuracy(sim, seg.time, seg.truth, seg.reference, seg.controls,
+                                       seg.mode, run_scipy())
+        points.append(_Point(f"scipy {method} (rtol {rtol:g})", f"scipy {method}",
+                             f"rtol {rtol:g}, atol {rtol * SCIPY_ATOL_FACTOR:g}", None,
+                             False, run_scipy, nominal.name, (method, rtol) in TABLE3_SCIPY,
+                             tol=rtol, flight=flight, reference=vs_ref))
+    return points, []
+
+
+def _emulator_point(seg: _Segment, nominal: Airframe) -> _Point:
+    """The emulator (the truth model) replaying the logged commands open loop."""
+    emulator = Emulator(nominal)
+    # the emulator's default when no altitude is logged
+    emu_alt = 100.0 if seg.altitude is None else seg.altitude
+
+    def emulate(x: np.ndarray, c: np.ndarray) -> np.ndarray:
+        xe = emulator.initial_state(x, c[0], emu_alt)
+        return emulator.fly(xe, open_loop_references(c)).true_states[:, :len(x)]
+
+    xe0 = emulator.initial_state(seg.x0, seg.controls[0], emu_alt)
+    refs = open_loop_references(seg.controls)
+
+    def run_emulator() -> np.ndarray:
+        return emulator.fly(xe0, refs).true_states
+
+    flight, vs_ref = _sim_accuracy(emulate, seg.time, seg.truth, seg.reference, seg.controls,
+                                   seg.mode, run_emulator()[:, :seg.truth.shape[1]])
+    return _Point(f"{EMULATOR} (RK4 @ {EMULATOR_DT:g} s)", EMULATOR,
+                  f"RK4 @ {EMULATOR_DT:g} s + actuators, unsteady aero", EMULATOR_DT, True,
+                  run_emulator, nominal.name, True, flight=flight, reference=vs_ref,
+                  note="times the emulator's own input handling too")
+
+
+def _point_row(pt: _Point, timing: Timing, mode: str) -> dict:
+    return {"label": pt.label, "family": pt.family, "setting": pt.setting, "dt": pt.dt,
+            "tol": pt.tol, "compiled": pt.compiled, "airframe": pt.airframe,
+            "min_ms": timing.min_ms, "median_ms": timing.median_ms,
+            "theta_rmse_vs_flight": pt.flight, "flight_mode": mode,
+            "theta_rmse_vs_reference": pt.reference, "in_table3": pt.in_table3,
+            "note": pt.note}
 
 
 def cost_study(nominal: Airframe, sortie: Sortie,
@@ -227,121 +354,35 @@ def cost_study(nominal: Airframe, sortie: Sortie,
     ValueError
         If ``segment_s`` is not positive, or ``repeats < 1``.
     """
-    n = _segment(sortie, segment_s)
-    sample_dt = sortie.dt
-    time = sortie.time[:n + 1]
-    truth = target_states(sortie)[:n + 1]
-    controls = sortie.controls[:n + 1]  # row n is never applied (states at t_0..t_n)
-    ctrl = np.ascontiguousarray(controls[:-1])
-    x0 = truth[0]
-    duration = float(time[-1] - time[0])
-    mode = flight_mode(nominal.kind)
-    alt = sortie.altitude_m
-    p_nom = sortie_params(nominal, alt)
-    ref = fine_reference(nominal, time, x0, controls, p_nom)
+    seg = _segment_of(nominal, sortie, segment_s)
+    rk4 = physics_step(nominal)
+    families = [(NOMINAL, rk4, nominal, RK4_DTS, True, TABLE3_RK4_DTS)]
+    if compiled_vm:
+        families.append((NOMINAL_VM, rk4, nominal, VM_DTS, False, VM_DTS))
+    families += [(label, step, af, MODEL_DTS, True, TABLE3_MODEL_DTS)
+                 for label, (step, af) in models.items()]
     points: list[_Point] = []
     missing: list[dict] = []
-
-    def add_steps(family: str, step: DiscreteModel, af: Airframe, dts, compiled: bool,
-                  table_dts) -> None:
-        p = sortie_params(af, alt)
-        for dt in dts:
-            why = refusal(step, dt, duration)
-            if why is None:
-                try:
-                    EvalGrid(sample_dt, dt)
-                    run = _model_runner(step, x0, ctrl, p, sample_dt, dt, compiled)
-                except (GridError, StepUseError, ValueError) as exc:
-                    why = str(exc)
-            if why is not None:  # reported missing with the reason, never dropped
-                missing.append({"family": family, "dt": dt, "compiled": compiled,
-                                "missing": why})
-                continue
-            flight, vs_ref, note = _step_accuracy(Solver(family, step, dt), time,
-                                                  truth, ref, controls, p, mode)
-            points.append(_Point(f"{family} @ {dt:g} s", family, f"dt {dt:g} s", dt, compiled,
-                                 run, af.name, dt in table_dts, flight=flight,
-                                 reference=vs_ref, note=note))
-
-    rk4 = physics_step(nominal)
-    add_steps(NOMINAL, rk4, nominal, RK4_DTS, True, TABLE3_RK4_DTS)
-    if compiled_vm:
-        add_steps(NOMINAL_VM, rk4, nominal, VM_DTS, False, VM_DTS)
-    for label, (step, af) in models.items():
-        add_steps(label, step, af, MODEL_DTS, True, TABLE3_MODEL_DTS)
-
-    structure = structure_of(nominal)
-    if structure.augmented:  # CVODES and scipy integrate the rigid body on the logged commands
-        why = ("the reference solvers integrate the rigid body on the logged commands; "
-               f"airframe '{nominal.name}' has actuator lags or delays")
-        missing += [{"family": CVODES, "dt": None, "tol": t, "missing": why}
-                    for t in CVODES_TOLS]
-        missing += [{"family": f"scipy {m}", "dt": None, "tol": r, "missing": why}
-                    for m, r in SCIPY_RUNS]
-    else:
-        f = build_model(nominal).f
-        u_dm, p_dm, x_dm = ca.DM(ctrl.T), ca.DM(p_nom), ca.DM(x0)
-        for tol in CVODES_TOLS:
-            cv_step = reference_step(f, tol=tol)
-            cv = rollout(cv_step, n)
-
-            def run_cvodes(cv=cv) -> np.ndarray:
-                return np.asarray(cv(x_dm, u_dm, p_dm, sample_dt))
-
-            flight, vs_ref, note = _step_accuracy(Solver(CVODES, body_model(cv_step, nominal.kind),
-                                                         sample_dt), time,
-                                                  truth, ref, controls, p_nom, mode)
-            points.append(_Point(f"CVODES (tol {tol:g})", CVODES, f"tol {tol:g}", None, False,
-                                 run_cvodes, nominal.name, tol == TABLE3_CVODES_TOL, tol=tol,
-                                 flight=flight, reference=vs_ref, note=note))
-        rhs = numpy_rhs(structure)
-        for method, rtol in SCIPY_RUNS:
-            sim = _scipy_simulator(rhs, p_nom, sample_dt, method, rtol)
-
-            def run_scipy(sim=sim) -> np.ndarray:
-                return sim(x0, controls)
-
-            flight, vs_ref = _sim_accuracy(sim, time, truth, ref, controls, mode, run_scipy())
-            points.append(_Point(f"scipy {method} (rtol {rtol:g})", f"scipy {method}",
-                                 f"rtol {rtol:g}, atol {rtol * SCIPY_ATOL_FACTOR:g}", None,
-                                 False, run_scipy, nominal.name,
-                                 (method, rtol) in TABLE3_SCIPY, tol=rtol, flight=flight,
-                                 reference=vs_ref))
-    emulator = Emulator(nominal)
-    emu_alt = 100.0 if alt is None else alt  # the emulator's default when no altitude is logged
-
-    def emulate(x: np.ndarray, c: np.ndarray) -> np.ndarray:
-        xe = emulator.initial_state(x, c[0], emu_alt)
-        return emulator.fly(xe, open_loop_references(c)).true_states[:, :len(x)]
-
-    xe0, refs = emulator.initial_state(x0, controls[0], emu_alt), open_loop_references(controls)
-
-    def run_emulator() -> np.ndarray:
-        return emulator.fly(xe0, refs).true_states
-
-    flight, vs_ref = _sim_accuracy(emulate, time, truth, ref, controls, mode,
-                                   run_emulator()[:, :truth.shape[1]])
-    points.append(_Point(f"{EMULATOR} (RK4 @ {EMULATOR_DT:g} s)", EMULATOR,
-                         f"RK4 @ {EMULATOR_DT:g} s + actuators, unsteady aero", EMULATOR_DT,
-                         True, run_emulator, nominal.name, True, flight=flight,
-                         reference=vs_ref, note="times the emulator's own input handling too"))
+    for family in families:
+        pts, gone = _step_points(seg, *family)
+        points += pts
+        missing += gone
+    pts, gone = _reference_solver_points(seg, nominal)
+    points += pts
+    missing += gone
+    points.append(_emulator_point(seg, nominal))
 
     _bar_total(progress, len(points) * repeats)
     timings = interleaved_timing({pt.label: pt.run for pt in points}, repeats,
                                  progress=progress)
-    rows = [{"label": pt.label, "family": pt.family, "setting": pt.setting, "dt": pt.dt,
-             "tol": pt.tol, "compiled": pt.compiled, "airframe": pt.airframe,
-             "min_ms": timings[pt.label].min_ms, "median_ms": timings[pt.label].median_ms,
-             "theta_rmse_vs_flight": pt.flight, "flight_mode": mode,
-             "theta_rmse_vs_reference": pt.reference, "in_table3": pt.in_table3,
-             "note": pt.note} for pt in points]
-    return {"sortie": sortie.name, "segment_s": duration,
-            "grid": (f"logged commands held over each {sample_dt:g} s log interval (ZOH on the "
-                     "log grid); a step longer than the interval samples the command at its "
-                     "own step start"),
+    return {"sortie": sortie.name, "segment_s": seg.duration,
+            "grid": (f"logged commands held over each {seg.sample_dt:g} s log interval (ZOH on "
+                     "the log grid); a step longer than the interval samples the command at "
+                     "its own step start"),
             "repeats": repeats, "harness": HARNESS.replace("N repeats", f"{repeats} repeats"),
-            "flight_mode": mode, "points": rows, "missing": missing,
-            "ratios": _ratios(points, timings, models)}
+            "flight_mode": seg.mode,
+            "points": [_point_row(pt, timings[pt.label], seg.mode) for pt in points],
+            "missing": missing, "ratios": _ratios(points, timings, models)}
 
 
 def _ratios(points: list[_Point], timings: dict[str, Timing], models: Mapping) -> dict:
