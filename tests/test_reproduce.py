@@ -22,11 +22,18 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
+    """The quick pipeline, its output folder, its dataset cache and the predictions it made
+    (counted by content: :func:`test_predictions.count_predictions`)."""
+    from test_predictions import count_predictions
+
     out = tmp_path_factory.mktemp("results")
     cache = tmp_path_factory.mktemp("datasets")
-    results = run(ReproduceConfig(out=str(out), quick=True, cache=str(cache), cost_repeats=2,
-                                  cost_segment_s=2.0, progress=False, save_trajectories=True))
-    return out, results, cache
+    with pytest.MonkeyPatch.context() as mp:
+        counts = count_predictions(mp)
+        results = run(ReproduceConfig(out=str(out), quick=True, cache=str(cache),
+                                      cost_repeats=2, cost_segment_s=2.0, progress=False,
+                                      save_trajectories=True))
+    return out, results, cache, counts
 
 
 def finite(x):
@@ -45,7 +52,7 @@ def ships(name: str) -> bool:
 
 
 def test_tables_have_rows_and_finite_numbers(quick_run):
-    out, results, _ = quick_run
+    out, results, _, _ = quick_run
     assert [a["airframe"] for a in results["airframes"]] == ["f450", "aerosonde"]
     for af in results["airframes"]:
         groups = af["table1"]
@@ -83,7 +90,7 @@ def test_tables_have_rows_and_finite_numbers(quick_run):
 
 
 def test_figures_are_valid_pngs(quick_run):
-    out, results, _ = quick_run
+    out, results, _, _ = quick_run
     for af in results["airframes"]:
         figs = af["figures"]
         for name in ("error_vs_horizon", "fig2", "fig3", "fig4", "fig5", "fig6",
@@ -93,6 +100,30 @@ def test_figures_are_valid_pngs(quick_run):
                 assert fh.read(8) == PNG_MAGIC
             image = matplotlib.image.imread(path)
             assert image.shape[0] > 100 and image.shape[1] > 100
+
+
+def test_each_prediction_is_made_once(quick_run):
+    """The ladder, Table 1, Table 4 and the figures read one store: no (model, step size,
+    sortie, target) prediction is computed twice, and Table 1 pools the ladder's."""
+    _, results, _, counts = quick_run
+    for kind, counter in counts.items():
+        assert counter, kind
+        assert max(counter.values()) == 1, (kind, [k for k, n in counter.items() if n > 1])
+    # Table 1 computes one per model and test sortie against each target (its flight-data
+    # rows are the ladder's and the nominal physics at the other step sizes); Table 4 adds
+    # the perturbed sorties only; the ladder's horizon curves are one per rung and sortie
+    expected = {"trajectory": 0, "horizons": 0}
+    for af in results["airframes"]:
+        n = len(af["dataset"]["test_sorties"])
+        groups = list(af["table1"].values())
+        data = next(t for t in groups if t["target"] == "data")["rows"]
+        reference = next(t for t in groups if t["target"] == "reference")["rows"]
+        perturbed = [r for r in af["table4"] if r["scenario"].startswith("+15 %")]
+        assert perturbed and not any("missing" in r for r in perturbed)
+        expected["trajectory"] += (len(data) + len(reference)) * n + sum(
+            r["sorties"] for r in perturbed)
+        expected["horizons"] += len(af["ladder"]["models"]) * n
+    assert {k: sum(c.values()) for k, c in counts.items()} == expected
 
 
 def _report_tables(report: str):
@@ -111,7 +142,7 @@ def _report_tables(report: str):
 
 
 def test_report_never_places_a_paper_figure_in_a_measured_row(quick_run):
-    out, results, _ = quick_run
+    out, results, _, _ = quick_run
     report = (out / "report.md").read_text()
     paper = ("1.82e-3", "0.00182", "1.47e-3", "0.00147", "2.31e-3", "0.00231", "148 ms",
              "287 ms", "92 ms")
@@ -128,7 +159,7 @@ def test_report_never_places_a_paper_figure_in_a_measured_row(quick_run):
 def test_no_table_scores_training_or_validation_sorties(quick_run):
     from uavdyn.flightdata import load_dataset
 
-    out, results, cache = quick_run
+    out, results, cache, _ = quick_run
     for af in results["airframes"]:
         folder = next(p for p in cache.iterdir() if p.name.startswith(
             "quadrotor" if af["kind"] == "multirotor" else "fixed_wing"))
@@ -146,9 +177,9 @@ def test_no_table_scores_training_or_validation_sorties(quick_run):
 
 def test_headline_recomputed_from_the_per_sortie_table(quick_run):
     from uavdyn.evaluation import SortieError, pooled_with_interval
-    from uavdyn.experiments.report import _e
+    from uavdyn.experiments.report import fmt
 
-    out, results, _ = quick_run
+    out, results, _, _ = quick_run
     metrics = json.loads((out / "metrics.json").read_text())
     report = (out / "report.md").read_text()
     headline = report.split("## f450")[0]
@@ -169,8 +200,8 @@ def test_headline_recomputed_from_the_per_sortie_table(quick_run):
                     interval = pooled_with_interval([SortieError(s, float(c["sse"]), c["n"])
                                                      for s, c in cells])
                     assert interval.rmse == pytest.approx(pooled, rel=1e-12)
-                    text = (f"{model} {_e(pooled)} [{_e(interval.low)}, "
-                            f"{_e(interval.high)}]")
+                    text = (f"{model} {fmt(pooled)} [{fmt(interval.low)}, "
+                            f"{fmt(interval.high)}]")
                     line = next(ln for ln in headline.splitlines() if ln.startswith(
                         f"- **{af['airframe']}, {cond}, {label}**"))
                     assert text in line, (text, line)
@@ -179,7 +210,7 @@ def test_headline_recomputed_from_the_per_sortie_table(quick_run):
 
 
 def test_metrics_recomputed_from_saved_trajectories(quick_run):
-    out, results, _ = quick_run
+    out, results, _, _ = quick_run
     text = (out / "metrics.json").read_text()
     metrics = json.loads(text)
     import uavdyn
@@ -354,19 +385,19 @@ def test_dataset_cache_key_follows_recipe_version_and_generator_code(monkeypatch
     import uavdyn
     from uavdyn.emulation import datagen
     from uavdyn.emulation.datagen import shipped_recipe
-    from uavdyn.experiments import reproduce
+    from uavdyn.experiments import data
 
     recipe = shipped_recipe("datagen_fixed_wing")
-    key = reproduce.dataset_cache_key(recipe)
-    assert reproduce.dataset_cache_key(shipped_recipe("datagen_fixed_wing")) == key
+    key = data.dataset_cache_key(recipe)
+    assert data.dataset_cache_key(shipped_recipe("datagen_fixed_wing")) == key
     recipe.sorties += 1
-    assert reproduce.dataset_cache_key(recipe) != key
+    assert data.dataset_cache_key(recipe) != key
     recipe.sorties -= 1
     monkeypatch.setattr(uavdyn, "__version__", uavdyn.__version__ + ".post1")
-    assert reproduce.dataset_cache_key(recipe) != key
+    assert data.dataset_cache_key(recipe) != key
     monkeypatch.undo()
-    monkeypatch.setattr(reproduce, "generator_code_hash", lambda: "other emulator code")
-    assert reproduce.dataset_cache_key(recipe) != key
+    monkeypatch.setattr(data, "generator_code_hash", lambda: "other emulator code")
+    assert data.dataset_cache_key(recipe) != key
     assert datagen.generator_code_hash() != "other emulator code"
 
 
@@ -385,7 +416,7 @@ def test_retrain_trains_the_earlier_formulations_on_the_nominal_airframe(monkeyp
     identified airframes have them) must not hand the ``paper`` formulation, which steps the
     4 body states only, an airframe it refuses: every earlier formulation sits on the nominal
     airframe, as its shipped weights do."""
-    from uavdyn.experiments import reproduce
+    from uavdyn.experiments import data
     from uavdyn.learned import hybrid_step, shipped_identified
     from uavdyn.model import structure_of
 
@@ -396,14 +427,14 @@ def test_retrain_trains_the_earlier_formulations_on_the_nominal_airframe(monkeyp
 
     def fake_obtain(airframe, ds, formulation, config, log):
         calls.append((airframe.name, formulation))
-        path = reproduce.weights_path(airframe, formulation, ReproduceConfig(out=str(tmp_path)))
+        path = data.weights_path(airframe, formulation, ReproduceConfig(out=str(tmp_path)))
         return path if path.exists() else None  # the shipped paper weights stand in
 
-    monkeypatch.setattr(reproduce, "obtain_weights", fake_obtain)
+    monkeypatch.setattr(data, "obtain_weights", fake_obtain)
     config = ReproduceConfig(out=str(tmp_path), retrain=True, progress=False)
-    models = reproduce.legacy_models(nominal, None, config, lambda *a: None)
-    assert sorted(calls) == sorted((nominal.name, f) for f in reproduce.LEGACY)
+    models = data.legacy_models(nominal, None, config, lambda *a: None)
+    assert sorted(calls) == sorted((nominal.name, f) for f in data.LEGACY)
     assert models and all(owner is nominal for _, owner, _ in models.values())
     # and the refusal this avoids is real: the paper weights on the identified airframe
     with pytest.raises(ValueError, match="paper"):
-        hybrid_step(reproduce.weights_path(nominal, "paper", config), identified)
+        hybrid_step(data.weights_path(nominal, "paper", config), identified)

@@ -17,8 +17,13 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from uavdyn.airframes import Airframe  # noqa: E402
-from uavdyn.evaluation import Solver, evaluate_trajectory  # noqa: E402
-from uavdyn.experiments.common import condition, target_states  # noqa: E402
+from uavdyn.evaluation import Solver  # noqa: E402
+from uavdyn.experiments.common import (  # noqa: E402
+    condition,
+    flight_mode,
+    history_path,
+    target_states,
+)
 from uavdyn.experiments.cost import (  # noqa: E402
     CVODES,
     EMULATOR,
@@ -26,26 +31,28 @@ from uavdyn.experiments.cost import (  # noqa: E402
     NOMINAL,
     NOMINAL_VM,
 )
+from uavdyn.experiments.predictions import Candidate, PredictionStore  # noqa: E402
 from uavdyn.integrate import StepUseError  # noqa: E402
 
 STYLES = {"nominal physics": "C0--", "identified physics": "C1-", "corrected": "C3-",
           "hybrid paper": "C2:"}
 
 
-def _solvers(rungs, legacy: dict) -> list[tuple[Solver, str, np.ndarray]]:
-    """(solver, style, parameters): the ladder's models, and the earlier flight-data
-    formulation (``paper``) at the ladder's step where it accepts it, each on the airframe its
-    weights were trained on."""
-    out = [(r.solver, STYLES.get(r.label, "C4-."), r.airframe.p) for r in rungs]
+def _models(rungs: list[Candidate], legacy: dict) -> list[tuple[Candidate, str]]:
+    """(model, style): the ladder's models, and the earlier flight-data formulation
+    (``paper``) at the ladder's step where it accepts it, else at 0.005 s, each on the
+    airframe its weights were trained on."""
+    out = [(r, STYLES.get(r.label, "C4-.")) for r in rungs]
     dt = rungs[0].solver.dt
     for label, (step, owner, _) in legacy.items():
         for d in (dt, 0.005):
-            solver = Solver(label, step, d)
             try:
                 step.check_use(d, 0.0, 0.0)
             except StepUseError:
                 continue
-            out.append((solver, STYLES.get(label, "C4-."), owner.p))
+            physics = "nominal" if owner is rungs[0].airframe else "identified"
+            out.append((Candidate(Solver(label, step, d), owner, physics, label),
+                        STYLES.get(label, "C4-.")))
             break
     return out
 
@@ -60,23 +67,15 @@ def _save(fig, path: Path, layout: bool = True) -> str:
     return str(path)
 
 
-def _predict(solver: Solver, sortie, p, known: dict | None) -> dict:
-    """The solver's predictions on a sortie: the pipeline's own where it made them already."""
-    res = (known or {}).get((solver.name, sortie.name))
-    if res is None:
-        res = evaluate_trajectory(solver, sortie.time, target_states(sortie), sortie.controls, p)
-    return res
-
-
-def time_histories(airframe: Airframe, sortie, models: list, out: Path,
-                   known: dict | None = None) -> dict[str, str]:
+def time_histories(airframe: Airframe, sortie, models: list[tuple[Candidate, str]], out: Path,
+                   store: PredictionStore) -> dict[str, str]:
     """Figures 2 and 3: pitch angle and pitch rate against time on one test sortie."""
 
     truth = target_states(sortie)
-    runs = [(s, style, _predict(s, sortie, p, known)) for s, style, p in models]
+    runs = [(m.solver, style, store.trajectory(m, sortie)) for m, style in models]
     # An open-loop quadrotor is neutrally stable in pitch: a whole-sortie replay of the logged
     # commands drifts away for any model short of the truth, so show 1 s predictions there.
-    mode = "free_run" if airframe.kind == "fixed_wing" else "horizon_1s"
+    mode = flight_mode(airframe.kind)
     how = ("free run from the first state" if mode == "free_run" else
            "1 s predictions restarted from the recorded state every second")
     paths = {}
@@ -112,8 +111,7 @@ def loss_history(airframe: Airframe, weight_files: dict, out: Path) -> str | Non
     training and validation windows after every epoch (older histories: the mean over each
     epoch's mini-batches, training only)."""
     path = weight_files.get("corrected")  # the weights, or the history of a run that kept none
-    hist_path = (None if not path else Path(path) if str(path).endswith("_history.json")
-                 else Path(path).with_name(Path(path).stem + "_history.json"))
+    hist_path = history_path(path) if path else None
     if hist_path is None or not hist_path.exists():
         return None
     doc = json.loads(hist_path.read_text())
@@ -180,17 +178,18 @@ def error_vs_horizon(airframe: Airframe, curves: dict, out: Path) -> str | None:
     return _save(fig, out / f"error_vs_horizon_{airframe.name}.png")
 
 
-def error_distribution(airframe: Airframe, sorties: list, models: list, out: Path,
-                       known: dict | None = None) -> str:
+def error_distribution(airframe: Airframe, sorties: list, models: list[tuple[Candidate, str]],
+                       out: Path, store: PredictionStore) -> str:
     """Figure 6: distribution of free-run pitch errors over the test sorties, and each sortie's
     maximum error (the envelope), RK4 against the hybrid."""
 
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4.5))
-    mode = "free_run" if airframe.kind == "fixed_wing" else "horizon_1s"
-    for k, (solver, style, p) in enumerate(models):
+    mode = flight_mode(airframe.kind)
+    for k, (model, style) in enumerate(models):
+        solver = model.solver
         errs, maxima = [], []
         for s in sorties:
-            res = _predict(solver, s, p, known)
+            res = store.trajectory(model, s)
             if mode not in res:  # refused: outside the step's trained dt or time range
                 continue
             pred, targ = res[mode]
@@ -326,23 +325,23 @@ def cost_figure(airframe_name: str, study: dict, out_dir: str | Path) -> str:
     return _save(fig, Path(out_dir) / f"fig5_cost_{airframe_name}.png", layout=False)
 
 
-def make_all(airframe: Airframe, ds, rungs, legacy: dict, result: dict, out: Path,
-             known: dict | None = None) -> dict[str, str]:
-    """Every figure for one airframe; returns name -> PNG path. ``known``: predictions the
-    pipeline already made, ``{(model, sortie): result}``, reused instead of recomputed."""
+def make_all(airframe: Airframe, ds, rungs: list[Candidate], legacy: dict, result: dict,
+             out: Path, store: PredictionStore) -> dict[str, str]:
+    """Every figure for one airframe; returns name -> PNG path. The predictions come from
+    ``store`` (the ones the tables were made of)."""
     out = Path(out)
     test = ds.test
-    models = _solvers(rungs, legacy)
+    models = _models(rungs, legacy)
     calm = [s for s in test if condition(s) == "calm"] or test
     paths = {}
     horizon = error_vs_horizon(airframe, result["ladder"]["horizons"], out)
     if horizon:
         paths["error_vs_horizon"] = horizon
-    paths.update(time_histories(airframe, calm[0], models, out, known))
+    paths.update(time_histories(airframe, calm[0], models, out, store))
     fig4 = loss_history(airframe, result["weights"], out)
     if fig4:
         paths["fig4"] = fig4
     paths["fig5"] = cost_figure(airframe.name, result["cost"], out)
-    paths["fig6"] = error_distribution(airframe, test, models, out, known)
+    paths["fig6"] = error_distribution(airframe, test, models, out, store)
     paths["work_precision"] = work_precision_figure(airframe.name, result["cost"], out)
     return paths

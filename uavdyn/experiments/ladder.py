@@ -9,7 +9,6 @@ error and sample count per sortie and model): :func:`headline` takes nothing els
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -20,21 +19,14 @@ from uavdyn.evaluation import (
     SortieError,
     compare_paired,
     error_growth,
-    evaluate_trajectory,
-    horizon_predictions,
     pooled_with_interval,
     squared_error,
 )
-from uavdyn.experiments.common import (
-    IDENTIFIED_PHYSICS,
-    NOMINAL_PHYSICS,
-    condition,
-    target_states,
-)
+from uavdyn.experiments.common import IDENTIFIED_PHYSICS, NOMINAL_PHYSICS, condition
+from uavdyn.experiments.predictions import Candidate, PredictionStore
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import physics_step
 from uavdyn.learned import hybrid_step, load_weights
-from uavdyn.model import sortie_params
 
 LADDER = (NOMINAL_PHYSICS, IDENTIFIED_PHYSICS, "corrected")
 CONDITIONS = ("calm", "turbulent")
@@ -43,20 +35,12 @@ HORIZONS_S = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 WORSE_TOLERANCE = 0.10  # "never worse by more than 10 % on any sortie" (the safe rule)
 
 
-@dataclass(frozen=True)
-class Rung:
-    """One model of the ladder: its solver and the airframe whose parameters it runs on."""
-
-    label: str
-    solver: Solver
-    airframe: Airframe
-
-
 def ladder_rungs(nominal: Airframe, identified: Airframe | None,
                  correction: str | Path | None, dt: float | None = None,
-                 why_no_correction: str | None = None) -> tuple[list[Rung], dict[str, str]]:
+                 why_no_correction: str | None = None
+                 ) -> tuple[list[Candidate], dict[str, str]]:
     """The three models at one step size (the correction's trained step; ``dt`` when there is
-    no correction), and why any rung is missing.
+    no correction), and why any rung is missing. Each rung's row name is its label.
 
     Parameters
     ----------
@@ -78,17 +62,15 @@ def ladder_rungs(nominal: Airframe, identified: Airframe | None,
     else:
         missing["corrected"] = "no identified physics for the correction to run on"
     dt = float(dt if dt is not None else 0.01)
-    rungs = [Rung("nominal physics", Solver("nominal physics", physics_step(nominal), dt),
-                  nominal)]
+    rungs = [Candidate(Solver(NOMINAL_PHYSICS, physics_step(nominal), dt), nominal)]
     if identified is not None:
-        rungs.append(Rung("identified physics", Solver(
-            "identified physics", physics_step(identified), dt), identified))
+        rungs.append(Candidate(Solver(IDENTIFIED_PHYSICS, physics_step(identified), dt),
+                               identified, "identified"))
     else:
-        missing["identified physics"] = "identification not run or refused"
+        missing[IDENTIFIED_PHYSICS] = "identification not run or refused"
     if net is not None:
-        rungs.append(Rung("corrected", Solver("corrected", hybrid_step(net, identified,
-                                                                       compile=False), dt),
-                          identified))
+        rungs.append(Candidate(Solver("corrected", hybrid_step(net, identified, compile=False),
+                                      dt), identified, "identified"))
     return rungs, missing
 
 
@@ -97,21 +79,17 @@ def _error(pair) -> dict:
     return {"sse": sse, "n": n}
 
 
-def per_sortie_rows(rungs: list[Rung], sorties: list[Sortie], horizons_s=HORIZONS_S,
-                    progress=None, keep: dict | None = None) -> list[dict]:
+def per_sortie_rows(rungs: list[Candidate], sorties: list[Sortie], store: PredictionStore,
+                    horizons_s=HORIZONS_S, progress=None) -> list[dict]:
     """One row per (sortie, model): pitch squared-error sums and counts for one step, 1 s
     windows, the whole-sortie free run and every horizon of ``horizons_s``, the free run's
     departure time (pitch error above 0.5 rad) and the reason for any mode the step refused.
-    ``keep``, if given, receives every prediction as ``{(model, sortie): result}`` (the
-    :func:`uavdyn.evaluation.evaluate_trajectory` dict) for tables that pool them."""
+    The row's model is the rung's label; the predictions come from ``store`` (made there
+    once, for the tables that pool them too)."""
     rows = []
     for s in sorties:
-        truth = target_states(s)
         for rung in rungs:
-            p = sortie_params(rung.airframe, s.altitude_m)
-            res = evaluate_trajectory(rung.solver, s.time, truth, s.controls, p)
-            if keep is not None:
-                keep[(rung.label, s.name)] = res
+            res = store.trajectory(rung, s)
             row = {"sortie": s.name, "mission": s.mission, "condition": condition(s),
                    "model": rung.label, "dt": rung.solver.dt}
             for mode in ("one_step", "horizon_1s", "free_run"):
@@ -124,8 +102,7 @@ def per_sortie_rows(rungs: list[Rung], sorties: list[Sortie], horizons_s=HORIZON
                 growth = error_growth(res["free_run_time"], *res["free_run"])
                 row["free_run_departure_s"] = growth["time_to_divergence_s"]
             try:
-                curve = horizon_predictions(rung.solver, s.time, truth, s.controls, p,
-                                            horizons_s)
+                curve = store.horizons(rung, s, horizons_s)
             except ValueError as exc:  # StepUseError is a ValueError: the step refuses
                 row.setdefault("refused", {})["horizons"] = str(exc)
                 curve = {}

@@ -1,6 +1,8 @@
-"""Markdown report of the validation pipeline: the headline first (nominal -> identified ->
-corrected, every airframe and condition, with spread), error against horizon, per-sortie
-results, then Tables 1-4, the work-precision summary and the figures.
+"""Markdown of the validation results: ``report.md`` of ``uavdyn reproduce`` (the headline
+first: nominal -> identified -> corrected, every airframe and condition, with spread; error
+against horizon, per-sortie results, then Tables 1-4, the work-precision summary and the
+figures) and the Markdown of ``uavdyn evaluate`` (:func:`evaluation_markdown`). Every builder
+takes the JSON-able result and returns lines.
 """
 
 from __future__ import annotations
@@ -13,7 +15,9 @@ from uavdyn.experiments.ladder import per_sortie_rmse
 from uavdyn.integrate import DEPARTURE_RAD
 
 
-def _e(value) -> str:
+def fmt(value) -> str:
+    """A measured number as the report writes it (3 significant digits; ``n/a`` for None,
+    ``diverged`` for a non-finite value; text as it is)."""
     if value is None:
         return "n/a"
     if isinstance(value, str):
@@ -25,7 +29,7 @@ def _e(value) -> str:
 
 def _ci(m: dict) -> str:
     """``0.0113 [0.0019, 0.0182]``: pooled figure and its bootstrap interval."""
-    return f"{_e(m['rmse'])} [{_e(m['ci_low'])}, {_e(m['ci_high'])}]"
+    return f"{fmt(m['rmse'])} [{fmt(m['ci_low'])}, {fmt(m['ci_high'])}]"
 
 
 def corrected_cost_ratio(af: dict) -> dict | None:
@@ -80,7 +84,7 @@ def headline_lines(af: dict) -> list[str]:
     ratio = corrected_cost_ratio(af)
     if ratio:
         lines.append(f"- **{name}, cost**: the corrected step costs {ratio['median']:.2f}x the "
-                     f"identified physics step at {_e(lad['dt'])} s (median; min "
+                     f"identified physics step at {fmt(lad['dt'])} s (median; min "
                      f"{ratio['min']:.2f}x; compiled free runs, one interleaved timing "
                      "harness, Table 3).")
     return lines
@@ -102,7 +106,7 @@ def first_paragraph(results: dict) -> str:
     return "\n".join(lines)
 
 
-def _per_sortie(af: dict) -> list[str]:
+def per_sortie_lines(af: dict) -> list[str]:
     """Per-sortie pitch RMSE of every model at 1 s and over the free run, and the ratio of
     the corrected model to the identified physics (flagged where it is worse)."""
     lad = af.get("ladder")
@@ -124,15 +128,16 @@ def _per_sortie(af: dict) -> list[str]:
             ratios.append(b / a if a and b is not None and math.isfinite(a) else None)
         flag = " **worse**" if any(r is not None and r > 1.0 for r in ratios) else ""
         lines.append(f"| {sortie} | {mission} | {cond} | "
-                     + " | ".join(_e(vals[(m, "horizon_1s")]) for m in models) + " | "
-                     + " | ".join(_e(vals[(m, "free_run")]) for m in models)
+                     + " | ".join(fmt(vals[(m, "horizon_1s")]) for m in models) + " | "
+                     + " | ".join(fmt(vals[(m, "free_run")]) for m in models)
                      + " | " + ", ".join("n/a" if r is None else "diverged"
                                          if not math.isfinite(r) else f"{r:.4g}"
                                          for r in ratios) + f"{flag} |")
     return lines + [""]
 
 
-def _horizons(af: dict) -> list[str]:
+def horizon_lines(af: dict) -> list[str]:
+    """Pooled pitch RMSE against horizon, one table per condition, from the ladder."""
     curves = (af.get("ladder") or {}).get("horizons", {})
     lines = []
     for cond, models in curves.items():
@@ -142,12 +147,13 @@ def _horizons(af: dict) -> list[str]:
                   "| model | " + " | ".join(f"{h:g} s" for h in horizons) + " |",
                   "|---|" + "---|" * len(horizons)]
         for model, points in models.items():
-            lines.append(f"| {model} | " + " | ".join(_e(p["pooled"]) for p in points) + " |")
+            lines.append(f"| {model} | " + " | ".join(fmt(p["pooled"]) for p in points) + " |")
         lines.append("")
     return lines
 
 
-def _table1(af: dict) -> list[str]:
+def table1_lines(af: dict) -> list[str]:
+    """Table 1 (accuracy), one table per target group, and the paper's own column."""
     lines = []
     for label, table in af["table1"].items():
         lines += [f"#### {label} ({len(table['sorties'])} test sorties)", "",
@@ -157,10 +163,10 @@ def _table1(af: dict) -> list[str]:
         for r in table["rows"]:
             fr = r.get("free_run", {})
             lines.append(
-                f"| {r['solver']} | {_e(r.get('one_step', {}).get('theta_rmse'))} | "
-                f"{_e(r.get('horizon_1s', {}).get('theta_rmse'))} | {_e(fr.get('theta_rmse'))} | "
-                f"{_e(fr.get('theta_mae'))} | {_e(fr.get('theta_max'))} | "
-                f"{_e(fr.get('q_rmse'))} | {_e(fr.get('u_rmse'))} |")
+                f"| {r['solver']} | {fmt(r.get('one_step', {}).get('theta_rmse'))} | "
+                f"{fmt(r.get('horizon_1s', {}).get('theta_rmse'))} | {fmt(fr.get('theta_rmse'))} | "
+                f"{fmt(fr.get('theta_mae'))} | {fmt(fr.get('theta_max'))} | "
+                f"{fmt(fr.get('q_rmse'))} | {fmt(fr.get('u_rmse'))} |")
         for r in table["rows"]:
             for mode, why in r.get("missing", {}).items():
                 lines.append(f"- {r['solver']}, {mode.replace('_', ' ')}: missing ({why})")
@@ -170,7 +176,8 @@ def _table1(af: dict) -> list[str]:
                     "| pitch max error | 2.31e-3 rad |", ""]
 
 
-def _table2(af: dict) -> list[str]:
+def table2_lines(af: dict) -> list[str]:
+    """Table 2 (convergence), one definition per column."""
     lines = ["| model | training loss (definition) | epoch 0 or first | final | validation "
              "loss, same definition: epoch 0, best | validation figure (definition) | physics "
              "| epoch 0 | best | epochs | best epoch | kept |",
@@ -179,41 +186,42 @@ def _table2(af: dict) -> list[str]:
         if "note" in r:
             lines.append(f"| {r['model']} ({r['weights']}) | {r['note']} | | | | | | | | | | |")
             continue
-        val_loss = (f"{_e(r.get('first_val_loss'))}, {_e(r.get('best_val_loss'))}"
+        val_loss = (f"{fmt(r.get('first_val_loss'))}, {fmt(r.get('best_val_loss'))}"
                     if r.get("val_loss_metric") else "not recorded")
         lines.append(f"| {r['model']} ({r['weights']}) | {r['train_metric']} | "
-                     f"{_e(r['first_train_loss'])} | {_e(r['final_train_loss'])} | "
+                     f"{fmt(r['first_train_loss'])} | {fmt(r['final_train_loss'])} | "
                      f"{val_loss} | "
-                     f"{r['val_metric']} | {_e(r['physics_val'])} | {_e(r['initial_val'])} | "
-                     f"{_e(r['best_val'])} | {r['epochs']} | {r['best_epoch']} | "
-                     f"{_e(r.get('kept'))} |")
+                     f"{r['val_metric']} | {fmt(r['physics_val'])} | {fmt(r['initial_val'])} | "
+                     f"{fmt(r['best_val'])} | {r['epochs']} | {r['best_epoch']} | "
+                     f"{fmt(r.get('kept'))} |")
     return lines + ["", "Each column has the one definition its header gives. The safe "
                     "correction's epoch 0 is the physics itself (zero output), so its "
                     "validation figure equals the physics column.", ""]
 
 
-def _table3(af: dict) -> list[str]:
+def table3_lines(af: dict) -> list[str]:
+    """Table 3 (cost) of the cost study, its timing ratios and the paper's own column."""
     c = af.get("cost") or {}
     if not c:
         return ["Not measured.", ""]
-    lines = [f"Free runs of `{c['sortie']}` (first {_e(c.get('segment_s'))} s), {c['grid']}; "
+    lines = [f"Free runs of `{c['sortie']}` (first {fmt(c.get('segment_s'))} s), {c['grid']}; "
              f"{c['harness']}.", "",
              "| solver | dt (s) | compiled | median (ms) | min (ms) | pitch RMSE vs flight | "
              "pitch RMSE vs reference |", "|---|---|---|---|---|---|---|"]
     for r in c["points"]:
         if not r.get("in_table3", True):
             continue
-        lines.append(f"| {r['family']} | {_e(r['dt'])} | {_e(r.get('compiled'))} | "
-                     f"{_e(r['median_ms'])} | {_e(r['min_ms'])} | "
-                     f"{_e(r['theta_rmse_vs_flight'])} | {_e(r['theta_rmse_vs_reference'])} |")
+        lines.append(f"| {r['family']} | {fmt(r['dt'])} | {fmt(r.get('compiled'))} | "
+                     f"{fmt(r['median_ms'])} | {fmt(r['min_ms'])} | "
+                     f"{fmt(r['theta_rmse_vs_flight'])} | {fmt(r['theta_rmse_vs_reference'])} |")
     for r in c.get("missing", []):
-        lines.append(f"| {r.get('family', r.get('solver'))} | {_e(r.get('dt'))} | | missing: "
+        lines.append(f"| {r.get('family', r.get('solver'))} | {fmt(r.get('dt'))} | | missing: "
                      f"{r['missing']} | | | |")
     ratios = c.get("ratios", {})
     lines += ["", "Ratios from the same harness run (time of the first over the second; "
               "median of medians, min of minima):", ""]
     for r in ratios.get("vs_physics_same_dt", []):
-        lines.append(f"- {r['model']} @ {_e(r['dt'])} s / {r['baseline']}: "
+        lines.append(f"- {r['model']} @ {fmt(r['dt'])} s / {r['baseline']}: "
                      f"{r['median']:.3g}x (median), {r['min']:.3g}x (min)")
     for r in ratios.get("vs_fine_rk4", []):
         lines.append(f"- {r['model']} / {r['baseline']}: {r['median']:.3g}x (median), "
@@ -223,7 +231,8 @@ def _table3(af: dict) -> list[str]:
                     "| RK4 @ 0.0005 s | 287 ms |", "| hybrid @ 0.005 s | 92 ms |", ""]
 
 
-def _table4(af: dict) -> list[str]:
+def table4_lines(af: dict) -> list[str]:
+    """Table 4 (robustness); a scenario without sorties, or a model refused, is missing."""
     lines = ["| scenario | solver | sorties | pitch-error growth (rad/s) | max error before "
              f"divergence (rad) | diverged (error > {DEPARTURE_RAD:g} rad) | "
              "first divergence (s) |",
@@ -238,8 +247,8 @@ def _table4(af: dict) -> list[str]:
                          f"{r['missing']} | | | |")
             continue
         lines.append(f"| {r['scenario']} | {r['solver']} | {r['sorties']} | "
-                     f"{_e(r['slope_rad_per_s'])} | {_e(r['max_error_rad'])} | "
-                     f"{r['diverged']} of {r['sorties']} | {_e(r.get('first_divergence_s'))} |")
+                     f"{fmt(r['slope_rad_per_s'])} | {fmt(r['max_error_rad'])} | "
+                     f"{r['diverged']} of {r['sorties']} | {fmt(r.get('first_divergence_s'))} |")
     return lines + [""]
 
 
@@ -262,18 +271,18 @@ def write_report(results: dict, path: Path) -> Path:
                   f"Identified physics and correction: "
                   f"{(af.get('identification') or {}).get('source', 'identified in this run')}.",
                   "", "### Prediction error against horizon", ""]
-        lines += fig("error_vs_horizon") + _horizons(af)
-        lines += ["### Per sortie (pitch RMSE, rad)", ""] + _per_sortie(af)
+        lines += fig("error_vs_horizon") + horizon_lines(af)
+        lines += ["### Per sortie (pitch RMSE, rad)", ""] + per_sortie_lines(af)
         lines += ["### Table 1: accuracy (pitch in rad, q in rad/s, u in m/s)", "",
                   "One-step: one solver step from every recorded state; 1 s: restarted from the "
                   "recorded state every second; free run: whole sortie from its first state. "
                   "Solver steps below the 0.01 s log interval sub-step the logged "
                   "(zero-order-held) control; 0.02 s samples it at its own step.", ""]
-        lines += _table1(af)
-        lines += ["### Table 2: convergence", ""] + _table2(af)
-        lines += ["### Table 3: cost", ""] + _table3(af) + fig("fig5") + fig("work_precision")
-        lines += [f"### Table 4: robustness (free run, dt = {_e(af['ladder']['dt'])} s)", ""]
-        lines += _table4(af)
+        lines += table1_lines(af)
+        lines += ["### Table 2: convergence", ""] + table2_lines(af)
+        lines += ["### Table 3: cost", ""] + table3_lines(af) + fig("fig5") + fig("work_precision")
+        lines += [f"### Table 4: robustness (free run, dt = {fmt(af['ladder']['dt'])} s)", ""]
+        lines += table4_lines(af)
         lines += ["### Figures", ""]
         for name in figs:
             if name not in ("error_vs_horizon", "fig5", "work_precision"):
@@ -281,3 +290,54 @@ def write_report(results: dict, path: Path) -> Path:
     lines += [f"Total pipeline wall time: {results.get('wall_s', 0):.0f} s.", ""]
     path.write_text("\n".join(lines))
     return path
+
+
+def safety_lines(entry: dict) -> list[str]:
+    """The per-sortie comparison of one correction with the physics it sits on
+    (:func:`uavdyn.experiments.tables.per_sortie_safety`)."""
+
+    def f(v):
+        return "n/a" if v is None else f"{v:.4g}"
+
+    lines = ["", f"## Per sortie: {entry['correction']} against {entry['physics']}", "",
+             f"Worse than its physics at 1 s on {entry['worse_at_1s']} of "
+             f"{len(entry['sorties'])} sorties, over the free run on "
+             f"{entry['worse_free_run']}.", "",
+             "Ratios compare errors against the truth where the data have it; against "
+             "records, with the pitch noise estimated from them (d theta/dt = q) taken off.",
+             "",
+             "| sortie | condition | 1 s: physics | corrected | ratio | free run: physics "
+             "| corrected | ratio | pitch noise taken off | outside envelope | worse |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in entry["sorties"]:
+        outside = r.get("outside_envelope")
+        lines.append(
+            f"| {r['sortie']} | {r['condition']} | {f(r['horizon_1s_physics'])} | "
+            f"{f(r['horizon_1s_corrected'])} | {f(r['horizon_1s_ratio'])} | "
+            f"{f(r['free_run_physics'])} | {f(r['free_run_corrected'])} | "
+            f"{f(r['free_run_ratio'])} | {r.get('pitch_noise_std', 0.0):.2g} | "
+            f"{'n/a' if outside is None else f'{100 * outside:.1f} %'} | "
+            f"{'**' + ', '.join(r['worse']) + '**' if r['worse'] else ''} |")
+    return lines
+
+
+def evaluation_markdown(result: dict) -> str:
+    """Markdown of :func:`uavdyn.experiments.evaluate.evaluate_dataset`: the ladder's headline,
+    error against horizon and per-sortie table, Table 1, Table 4 and the per-sortie
+    comparison of each correction with its physics."""
+
+    lines = [f"# Evaluation of {result['airframe']} on {result['dataset']}", "",
+             f"{len(result['sorties'])} sorties ({result['split']}); weights: "
+             + (", ".join(result["weights"]) or "none"), ""]
+    if result.get("ladder"):
+        lines += ["## Headline", "", "Pitch RMSE in rad at the log interval, pooled over the "
+                  "sorties of a group [95 % bootstrap over sorties].", ""]
+        lines += headline_lines(result) + ["", "## Error against horizon", ""]
+        lines += horizon_lines(result) + ["## Per sortie (pitch RMSE, rad)", ""]
+        lines += per_sortie_lines(result)
+    lines += ["## Table 1: accuracy", ""]
+    lines += table1_lines(result) + ["## Table 4: robustness (free run, dt = 0.005 s)", ""]
+    lines += table4_lines(result)
+    for entry in result.get("per_sortie", []):
+        lines += safety_lines(entry)
+    return "\n".join(lines)
