@@ -25,6 +25,14 @@ from uavdyn.model import ModelStructure, make_rhs, torch_ops
 DTYPE = torch.float64
 
 
+def seeded_generator(seed: int, threads: int) -> np.random.Generator:
+    """Start a seeded training run: torch's global generator seeded and its thread count set;
+    returns the run's NumPy generator (mini-batches), seeded alike."""
+    torch.manual_seed(seed)
+    torch.set_num_threads(threads)
+    return np.random.default_rng(seed)
+
+
 def torch_rhs(kind: str | ModelStructure):
     """``rhs(x (4,B), u (2,B), p (np,)) -> x_dot (4,B)`` from the model's own equations (a
     kind's default structure, or an airframe's)."""

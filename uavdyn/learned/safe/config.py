@@ -1,0 +1,140 @@
+"""What defines a safe-correction training run and what it returns: the configuration, the
+result, the error, and the quantities every stage derives from them (sample step, window
+lengths, the physics step and the correction's state layout)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from uavdyn.airframes import Airframe
+from uavdyn.flightdata import Sortie
+from uavdyn.integrate import DiscreteModel, physics_step
+from uavdyn.learned.formulations import CorrectionLayout
+from uavdyn.learned.hybrid import correction_structure
+from uavdyn.learned.stability import DEFAULT_MARGIN, StabilityReport
+from uavdyn.learned.weights import CorrectionNet
+from uavdyn.model import ModelStructure
+
+THETA = 3  # index of pitch in the body state (u, w, q, theta)
+# The hidden width by airframe kind. The cost target is relative to the physics step, and a
+# multirotor's physics step (no aerodynamic coefficients) costs about 0.34 us against a fixed
+# wing's 0.8 us (analysis/bench_hybrid.py): with the same network its hybrid step cost 1.5x
+# its physics' at width 8 and 1.4x at width 6, the fixed wing's 1.3x at width 8.
+DEFAULT_HIDDEN = {"fixed_wing": 8, "multirotor": 6}
+
+
+class SafeTrainingError(ValueError):
+    """The data cannot train a correction (the message says why)."""
+
+
+@dataclass
+class SafeConfig:
+    """Everything that defines a safe-correction training run (saved with the weights)."""
+
+    hidden: int | None = None         # width of the 3 ReLU layers; None: DEFAULT_HIDDEN of
+                                      # the airframe's kind (the width sets the step cost)
+    activation: str = "relu"
+    memory_tau: tuple[float, ...] | None = None  # None: (0.05, 0.2) s without actuator states
+    horizon_s: float = 2.0            # rollout windows from recorded states, this long
+    window_stride_s: float = 0.5
+    selection_horizon_s: float = 1.0  # validation metric: pitch RMSE over this horizon
+    batch_windows: int = 24
+    batches_per_epoch: int = 6
+    eval_windows: int = 128           # fixed train and validation windows scored after every
+                                      # epoch with the same loss (Table 2, Fig. 4)
+    epochs: int = 100                # a budget: patience ends a run that stops improving
+    lr: float = 3e-3
+    lr_final: float = 3e-4
+    patience: int = 8
+    pooled_weight: float = 0.0       # share of the loss on the pooled error (rest: per window)
+    stability_weight: float = 10.0
+    stability_margin: float = DEFAULT_MARGIN
+    envelope_quantile: float = 0.001
+    envelope_fade: float = 0.25
+    bound_factor: float = 2.0
+    shrink: tuple[float, ...] = (1.0, 0.75, 0.5, 0.35, 0.25)  # output scales tried at the end
+    candidate_epochs: int = 5        # the best epochs (by rank) the final checks go through
+    worst_sortie_ratio: float = 1.1  # every validation sortie: corrected/physics at 1 s <= this
+    state_ratio_limit: float = 1.02  # every body state (u, w, q, theta): pooled validation
+                                     # error at the selection horizon, its measurement noise
+                                     # taken off, corrected/physics <= this
+    channel_scales: tuple[float, ...] = (0.5, 0.0)  # where an output scale beats the physics
+                                     # in pitch but a state got worse: one output channel at a
+                                     # time scaled by these, the others kept
+    free_run_guard: bool = True      # ... and over its whole free run, where the physics' stays
+                                     # within DEPARTURE_RAD of the data; no new departures
+    seed: int = 0
+    threads: int = 1
+    max_seconds: float = 3600.0       # a safety net: epochs and patience end a run, so
+                                      # the result does not depend on the machine's speed
+    progress: bool = True
+
+
+@dataclass
+class SafeResult:
+    """The trained network (or None when it is not kept), its history and the checks."""
+
+    net: CorrectionNet | None
+    kept: bool
+    reason: str
+    history: list[dict]
+    config: SafeConfig
+    best_epoch: int
+    seconds: float
+    validation: dict = field(default_factory=dict)
+    stability: StabilityReport | None = None
+
+
+@dataclass(frozen=True)
+class SafeSetup:
+    """What a run derives from its configuration, airframe and data before any training."""
+
+    config: SafeConfig             # with ``hidden`` resolved
+    sample_dt: float               # the log's sample step
+    dt: float                      # the hybrid step: one call per log sample (delay buffers
+                                   # and memory count samples)
+    structure: ModelStructure      # the physics the correction sits on
+    memory_tau: tuple[float, ...]
+    horizon: int                   # samples per rollout window
+    horizon_sel: int               # samples of the selection horizon
+    stride: int                    # samples between window starts
+    physics: DiscreteModel         # the physics-only step
+
+    @property
+    def layout(self) -> CorrectionLayout:
+        """The correction's state layout, without gate or bound (they come from the data)."""
+        return CorrectionLayout(self.structure, self.memory_tau)
+
+    @property
+    def selection_horizon_s(self) -> float:
+        """The selection horizon in seconds, on the sample grid."""
+        return round(self.horizon_sel * self.sample_dt, 9)
+
+
+def safe_setup(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
+               config: SafeConfig | None) -> SafeSetup:
+    """The run's :class:`SafeSetup`.
+
+    Raises
+    ------
+    SafeTrainingError
+        If a split is empty.
+    """
+    cfg = config or SafeConfig()
+    if cfg.hidden is None:
+        cfg = replace(cfg, hidden=DEFAULT_HIDDEN[airframe.kind])
+    if not train_sorties or not val_sorties:
+        raise SafeTrainingError("training needs train and validation sorties")
+    sample_dt = float(np.median(np.diff(train_sorties[0].time)))
+    structure = correction_structure(airframe, airframe.kind, "improved")
+    taus = cfg.memory_tau if cfg.memory_tau is not None else (
+        () if structure.n_actuator else (0.05, 0.2))
+    H = max(1, int(round(cfg.horizon_s / sample_dt)))
+    return SafeSetup(
+        config=cfg, sample_dt=sample_dt, dt=sample_dt, structure=structure,
+        memory_tau=tuple(taus), horizon=H,
+        horizon_sel=max(1, min(H, int(round(cfg.selection_horizon_s / sample_dt)))),
+        stride=max(1, int(round(cfg.window_stride_s / sample_dt))),
+        physics=physics_step(structure))

@@ -1,0 +1,161 @@
+"""The safe trainer's data: rollout windows cut from the sorties
+(:func:`uavdyn.flightdata.make_windows`) with the augmented start states, parameters and
+physics-only predictions the trainer needs; the network's normalisation, envelope and output
+bound from the training data; and the loss normalisation that scores the physics as 1."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from uavdyn.airframes import Airframe
+from uavdyn.flightdata import FlightDataError, Sortie, Windows, make_windows
+from uavdyn.integrate import StateLayout, compile_function, rollout
+from uavdyn.learned.envelope import Envelope
+from uavdyn.learned.formulations import CorrectionLayout
+from uavdyn.learned.safe.config import SafeConfig, SafeSetup, SafeTrainingError
+from uavdyn.learned.torch_model import DTYPE
+from uavdyn.model import sortie_params
+
+
+def as_tensor(a) -> torch.Tensor:
+    """A float64 torch tensor of an array (contiguous copy where needed)."""
+    return torch.as_tensor(np.ascontiguousarray(a), dtype=DTYPE)
+
+
+@dataclass(frozen=True)
+class TrainingWindows:
+    """Rollout windows from recorded states (``windows``) and what the trainer adds to them."""
+
+    windows: Windows
+    z0: np.ndarray       # (W, nz) augmented state (actuators, delays, memory) at each start
+    u: np.ndarray        # (W, H, nu) commands, row k held over sample k
+    y: np.ndarray        # (W, H, 4) recorded body states after each sample
+    p: np.ndarray        # (W, np) the window's sortie parameters (density at its altitude)
+    physics: np.ndarray  # (W, H, 4) physics-only prediction
+    inputs: np.ndarray   # (N, nz + nu) the network's inputs at every recorded sample
+
+    @property
+    def sortie(self) -> np.ndarray:
+        """Index of the sortie each window comes from ``(W,)``."""
+        return self.windows.sortie_index
+
+
+def physics_rollout(setup: SafeSetup):
+    """The compiled physics-only rollout over one window (mapped over windows)."""
+    return compile_function(rollout(setup.physics, setup.horizon), warn=False)
+
+
+def training_windows(airframe: Airframe, setup: SafeSetup, sorties: list[Sortie],
+                     physics_sim) -> TrainingWindows:
+    """Windows of ``setup.horizon`` samples every ``setup.stride`` samples of ``sorties``.
+
+    Raises
+    ------
+    SafeTrainingError
+        If no sortie is longer than a window.
+    """
+    H, layout = setup.horizon, setup.layout
+    try:
+        windows = make_windows(sorties, H, every=setup.stride)
+    except FlightDataError:
+        raise SafeTrainingError(f"no sortie is longer than the {H}-sample rollout window") \
+            from None
+    states = StateLayout(layout.structure, layout.memory_tau)
+    params, z = [], []
+    for s in sorties:
+        params.append(sortie_params(airframe, s.altitude_m))
+        z.append(states.states(s.states, s.controls, params[-1], setup.sample_dt))
+    inputs = np.vstack([np.hstack([zi, s.controls]) for zi, s in zip(z, sorties)])
+    z0 = np.array([z[i][k] for i, k in windows.starts])
+    p = np.array([params[i] for i, _ in windows.starts])
+    u = windows.u
+    W = windows.count
+    pred = np.array(physics_sim.map(W)(z0[:, :layout.n_physics].T, u.reshape(W * H, -1).T,
+                                       p.T, setup.sample_dt))
+    return TrainingWindows(windows, z0, u, windows.y, p,
+                           pred[:4].reshape(4, W, H).transpose(1, 2, 0), inputs)
+
+
+@dataclass(frozen=True)
+class NetworkScaling:
+    """The network's input normalisation, envelope and output scale and bound, from the
+    training inputs and one-step residual accelerations."""
+
+    in_mean: np.ndarray
+    in_scale: np.ndarray
+    envelope: Envelope
+    out_scale: np.ndarray
+    bound: np.ndarray
+
+    def layout(self, setup: SafeSetup) -> CorrectionLayout:
+        """The correction's layout with this envelope's gate and this bound."""
+        return CorrectionLayout(setup.structure, setup.memory_tau, self.envelope.gate,
+                                self.bound)
+
+
+def network_scaling(tr: TrainingWindows, cfg: SafeConfig, dt: float) -> NetworkScaling:
+    """:class:`NetworkScaling` of the training windows ``tr``."""
+    rows = tr.inputs
+    in_mean = rows.mean(axis=0)
+    in_scale = rows.std(axis=0)
+    in_scale = np.where(in_scale > 1e-9 * (1 + np.abs(in_mean)), in_scale, 1.0)
+    envelope = Envelope.from_samples(rows, cfg.envelope_quantile, cfg.envelope_fade)
+    one_step = (tr.y[:, 0, :3] - tr.physics[:, 0, :3]) / dt  # residual acceleration
+    out_scale = np.sqrt(np.mean(one_step**2, axis=0))
+    out_scale = np.where(out_scale > 0, out_scale, 1.0)
+    bound = cfg.bound_factor * np.maximum(np.quantile(np.abs(one_step), 0.999, axis=0),
+                                          1e-6 * (1 + out_scale))
+    return NetworkScaling(in_mean, in_scale, envelope, out_scale, bound)
+
+
+@dataclass(frozen=True)
+class LossScales:
+    """Loss normalisation: the physics-only step scores exactly 1, per state by the physics'
+    rollout error, per horizon step by the physics' error growth."""
+
+    state: np.ndarray   # (4,)
+    growth: np.ndarray  # (H,)
+
+    def window_weights(self, err: np.ndarray) -> torch.Tensor:
+        """Per-window weights from the physics' error ``err`` (W, H, 4) on each window: one
+        over its normalised error, floored at 5 % of the median."""
+        per_window = np.mean(np.mean((err / self.state) ** 2, axis=2) / self.growth, axis=1)
+        return as_tensor(1.0 / np.maximum(per_window, 0.05 * np.median(per_window)))
+
+
+def loss_scales(tr: TrainingWindows) -> LossScales:
+    """:class:`LossScales` from the physics' errors on the training windows."""
+    err_p = tr.physics - tr.y                                      # (W, H, 4)
+    state_scale = np.sqrt(np.mean(err_p**2, axis=(0, 1)))
+    state_scale = np.where(state_scale > 0, state_scale, 1.0)
+    growth = np.mean((err_p / state_scale) ** 2, axis=(0, 2))       # (H,)
+    return LossScales(state_scale, np.where(growth > 0, growth, 1.0))
+
+
+@dataclass(frozen=True)
+class WindowTensors:
+    """Windows as torch tensors, with each window's loss weight."""
+
+    z0: torch.Tensor
+    u: torch.Tensor
+    y: torch.Tensor
+    p: torch.Tensor
+    weight: torch.Tensor
+
+    @property
+    def count(self) -> int:
+        return len(self.z0)
+
+    def take(self, idx: torch.Tensor) -> WindowTensors:
+        """The windows ``idx``."""
+        return WindowTensors(self.z0[idx], self.u[idx], self.y[idx], self.p[idx],
+                             self.weight[idx])
+
+
+def window_tensors(w: TrainingWindows, scales: LossScales) -> WindowTensors:
+    """``w`` as :class:`WindowTensors`, weighted by :meth:`LossScales.window_weights`."""
+    return WindowTensors(as_tensor(w.z0), as_tensor(w.u), as_tensor(w.y), as_tensor(w.p),
+                         scales.window_weights(w.physics - w.y))

@@ -1,0 +1,148 @@
+"""How the safe trainer scores a network: the training loss over windows (the physics scores
+1), and the validation figures that select and guard it (pooled pitch RMSE at the selection
+horizon, per-sortie and per-state ratios against the physics with each sortie's measurement
+noise taken off, :mod:`uavdyn.learned.rules`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from uavdyn.flightdata import Sortie
+from uavdyn.learned.rules import pooled_state_errors, sortie_ratio, summarise_ratios
+from uavdyn.learned.rules import state_noise as sortie_state_noise
+from uavdyn.learned.safe.config import THETA, SafeConfig
+from uavdyn.learned.safe.data import LossScales, TrainingWindows, WindowTensors, as_tensor
+from uavdyn.learned.torch_model import TorchCorrection
+
+
+def torch_rollout(model: TorchCorrection, z0, u, p, dt: float) -> torch.Tensor:
+    """Free run of the torch hybrid step through each window: body states (W, H, 4)."""
+    z, out = z0, []
+    for k in range(u.shape[1]):
+        z = model.step(z, u[:, k], p, dt)
+        out.append(z[:, :4])
+    return torch.stack(out, dim=1)
+
+
+@dataclass(frozen=True)
+class WindowLoss:
+    """The training loss. It mixes two views, each scoring the physics-only step as 1: per
+    window, relative to the physics' error on that window (a calm window weighs as much as a
+    gusty one, so the correction may not buy turbulent accuracy with calm-air errors), and
+    pooled (the windows where the physics is worst count by their size, as in the pooled RMSE
+    users quote)."""
+
+    state_scale: torch.Tensor
+    growth: torch.Tensor
+    pooled_weight: float
+    dt: float
+
+    @classmethod
+    def of(cls, scales: LossScales, cfg: SafeConfig, dt: float) -> WindowLoss:
+        return cls(as_tensor(scales.state), as_tensor(scales.growth), cfg.pooled_weight, dt)
+
+    def __call__(self, model: TorchCorrection, D: WindowTensors) -> torch.Tensor:
+        pred = torch_rollout(model, D.z0, D.u, D.p.T, self.dt)
+        e = torch.mean(torch.mean(((pred - D.y) / self.state_scale) ** 2, dim=2) / self.growth,
+                       dim=1)
+        return ((1.0 - self.pooled_weight) * torch.mean(e * D.weight)
+                + self.pooled_weight * torch.mean(e))
+
+
+def fixed_windows(cfg: SafeConfig, n_train: int, n_val: int) -> tuple[torch.Tensor, ...]:
+    """The training and validation windows scored after every epoch: one definition for the
+    loss columns of Table 2 (the running mini-batch mean mixes changing weights)."""
+    pick = np.random.default_rng([cfg.seed, 1])  # not the batches' generator
+    return tuple(torch.as_tensor(np.sort(pick.choice(n, min(cfg.eval_windows, n),
+                                                     replace=False)))
+                 for n in (n_train, n_val))
+
+
+def _sortie_rmse(err: np.ndarray, sortie: np.ndarray, i: int) -> float | None:
+    """Sortie ``i``'s pitch RMSE over its windows (None: no window)."""
+    mine = err[sortie == i]
+    return math.sqrt(float(np.mean(mine))) if len(mine) else None
+
+
+@dataclass(frozen=True)
+class ValidationReference:
+    """The validation windows' records and the physics' figures a network is compared with.
+    Per-sortie and per-state ratios compare errors against the truth: each sortie's state
+    noise (estimated from its own records) is taken off; the pooled pitch RMSE stays as
+    measured."""
+
+    y: np.ndarray                       # (W, H, 4) recorded body states
+    sortie: np.ndarray                  # (W,) sortie index of each window
+    horizon: int                        # samples of the selection horizon
+    state_noise: np.ndarray             # (n_val, 4) per sortie
+    physics_sortie: list[float | None]  # per sortie pitch RMSE of the physics
+    physics_states: np.ndarray          # (4,) pooled errors of the physics (inf where 0)
+    physics_rmse: float                 # pooled pitch RMSE of the physics
+
+    @property
+    def noise(self) -> list[float]:
+        """Per sortie pitch noise (rad)."""
+        return [float(n) for n in self.state_noise[:, THETA]]
+
+    def state_errors(self, pred: np.ndarray) -> np.ndarray:
+        """Pooled errors of each body state of ``pred`` (W, horizon, 4), noise taken off."""
+        return pooled_state_errors(pred, self.y[:, :self.horizon, :4],
+                                   self.state_noise[self.sortie])
+
+
+def validation_reference(va: TrainingWindows, val_sorties: list[Sortie], horizon: int
+                         ) -> ValidationReference:
+    """The :class:`ValidationReference` of the validation windows ``va``."""
+    state_noise = np.array([sortie_state_noise(s) for s in val_sorties])     # (n_val, 4)
+    err_val = (va.physics[:, :horizon, THETA] - va.y[:, :horizon, THETA]) ** 2
+    phys_states = pooled_state_errors(va.physics[:, :horizon], va.y[:, :horizon, :4],
+                                      state_noise[va.sortie])
+    return ValidationReference(
+        va.y, va.sortie, horizon, state_noise,
+        [_sortie_rmse(err_val, va.sortie, i) for i in range(len(val_sorties))],
+        np.where(phys_states > 0, phys_states, np.inf),
+        float(np.sqrt(np.mean(err_val))))
+
+
+def score(model: TorchCorrection, V: WindowTensors, ref: ValidationReference, dt: float
+          ) -> dict:
+    """Validation pitch RMSE at the selection horizon (pooled), per validation sortie the
+    ratio corrected / physics of the pitch errors with the sortie's measurement noise taken
+    off (their geometric mean selects, the worst one guards) and per body state the ratio of
+    pooled errors, noise taken off too (guards: a correction may not buy pitch accuracy with
+    airspeed or climb-rate errors, which a speed or altitude controller would pay for)."""
+    H = ref.horizon
+    with torch.no_grad():
+        pred = torch_rollout(model, V.z0, V.u[:, :H], V.p.T, dt).numpy()
+    err = (pred[:, :, THETA] - ref.y[:, :H, THETA]) ** 2
+    noise = ref.noise
+    with np.errstate(over="ignore", invalid="ignore"):
+        state_ratios = ref.state_errors(pred) / ref.physics_states
+        ratios = [sortie_ratio(ref.physics_sortie[i], _sortie_rmse(err, ref.sortie, i),
+                               noise[i]) for i in range(len(noise))]
+    summary = summarise_ratios(ratios)
+    worst_state = float(np.max(state_ratios))
+    return {"val_theta_rmse": float(np.sqrt(np.mean(err))),
+            "val_state_ratios": [float(v) for v in state_ratios],
+            "val_state_ratio_worst": worst_state if math.isfinite(worst_state) else math.inf,
+            "val_ratio_geomean": summary.geomean,
+            "val_ratio_worst": summary.worst,
+            "val_sortie_ratios": [None if v is None or not math.isfinite(v) else float(v)
+                                  for v in ratios]}
+
+
+def rank(sel: dict, cfg: SafeConfig) -> tuple:
+    """Epochs where no validation sortie got worse come first, then the geometric mean
+    (epoch 0, the untrained network, is the physics itself and never a candidate)."""
+    return (sel["val_ratio_worst"] > cfg.worst_sortie_ratio, sel["val_ratio_geomean"])
+
+
+def beats_physics_in_pitch(sel: dict, cfg: SafeConfig, physics_rmse: float) -> bool:
+    """Pooled and on every validation sortie (within the tolerance) at the selection
+    horizon."""
+    return (sel["val_ratio_worst"] <= cfg.worst_sortie_ratio
+            and sel["val_ratio_geomean"] < 1.0 and sel["val_theta_rmse"] < physics_rmse)

@@ -1,0 +1,124 @@
+"""``train_safe``: the safe correction's training run, as a chain of stages (setup, windows,
+scaling, epochs, final checks, verdict; one module each)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from uavdyn.airframes import Airframe
+from uavdyn.flightdata import Sortie
+from uavdyn.integrate import StateLayout
+from uavdyn.learned.safe.config import SafeConfig, SafeResult, SafeSetup, safe_setup
+from uavdyn.learned.safe.data import (
+    loss_scales,
+    network_scaling,
+    physics_rollout,
+    training_windows,
+    window_tensors,
+)
+from uavdyn.learned.safe.epochs import StabilityTargets, TrainingData, run_epochs
+from uavdyn.learned.safe.freerun import FreeRunGuard
+from uavdyn.learned.safe.scoring import WindowLoss, fixed_windows, validation_reference
+from uavdyn.learned.safe.selection import Checks, RunFacts, fallback, search
+from uavdyn.learned.safe.verdict import kept_reason, refusal_reason, validation_summary
+from uavdyn.learned.stability import (
+    body_abscissa,
+    envelope_speeds,
+    training_target,
+    trims_between,
+)
+from uavdyn.learned.torch_model import TorchCorrection, seeded_generator
+
+
+def _stability_targets(airframe: Airframe, setup: SafeSetup, envelope
+                       ) -> tuple[StabilityTargets, list[str]]:
+    """Trims over the airspeeds the envelope's box spans (where the gate lets the network
+    act, and what ``uavdyn modes --hybrid`` sweeps), each with its training target; and the
+    speeds skipped."""
+    trims, skipped = trims_between(airframe, *envelope_speeds(envelope),
+                                   StateLayout(setup.structure, setup.memory_tau))
+    phys, dt = setup.physics, setup.dt
+    jp = phys.jacobians()
+    sigma = [body_abscissa(np.array(jp(t.z[:phys.nx], t.u, t.p, dt)[1]), dt)[0]
+             for t in trims]
+    margin = setup.config.stability_margin
+    return StabilityTargets(trims, [training_target(s, margin) for s in sigma]), skipped
+
+
+def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
+               config: SafeConfig | None = None) -> SafeResult:
+    """Train the safe correction on top of ``airframe``'s physics (the identified airframe).
+
+    Parameters
+    ----------
+    train_sorties, val_sorties : list of Sortie
+        Training and validation sorties (one sample rate); windows restart from recorded
+        states, so closed-loop data are fine.
+    airframe : Airframe
+        The physics the correction sits on; its lags and delays become inputs.
+    config : SafeConfig, optional
+        Hyper-parameters.
+
+    Returns
+    -------
+    SafeResult
+        ``kept`` is False, with the reason, when the correction fails the stability check or
+        does not beat the physics at the selection horizon on the validation split.
+
+    Raises
+    ------
+    SafeTrainingError
+        If a split is empty or no sortie is longer than a rollout window.
+    """
+    cfg = config or SafeConfig()
+    rng = seeded_generator(cfg.seed, cfg.threads)
+    start = time.perf_counter()
+    setup = safe_setup(train_sorties, val_sorties, airframe, cfg)
+    cfg, dt = setup.config, setup.dt
+    physics_sim = physics_rollout(setup)
+    tr = training_windows(airframe, setup, train_sorties, physics_sim)
+    va = training_windows(airframe, setup, val_sorties, physics_sim)
+    scaling = network_scaling(tr, cfg, dt)
+    layout = scaling.layout(setup)
+    model = TorchCorrection(airframe.kind, "improved", cfg.hidden, cfg.activation,
+                            scaling.in_mean, scaling.in_scale, scaling.out_scale, dt,
+                            seed=cfg.seed, structure=setup.structure, layout=layout,
+                            envelope=scaling.envelope)
+    scales = loss_scales(tr)
+    stab, skipped = _stability_targets(airframe, setup, scaling.envelope)
+    data = TrainingData(window_tensors(tr, scales), window_tensors(va, scales),
+                        fixed_windows(cfg, len(tr.z0), len(va.z0)),
+                        WindowLoss.of(scales, cfg, dt),
+                        validation_reference(va, val_sorties, setup.horizon_sel))
+    run = run_epochs(model, data, stab, cfg, rng, start, airframe.name)
+    ref, horizon_s = data.reference, setup.selection_horizon_s
+    checks = Checks(model, layout, model.out_scale.clone(), airframe, setup, stab.trims,
+                    skipped, data.val, ref,
+                    FreeRunGuard(setup.physics, val_sorties, airframe, setup.sample_dt,
+                                 ref.state_noise, cfg.worst_sortie_ratio),
+                    RunFacts(cfg, airframe.name, ref.physics_rmse, horizon_s,
+                             len(run.history) - 1, len(train_sorties), len(val_sorties),
+                             [t.describe() for t in stab.trims], skipped, setup.memory_tau,
+                             start))
+    found = search(checks, run)
+    chosen, tried = found.chosen, found.tried
+    if chosen is None:
+        report = fallback(checks, run.best, tried, found.report)
+        alpha, channels = cfg.shrink[0], np.ones(len(layout.bound))
+        final, epoch = run.best.selection, run.best.epoch
+    else:
+        report, alpha, channels, final, epoch = (chosen.report, chosen.scale, chosen.channels,
+                                                 chosen.selection, chosen.epoch)
+    validation = validation_summary(final, ref, val_sorties, alpha, channels, tried, horizon_s)
+    seconds = time.perf_counter() - start
+    if chosen is not None:
+        reason = kept_reason(final, ref.physics_rmse, alpha, channels, tried[-1], report,
+                             horizon_s)
+        return SafeResult(chosen.net, True, reason, run.history, cfg, epoch, seconds,
+                          validation, report)
+    reason = refusal_reason(tried, cfg, ref.physics_rmse, run.best.selection, report,
+                            horizon_s)
+    return SafeResult(None, False, reason, run.history, cfg, epoch, seconds, validation,
+                      report)
