@@ -11,18 +11,17 @@ self-contained::
 
 How ``y`` enters the step is the formulation's business (:mod:`uavdyn.learned.formulations`).
 A formulation that takes time or is tied to its step size records the trained ``dt`` and time
-range (``t_range``), and the hybrid step refuses to be built for another ``dt``.
+range (``t_range``), and the hybrid step refuses to be built for another ``dt``. The file's
+container is read by :mod:`uavdyn.learned.weight_archive` (size bounds, no pickles, typed keys).
 """
 
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import os
 import stat
 import tempfile
-import zipfile
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -32,16 +31,24 @@ import numpy as np
 from uavdyn.learned.envelope import DEFAULT_GUARD, GUARDS, LEGACY_GUARD, Envelope
 from uavdyn.learned.formulations import FORMULATIONS, CorrectionLayout, Formulation
 from uavdyn.learned.mlp import ACTIVATIONS, mlp_forward
+from uavdyn.learned.weight_archive import (
+    MAX_FILE_BYTES,
+    MAX_MEMBERS,
+    MAX_UNCOMPRESSED_BYTES,
+    WeightFileError,
+    info_key,
+    integer_key,
+    read_npz,
+    real_key,
+    show,
+    text_key,
+)
 from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS
-from uavdyn.safefiles import UnreadableFile, read_regular
 
 FORMAT_VERSION = 4
 READABLE_VERSIONS = (1, 2, 3, 4)
 MAX_MEMORY_FILTERS = 8
 N_HIDDEN_LAYERS = 3
-MAX_FILE_BYTES = 64 * 2**20          # a weight file is a few kB; refuse before reading more
-MAX_UNCOMPRESSED_BYTES = 256 * 2**20  # zip bombs: bound on the members' declared sizes
-MAX_MEMBERS = 64
 MAX_NAME_CHARS = 256
 
 REQUIRED_KEYS = (
@@ -58,10 +65,10 @@ OPTIONAL_KEYS = ("info", "t_range", "n_state", "memory_tau", "out_bound", "guard
                  *ENVELOPE_KEYS)
 NAME_KEYS = ("formulation", "activation", "kind", "airframe_hash")
 
-
-class WeightFileError(ValueError):
-    """A weight file is missing, malformed or made for another airframe; the message names the
-    file and the offending key."""
+# the archive's limits and error are part of this module's names
+__all__ = ["CorrectionNet", "FORMAT_VERSION", "MAX_FILE_BYTES", "MAX_MEMBERS",
+           "MAX_UNCOMPRESSED_BYTES", "N_HIDDEN_LAYERS", "READABLE_VERSIONS",
+           "WeightFileError", "check_consistent", "load_weights", "save_weights"]
 
 
 @dataclass(frozen=True)
@@ -147,12 +154,6 @@ class CorrectionNet:
                 f"{self.n_out} ({self.activation}), kind {self.kind}, trained at dt {self.dt:g} s")
 
 
-def _show(value: object, limit: int = 60) -> str:
-    """``repr`` of a value from a file, cut to one short line (it may hold anything)."""
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit - 3] + "..."
-
-
 def check_consistent(net: CorrectionNet, origin: str) -> None:
     """Validate names and every array shape, so a network is checked once, wherever it comes
     from (file or memory).
@@ -170,13 +171,13 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
         One line naming ``origin`` and the offending key.
     """
     if net.formulation not in FORMULATIONS:
-        raise WeightFileError(f"{origin}: key 'formulation' is {_show(net.formulation)}; expected "
+        raise WeightFileError(f"{origin}: key 'formulation' is {show(net.formulation)}; expected "
                               f"one of {tuple(FORMULATIONS)}")
     if net.activation not in ACTIVATIONS:
-        raise WeightFileError(f"{origin}: key 'activation' is {_show(net.activation)}; expected "
+        raise WeightFileError(f"{origin}: key 'activation' is {show(net.activation)}; expected "
                               f"one of {ACTIVATIONS}")
     if net.kind not in ("fixed_wing", "multirotor"):
-        raise WeightFileError(f"{origin}: key 'kind' is {_show(net.kind)}; expected 'fixed_wing' "
+        raise WeightFileError(f"{origin}: key 'kind' is {show(net.kind)}; expected 'fixed_wing' "
                               "or 'multirotor'")
     if not (np.isfinite(net.dt) and net.dt > 0):
         raise WeightFileError(f"{origin}: key 'dt' must be a positive step size, got {net.dt}")
@@ -188,11 +189,11 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
             or not 4 <= net.n_state <= 200 or (net.formulation != "improved" and net.n_state != 4):
         raise WeightFileError(f"{origin}: key 'n_state' must be a whole number of states in "
                               f"4..200 (4 for the '{net.formulation}' formulation), got "
-                              f"{_show(net.n_state)}")
+                              f"{show(net.n_state)}")
     taus = tuple(net.memory_tau)
     if len(taus) > MAX_MEMORY_FILTERS or not all(np.isfinite(t) and t > 0 for t in taus):
         raise WeightFileError(f"{origin}: key 'memory_tau' must hold at most "
-                              f"{MAX_MEMORY_FILTERS} positive time constants, got {_show(taus)}")
+                              f"{MAX_MEMORY_FILTERS} positive time constants, got {show(taus)}")
     n_in, n_out = net.n_in, FORMULATIONS[net.formulation].n_out
     expect_in = n_in
     for i, (w, b) in enumerate(zip(net.weights, net.biases)):
@@ -225,13 +226,13 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
     if np.any(net.in_scale <= 0):
         raise WeightFileError(f"{origin}: key 'in_scale' must be > 0")
     if net.guard not in GUARDS:
-        raise WeightFileError(f"{origin}: key 'guard' is {_show(net.guard)}; expected one of "
+        raise WeightFileError(f"{origin}: key 'guard' is {show(net.guard)}; expected one of "
                               f"{tuple(GUARDS)}")
     if net.out_bound is not None:
         bound = np.asarray(net.out_bound)
         if bound.shape != (n_out,) or not np.all(np.isfinite(bound)) or np.any(bound <= 0):
             raise WeightFileError(f"{origin}: key 'out_bound' must hold {n_out} positive finite "
-                                  f"numbers, got {_show(bound.tolist())}")
+                                  f"numbers, got {show(bound.tolist())}")
     if net.envelope is not None and net.envelope.n_in != n_in:
         raise WeightFileError(f"{origin}: key 'env_low' has {net.envelope.n_in} entries; the "
                               f"network has {n_in} inputs")
@@ -241,7 +242,7 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
                 or not t_range[0] < t_range[1]):
             raise WeightFileError(f"{origin}: key 't_range' must be [t_min, t_max] with t_min < "
                                   f"t_max (s since the sortie start) for the '{net.formulation}' "
-                                  f"formulation, got {_show(t_range)}")
+                                  f"formulation, got {show(t_range)}")
 
 
 def save_weights(net: CorrectionNet, path: str | Path) -> Path:
@@ -340,25 +341,25 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
         One line naming the file and the key, for any unreadable, malformed or mismatched file.
     """
     path = Path(path)
-    content = _read_npz(path)
+    content = read_npz(path)
     missing = [k for k in REQUIRED_KEYS if k not in content]
     if missing:
         raise WeightFileError(f"{path}: missing key(s) {missing}")
     unknown = sorted(set(content) - set(REQUIRED_KEYS) - set(OPTIONAL_KEYS))
     if unknown:
-        raise WeightFileError(f"{path}: key {_show(unknown[0])} is not part of the weight-file "
+        raise WeightFileError(f"{path}: key {show(unknown[0])} is not part of the weight-file "
                               f"format (version {FORMAT_VERSION})")
-    version = _integer(path, content, "format_version")
+    version = integer_key(path, content, "format_version")
     if version not in READABLE_VERSIONS:
         raise WeightFileError(f"{path}: key 'format_version' is {version}; this uavdyn reads "
                               f"versions {READABLE_VERSIONS}")
-    names = {key: _text(path, content, key) for key in NAME_KEYS}
+    names = {key: text_key(path, content, key) for key in NAME_KEYS}
     for key, value in names.items():
         if len(value) > MAX_NAME_CHARS or not value.isprintable():
             raise WeightFileError(f"{path}: key '{key}' must be a short printable name, got "
-                                  f"{_show(value)}")
-    info = _info(path, content)
-    guard = _text(path, content, "guard") if "guard" in content else None
+                                  f"{show(value)}")
+    info = info_key(path, content)
+    guard = text_key(path, content, "guard") if "guard" in content else None
     if guard is None and version >= 4:
         raise WeightFileError(f"{path}: key 'guard' is missing; format {version} names the "
                               f"form of its gate and bound (one of {tuple(GUARDS)})")
@@ -366,19 +367,19 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
     n_layers = N_HIDDEN_LAYERS + 1
     t_range = None
     if "t_range" in content:
-        t_range = tuple(float(v) for v in _real(path, content, "t_range", 1))
+        t_range = tuple(float(v) for v in real_key(path, content, "t_range", 1))
     if "n_state" in content:
-        extra["n_state"] = _integer(path, content, "n_state")
+        extra["n_state"] = integer_key(path, content, "n_state")
     if "memory_tau" in content:
-        extra["memory_tau"] = tuple(float(v) for v in _real(path, content, "memory_tau", 1))
+        extra["memory_tau"] = tuple(float(v) for v in real_key(path, content, "memory_tau", 1))
     if "out_bound" in content:
-        extra["out_bound"] = _real(path, content, "out_bound", 1)
+        extra["out_bound"] = real_key(path, content, "out_bound", 1)
     present = [k for k in ENVELOPE_KEYS if k in content]
     if present:
         if len(present) != len(ENVELOPE_KEYS):
             raise WeightFileError(f"{path}: key(s) {sorted(set(ENVELOPE_KEYS) - set(present))} "
                                   f"missing beside {present}: the envelope needs all three")
-        low, high, fade = (_real(path, content, k, 1) for k in ENVELOPE_KEYS)
+        low, high, fade = (real_key(path, content, k, 1) for k in ENVELOPE_KEYS)
         try:
             extra["envelope"] = Envelope(low, high, fade)
         except ValueError as exc:
@@ -388,13 +389,13 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
         net = CorrectionNet(
             formulation=names["formulation"], activation=names["activation"],
             kind=names["kind"], airframe_hash=names["airframe_hash"],
-            dt=float(_real(path, content, "dt", 0)),
-            weights=tuple(_real(path, content, f"W{i}", 2) for i in range(n_layers)),
-            biases=tuple(_real(path, content, f"b{i}", 1) for i in range(n_layers)),
-            in_mean=_real(path, content, "in_mean", 1),
-            in_scale=_real(path, content, "in_scale", 1),
-            out_mean=_real(path, content, "out_mean", 1),
-            out_scale=_real(path, content, "out_scale", 1), info=info, t_range=t_range,
+            dt=float(real_key(path, content, "dt", 0)),
+            weights=tuple(real_key(path, content, f"W{i}", 2) for i in range(n_layers)),
+            biases=tuple(real_key(path, content, f"b{i}", 1) for i in range(n_layers)),
+            in_mean=real_key(path, content, "in_mean", 1),
+            in_scale=real_key(path, content, "in_scale", 1),
+            out_mean=real_key(path, content, "out_mean", 1),
+            out_scale=real_key(path, content, "out_scale", 1), info=info, t_range=t_range,
             **extra)
     except WeightFileError as exc:
         raise WeightFileError(str(exc).replace("<in memory>", str(path))) from None
@@ -404,163 +405,7 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
                                   f"'{airframe.name}' is '{airframe.kind}'")
         if airframe.param_hash() != net.airframe_hash:
             raise WeightFileError(
-                f"{path}: key 'airframe_hash' is {_show(net.airframe_hash)} but airframe "
+                f"{path}: key 'airframe_hash' is {show(net.airframe_hash)} but airframe "
                 f"'{airframe.name}' has parameter hash {airframe.param_hash()}: these weights "
                 "were trained for another airframe (retrain with `uavdyn train`)")
     return net
-
-
-# -- reading the container ---------------------------------------------------------------------
-
-def _read_npz(path: Path) -> dict[str, np.ndarray]:
-    """All arrays of the archive, after the file and zip-directory checks (bounded memory)."""
-    raw = _read_regular_file(path)
-    if raw[:6] == b"\x93NUMPY":
-        raise WeightFileError(f"{path}: is a single .npy array, not a .npz archive of named "
-                              "arrays")
-    try:
-        archive = zipfile.ZipFile(io.BytesIO(raw))
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, OSError, EOFError) as exc:
-        raise WeightFileError(f"{path}: not a .npz (zip) weight file ({_reason(exc)})") from None
-    content: dict[str, np.ndarray] = {}
-    with archive:
-        infos = archive.infolist()
-        if len(infos) > MAX_MEMBERS:
-            raise WeightFileError(f"{path}: {len(infos)} archive members; a weight file has at "
-                                  f"most {MAX_MEMBERS}")
-        total, seen = 0, set()
-        for info in infos:
-            key = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
-            if not info.filename.endswith(".npy") or info.is_dir():
-                raise WeightFileError(f"{path}: member {_show(info.filename)} is not a .npy "
-                                      "array")
-            if key in seen or key == "":
-                raise WeightFileError(f"{path}: key {_show(key)} appears twice or is empty")
-            total += info.file_size
-            if total > MAX_UNCOMPRESSED_BYTES:
-                what = (f"declares {info.file_size}" if info.file_size > MAX_UNCOMPRESSED_BYTES
-                        else f"brings the archive's declared total to {total}")
-                raise WeightFileError(f"{path}: key {_show(key)} {what} bytes uncompressed; a "
-                                      f"weight file unpacks to at most "
-                                      f"{MAX_UNCOMPRESSED_BYTES // 2**20} MB (a zip bomb?)")
-            if info.flag_bits & 0x1:
-                raise WeightFileError(f"{path}: key {_show(key)} is encrypted")
-            seen.add(key)
-        for info in infos:
-            key = info.filename[:-4]
-            try:
-                with archive.open(info) as member:
-                    content[key] = _read_member(path, key, member, info.file_size)
-            except WeightFileError:
-                raise
-            except Exception as exc:  # zlib, CRC, header parsing...: all one line
-                raise WeightFileError(f"{path}: key {_show(key)} is not a readable .npy array "
-                                      f"({_reason(exc)})") from None
-    return content
-
-
-def _read_regular_file(path: Path) -> bytes:
-    """The bytes of ``path`` if it is a non-empty regular file within the size bound
-    (:func:`uavdyn.safefiles.read_regular`: a FIFO or device is never opened)."""
-    try:
-        raw = read_regular(path, MAX_FILE_BYTES, "a weight file")
-    except UnreadableFile as exc:
-        reason = "weight file not found" if exc.missing else exc.reason
-        raise WeightFileError(f"{path}: {reason}") from None
-    if not raw:
-        raise WeightFileError(f"{path}: weight file is empty")
-    return raw
-
-
-def _read_member(path: Path, key: str, member, declared: int) -> np.ndarray:
-    """One ``.npy`` member, its header checked before any allocation: no object dtypes, and the
-    data it declares must fit in the member's declared size."""
-    version = np.lib.format.read_magic(member)
-    if version == (1, 0):
-        shape, fortran, dtype = np.lib.format.read_array_header_1_0(member)
-    elif version == (2, 0):
-        shape, fortran, dtype = np.lib.format.read_array_header_2_0(member)
-    else:
-        raise WeightFileError(f"{path}: key {_show(key)} uses .npy format version {version}; "
-                              "expected 1.0 or 2.0")
-    if dtype.hasobject:
-        raise WeightFileError(f"{path}: key {_show(key)} holds Python objects (pickled data); a "
-                              "weight file holds only numbers and strings")
-    count = 1
-    for n in shape:
-        count *= int(n)
-    nbytes = count * dtype.itemsize
-    if nbytes > declared:
-        raise WeightFileError(f"{path}: key {_show(key)} declares shape {shape} ({nbytes} bytes) "
-                              f"but its member holds at most {declared}")
-    data = member.read(nbytes)
-    if len(data) != nbytes:
-        raise WeightFileError(f"{path}: key {_show(key)} is truncated ({len(data)} of {nbytes} "
-                              "bytes)")
-    if member.read(1):  # also reaches the end, where zipfile checks the CRC
-        raise WeightFileError(f"{path}: key {_show(key)} has data past its declared shape")
-    if dtype.itemsize == 0:
-        return np.zeros(shape, dtype)
-    array = np.frombuffer(data, dtype=dtype, count=count)
-    return array.reshape(shape, order="F" if fortran else "C").copy()
-
-
-def _reason(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    text = text if len(text) <= 120 else text[:117] + "..."
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
-# -- reading the keys --------------------------------------------------------------------------
-
-def _describe(value: np.ndarray) -> str:
-    return f"dtype {value.dtype.str} and shape {value.shape}"
-
-
-def _integer(path: Path, content: dict, key: str) -> int:
-    value = content[key]
-    if value.dtype.kind not in "iu" or value.ndim != 0:
-        raise WeightFileError(f"{path}: key '{key}' must be an integer scalar, got "
-                              f"{_describe(value)}")
-    return int(value)
-
-
-def _text(path: Path, content: dict, key: str) -> str:
-    value = content[key]
-    if value.dtype.kind != "U" or value.ndim != 0:
-        raise WeightFileError(f"{path}: key '{key}' must be a text string, got "
-                              f"{_describe(value)}")
-    return str(value[()])
-
-
-def _real(path: Path, content: dict, key: str, ndim: int) -> np.ndarray:
-    """A real float64 array of ``ndim`` dimensions, finite: ints widen, while bool, complex,
-    strings, records and dates are refused rather than coerced."""
-    value = content[key]
-    if value.dtype.kind not in "fiu" or value.dtype.fields is not None:
-        raise WeightFileError(f"{path}: key '{key}' must hold real numbers, got "
-                              f"{_describe(value)}")
-    if value.ndim != ndim:
-        what = {0: "a scalar", 1: "a vector", 2: "a matrix"}[ndim]
-        raise WeightFileError(f"{path}: key '{key}' must be {what} ({ndim}-D), got shape "
-                              f"{value.shape}")
-    with np.errstate(over="ignore", invalid="ignore"):
-        out = value.astype(np.float64)
-    if not np.all(np.isfinite(out)):
-        raise WeightFileError(f"{path}: key '{key}' contains non-finite values")
-    return out
-
-
-def _info(path: Path, content: dict) -> dict:
-    if "info" not in content:
-        return {}
-    text = _text(path, content, "info")
-    try:
-        info = json.loads(text)
-    except (ValueError, RecursionError) as exc:
-        detail = exc.msg if isinstance(exc, json.JSONDecodeError) else type(exc).__name__
-        raise WeightFileError(f"{path}: key 'info' is not valid JSON ({detail})") from None
-    if not isinstance(info, dict):
-        raise WeightFileError(f"{path}: key 'info' must be a JSON object, got "
-                              f"{type(info).__name__}")
-    return info
