@@ -326,17 +326,19 @@ def test_envelope_sweep_passes_a_damping_net_and_names_the_trim_a_feedback_net_b
     assert "trim at" in broken.describe()
 
 
-def test_safe_training_keeps_a_correction_only_under_its_rules():
-    """A short run on data whose physics has a pitch-moment error the nominal model lacks:
-    kept only with every validation sortie no worse than the physics at 1 s, the output scale
-    one of those tried, the stability rule passed; otherwise refused with a reason."""
-    from uavdyn.learned.data import synthetic_sorties
+def test_safe_training_keeps_a_correction_only_under_its_rules(tmp_path):
+    """A short run on emulated data whose physics has a pitch-moment error the nominal model
+    lacks: kept only with every validation sortie no worse than the physics at 1 s, the output
+    scale one of those tried, the stability rule passed; otherwise refused with a reason."""
+    from emulated_data import emulated_dataset
+
+    from uavdyn.flightdata import load_dataset
     from uavdyn.learned.safe import SafeConfig, train_safe
 
     airframe = load_airframe("aerosonde")
     truth = airframe.replace(C_m_0=airframe.params.C_m_0 + 0.01,
                              C_m_q=airframe.params.C_m_q * 0.8)
-    sorties = synthetic_sorties(airframe, 6, seed=11, duration=6.0, truth=truth)
+    sorties = load_dataset(emulated_dataset(tmp_path / "data", truth, 6, 6.0)).sorties
     cfg = SafeConfig(epochs=3, batches_per_epoch=3, batch_windows=8, horizon_s=1.0,
                      progress=False, memory_tau=(0.1,))
     result = train_safe(sorties[:4], sorties[4:], airframe, cfg)

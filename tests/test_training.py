@@ -1,6 +1,7 @@
-"""Training: a short run on a small dataset really learns (validation loss down >= 10x, held-out
-free-run pitch error below physics-only RK4 at the same step); the CLI writes weights, history
-JSON and PNG; datasets are built by sortie with clear errors."""
+"""Training: a short run on a small emulated dataset really learns (validation loss down >= 10x,
+held-out free-run pitch error below physics-only RK4 at the same step); the CLI writes weights,
+history JSON and PNG, and refuses to train without a dataset; datasets are built by sortie
+with clear errors."""
 
 import json
 from dataclasses import asdict, replace
@@ -11,24 +12,36 @@ import pytest
 torch = pytest.importorskip("torch")
 
 
+from emulated_data import emulated_dataset  # noqa: E402
+
+from uavdyn.airframes import perturb  # noqa: E402
 from uavdyn.evaluation import pitch_rmse  # noqa: E402
+from uavdyn.flightdata import load_dataset  # noqa: E402
 from uavdyn.integrate import EvalGrid, GridError, physics_step  # noqa: E402
 from uavdyn.learned import hybrid_step, load_weights, save_weights  # noqa: E402
 from uavdyn.learned.data import (  # noqa: E402
     DatasetError,
     one_step_pairs,
     rollout_windows,
-    synthetic_sorties,
     target_trajectories,
+    window_times,
 )
 from uavdyn.learned.train import TrainConfig, train  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def small_data(aerosonde):
-    sorties = synthetic_sorties(aerosonde, 8, seed=11, duration=5.0)
-    test = synthetic_sorties(aerosonde, 2, seed=12, duration=8.0)
-    return sorties[:6], sorties[6:], test
+def emulated(aerosonde, tmp_path_factory):
+    """Ten calm, noise-free 5 s sorties of an Aerosonde whose stability derivatives and mass
+    terms are 15 % off the model (the paper's robustness case), with train and validation
+    splits."""
+    return emulated_dataset(tmp_path_factory.mktemp("emulated") / "data",
+                            perturb(aerosonde, 1.15), 10, 5.0)
+
+
+@pytest.fixture(scope="module")
+def small_data(emulated):
+    sorties = load_dataset(emulated).sorties
+    return sorties[:6], sorties[6:8], sorties[8:]
 
 
 def test_short_training_learns_the_discrepancy(small_data, aerosonde, tmp_path):
@@ -52,18 +65,33 @@ def test_short_training_learns_the_discrepancy(small_data, aerosonde, tmp_path):
     assert e_hybrid < e_physics, (e_hybrid, e_physics)
 
 
-def test_cli_train_writes_weights_history_and_plot(tmp_path, monkeypatch):
+def test_cli_train_writes_weights_history_and_plot(tmp_path, emulated):
     from uavdyn.cli import main
 
     out = tmp_path / "w.npz"
-    code = main(["train", "--airframe", "aerosonde", "--sorties", "3", "--duration", "3",
+    code = main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
                  "--epochs", "1", "--hidden", "4", "--rollout-horizon", "5", "--quiet",
                  "--out", str(out)])
     assert code == 0
     net = load_weights(out)
     assert net.hidden == (4, 4, 4) and net.formulation == "improved"
-    assert "perturbed-model" in net.info["data_source"]
+    assert net.info["data_source"] == f"dataset {emulated}"
     assert (tmp_path / "w_history.json").exists() and (tmp_path / "w_history.png").exists()
+
+
+def test_cli_train_needs_a_dataset(tmp_path, capsys):
+    """No stand-in data: without --dataset, one line naming the option and how to make one;
+    nothing is written."""
+    from uavdyn.cli import build_parser, main
+
+    assert main(["train", "--airframe", "aerosonde", "--out", str(tmp_path / "w.npz")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "--dataset DIR is required" in err and "uavdyn generate-data" in err
+    assert list(tmp_path.iterdir()) == []
+    for gone in ("--sorties", "--duration"):  # the stand-in's options
+        with pytest.raises(SystemExit):
+            build_parser().parse_args(["train", gone, "3"])
 
 
 def test_cli_defaults_match_train_config():
@@ -100,7 +128,15 @@ def test_dataset_building(small_data, aerosonde, f450):
     assert len(trajs) == len(train_s) and trajs[0].substeps == 2
     np.testing.assert_array_equal(pairs.x1[0], train_s[0].states[1])
     win = rollout_windows(trajs, 10)
-    assert win.x.shape[1:] == (11, 4) and win.u.shape[1:] == (10, 2)
+    assert win.length == 10 and win.y.shape[1:] == (10, 4) and win.u.shape[1:] == (10, 2)
+    i, k = win.starts[1]
+    np.testing.assert_array_equal(win.x0[1], trajs[i].states[k])
+    np.testing.assert_array_equal(win.y[1], trajs[i].states[k + 1:k + 11])
+    np.testing.assert_array_equal(win.u[1], trajs[i].controls[k:k + 10])
+    np.testing.assert_array_equal(window_times(win)[1], trajs[i].time[k:k + 10])
+    assert k == 5 and win.count == sum((len(t.time) - 10 + 4) // 5 for t in trajs)
+    with pytest.raises(DatasetError, match="longer than the rollout horizon"):
+        rollout_windows(trajs, 10_000)
     # reference target: the baseline's own fine-step trajectory (differs from the data)
     ref = target_trajectories(train_s[:1], aerosonde, "reference", 0.05)
     assert ref[0].substeps == 1 and len(ref[0].time) == len(train_s[0].time[::5])

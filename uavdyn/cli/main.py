@@ -316,22 +316,20 @@ def cmd_generate_data(args: argparse.Namespace) -> int:
 
 
 def _training_module():
-    """Import :mod:`uavdyn.learned.train` (needs torch, the ``[train]`` extra)."""
+    """Import :mod:`uavdyn.learned.command` (needs torch, the ``[train]`` extra)."""
     try:
         import torch  # noqa: F401
     except ImportError:
         raise CliError("training needs PyTorch: pip install -e '.[train]'") from None
-    from uavdyn.learned import train as module
+    from uavdyn.learned import command as module
 
     return module
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    """Train the learned correction; write weights (.npz), loss history JSON and PNG."""
+    """Train the learned correction on a dataset; write weights (.npz), loss history JSON and
+    PNG (the output files are checked first, then ``--dataset`` is required)."""
     module = _training_module()
-    if args.dataset is None:
-        print("no --dataset given: training on generated perturbed-model sorties",
-              file=sys.stderr)
     summary = module.run(args)
     print(json.dumps(summary, indent=2))
     return 0
@@ -636,15 +634,11 @@ def build_parser() -> argparse.ArgumentParser:
                        "weights as .npz")
     _add_force(p)
     _add_airframe(p)
-    p.add_argument("--dataset", default=None,
-                   help="dataset folder (manifest.json + CSVs, with a train/validation split); "
-                        "default: generate perturbed-model sorties")
+    p.add_argument("--dataset", default=None, metavar="DIR",
+                   help="required: dataset folder (manifest.json + CSVs, with a train/validation "
+                        "split), e.g. from `uavdyn generate-data`")
     p.add_argument("--lowpass-hz", type=float, default=None,
                    help="zero-phase low-pass filter of the dataset's measured states (Hz)")
-    p.add_argument("--sorties", type=int, default=20,
-                   help="generated sorties when no --dataset (default 20)")
-    p.add_argument("--duration", type=float, default=20.0,
-                   help="seconds per generated sortie (default 20)")
     p.add_argument("--formulation", default="improved",
                    choices=["improved", "paper", "hypersolver"],
                    help="improved (default): residual force/moment inside RK4; paper: "

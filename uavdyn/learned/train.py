@@ -1,9 +1,11 @@
 """Training loop of the correction network (torch, CPU, float64, seeded): one-step residual fit
 plus a multi-step rollout loss through the hybrid step, early stopping on validation sorties,
-loss history as JSON and PNG, export to a plain ``.npz``.
+loss history as JSON and PNG, export to a plain ``.npz``. It trains the paper's formulation
+(``reproduce --retrain``) and the other legacy formulations; the safe correction has its own
+trainer (:mod:`uavdyn.learned.safe`).
 
-Entry point: ``python -m training.train --airframe aerosonde --out results/x.npz`` or
-``uavdyn train`` (same options).
+Entry point: ``uavdyn train --formulation paper --dataset DIR`` or ``python -m training.train``
+(same options).
 
 Losses are normalised per state by the physics-only RK4 error on the training set (one-step
 residual RMS, and rollout error RMS), so both start at about 1 with the network's zero-initialised
@@ -13,7 +15,6 @@ fraction of the physics-only squared error left".
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import time
@@ -24,22 +25,20 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from uavdyn.airframes import Airframe, load_airframe
-from uavdyn.flightdata import Sortie
-from uavdyn.flightdata import dataset as flightdata
+from uavdyn.airframes import Airframe
+from uavdyn.flightdata import Sortie, Windows
 from uavdyn.learned.data import (
     Pairs,
-    Windows,
     one_step_pairs,
     rollout_windows,
-    split_sorties,
-    synthetic_sorties,
     target_trajectories,
+    window_times,
 )
 from uavdyn.learned.formulations import DEFAULT_FORMULATION
 from uavdyn.learned.hybrid import correction_structure
-from uavdyn.learned.torch_model import DTYPE, TorchCorrection
-from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights, save_weights
+from uavdyn.learned.torch_model import DTYPE, TorchCorrection, seeded_generator
+from uavdyn.learned.weights import CorrectionNet
+from uavdyn.model import ModelStructure
 from uavdyn.outputs import atomic_file, write_text_atomic
 
 
@@ -121,117 +120,173 @@ def _normalisation(model_kind: str, formulation: str, pairs: Pairs, resid: np.nd
     return in_mean, in_scale, out_scale
 
 
-def train(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
-          config: TrainConfig | None = None, history_path: str | Path | None = None
-          ) -> TrainResult:
-    """Train the correction on ``train_sorties`` with early stopping on ``val_sorties``.
+@dataclass(frozen=True)
+class TrainingData:
+    """The target trajectories of both splits cut into one-step pairs and rollout windows."""
 
-    Returns the best (lowest validation loss) network, exported as a :class:`CorrectionNet`
-    tied to ``airframe.param_hash()``; the loss history has one entry per epoch, epoch 0 being
-    the untrained network.
+    pairs_train: Pairs
+    pairs_val: Pairs
+    windows_train: Windows
+    windows_val: Windows
+    substeps: int     # hybrid steps per grid interval
+    interval: float   # grid interval (s)
+    t_max: float      # the longest trajectory's time since its start (s)
+
+
+def training_data(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
+                  cfg: TrainConfig) -> TrainingData:
+    """:class:`TrainingData` of the sorties for ``cfg.target`` at step ``cfg.dt``.
+
+    Raises
+    ------
+    ValueError
+        If the sorties are not all at one sample rate (or :class:`DatasetError`).
     """
-
-    cfg = config or TrainConfig()
-    torch.manual_seed(cfg.seed)
-    torch.set_num_threads(cfg.threads)
-    rng = np.random.default_rng(cfg.seed)
-    start = time.perf_counter()
     tr = target_trajectories(train_sorties, airframe, cfg.target, cfg.dt)
     va = target_trajectories(val_sorties, airframe, cfg.target, cfg.dt)
     substeps = tr[0].substeps
     if any(t.substeps != substeps for t in tr + va):
         raise ValueError("all sorties must share one sample rate")
-    interval = cfg.dt * substeps
-    p = _t(airframe.p)
-    pairs_tr, pairs_va = one_step_pairs(tr), one_step_pairs(va)
     horizon = min(cfg.rollout_horizon, min(len(t.time) for t in tr + va) - 1)
-    win_tr, win_va = rollout_windows(tr, horizon), rollout_windows(va, horizon)
+    return TrainingData(one_step_pairs(tr), one_step_pairs(va), rollout_windows(tr, horizon),
+                        rollout_windows(va, horizon), substeps, cfg.dt * substeps,
+                        float(max(tr_.time[-1] for tr_ in tr + va)))
 
-    structure = correction_structure(airframe, airframe.kind)
+
+def window_tensors(w: Windows) -> dict:
+    """Rollout windows as tensors: ``x[:, 0]`` the start, ``x[:, k+1]`` the target after
+    ``u[:, k]`` held from time ``t[:, k]``."""
+    x = np.concatenate([w.x0[:, None, :], w.y], axis=1)
+    return {"t": _t(window_times(w)), "x": _t(x), "u": _t(w.u)}
+
+
+def pair_tensors(pairs: Pairs) -> dict:
+    return {k: _t(getattr(pairs, k)) for k in ("t", "x0", "u", "x1")}
+
+
+@dataclass(frozen=True)
+class Losses:
+    """The one-step and rollout losses of ``model``, each normalised per state by the
+    physics-only error on the training set."""
+
+    model: TorchCorrection
+    p: torch.Tensor
+    dt: float
+    substeps: int
+    step_scale: torch.Tensor
+    rollout_scale: torch.Tensor
+    rollout_weight: float
+
+    def one_step(self, P: dict, idx=None) -> torch.Tensor:
+        sel = (lambda a: a) if idx is None else (lambda a: a[idx])
+        pred = _multi_step(self.model, sel(P["x0"]), sel(P["u"]), self.p, self.dt,
+                           self.substeps, sel(P["t"]))
+        return torch.mean(((pred - sel(P["x1"])) / self.step_scale) ** 2)
+
+    def rollout(self, Wd: dict, idx=None) -> torch.Tensor:
+        sub = Wd if idx is None else {k: v[idx] for k, v in Wd.items()}
+        pred = _rollout(self.model, sub, self.p, self.dt, self.substeps)
+        return torch.mean(((pred - sub["x"][:, 1:]) / self.rollout_scale) ** 2)
+
+    def evaluate(self, Pd: dict, Wd: dict) -> tuple[float, float, float]:
+        """One-step, rollout and total loss, without gradients."""
+        with torch.no_grad():
+            a, b = float(self.one_step(Pd)), float(self.rollout(Wd))
+        return a, b, a + self.rollout_weight * b
+
+
+def _physics_scales(airframe: Airframe, structure: ModelStructure, data: TrainingData,
+                    p: torch.Tensor, cfg: TrainConfig
+                    ) -> tuple[np.ndarray, torch.Tensor, torch.Tensor]:
+    """The physics-only step's one-step residuals on the training pairs, and its one-step and
+    rollout error RMS per state (1 where zero): the losses' normalisation."""
     probe = TorchCorrection(airframe.kind, cfg.formulation, cfg.hidden, cfg.activation,
                             np.zeros(6 if cfg.formulation != "paper" else 5),
                             np.ones(6 if cfg.formulation != "paper" else 5),
                             np.ones(3 if cfg.formulation == "improved" else 4), cfg.dt,
                             structure=structure)
+    pairs = data.pairs_train
     with torch.no_grad():
-        base_tr = _multi_step(probe, _t(pairs_tr.x0), _t(pairs_tr.u), p, cfg.dt, substeps,
+        base_tr = _multi_step(probe, _t(pairs.x0), _t(pairs.u), p, cfg.dt, data.substeps,
                               None, physics=True).numpy()
-        resid = pairs_tr.x1 - base_tr
-        W = _windows_t(win_tr)
-        roll_err = (_rollout(probe, W, p, cfg.dt, substeps, physics=True) - W["x"][:, 1:])
+        resid = pairs.x1 - base_tr
+        W = window_tensors(data.windows_train)
+        roll_err = (_rollout(probe, W, p, cfg.dt, data.substeps, physics=True) - W["x"][:, 1:])
         roll_scale = torch.sqrt(torch.mean(roll_err**2, dim=(0, 1)))
     step_scale = _t(np.sqrt(np.mean(resid**2, axis=0)))
     step_scale = torch.where(step_scale > 0, step_scale, torch.ones_like(step_scale))
     roll_scale = torch.where(roll_scale > 0, roll_scale, torch.ones_like(roll_scale))
-    in_mean, in_scale, out_scale = _normalisation(airframe.kind, cfg.formulation, pairs_tr,
-                                                  resid, interval, cfg.dt, substeps)
-    model = TorchCorrection(airframe.kind, cfg.formulation, cfg.hidden, cfg.activation,
-                            in_mean, in_scale, out_scale, cfg.dt, seed=cfg.seed,
-                            structure=structure)
+    return resid, step_scale, roll_scale
+
+
+def _history_row(epoch: int, train: tuple, val: tuple, lr: float, seconds: float) -> dict:
+    return {"epoch": epoch, "train_one_step": train[0], "train_rollout": train[1],
+            "train_total": train[2], "val_one_step": val[0], "val_rollout": val[1],
+            "val_total": val[2], "lr": lr, "seconds": seconds}
+
+
+def _train_epoch(losses: Losses, opt: torch.optim.Optimizer, P_tr: dict, W_tr: dict,
+                 use_roll: bool, cfg: TrainConfig, rng: np.random.Generator) -> tuple:
+    """One pass over the training pairs in mini-batches, a rollout batch joining every few
+    batches once ``use_roll``; the mean one-step, rollout and total losses."""
+    n_pairs = len(P_tr["t"])
+    n_batches = max(1, n_pairs // cfg.batch_size)
+    losses.model.train()
+    perm = torch.as_tensor(rng.permutation(n_pairs))
+    roll_every = max(1, n_batches // max(1, cfg.rollout_batches_per_epoch))
+    sum1 = sum2 = 0.0
+    n1 = n2 = 0
+    for b in range(n_batches):
+        idx = perm[b * cfg.batch_size:(b + 1) * cfg.batch_size]
+        loss = losses.one_step(P_tr, idx)
+        sum1, n1 = sum1 + loss.item(), n1 + 1
+        if use_roll and b % roll_every == 0:
+            widx = torch.as_tensor(rng.choice(len(W_tr["x"]),
+                                              min(cfg.rollout_batch, len(W_tr["x"])),
+                                              replace=False))
+            lr_ = losses.rollout(W_tr, widx)
+            sum2, n2 = sum2 + lr_.item(), n2 + 1
+            loss = loss + cfg.rollout_weight * lr_
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return (sum1 / max(1, n1), sum2 / n2 if n2 else None,
+            sum1 / max(1, n1) + cfg.rollout_weight * sum2 / max(1, n2))
+
+
+@dataclass(frozen=True)
+class EpochRun:
+    history: list[dict]
+    best_epoch: int
+    best_val_total: float
+    best_state: dict
+    stopped: str
+
+
+def _epochs(losses: Losses, data: TrainingData, cfg: TrainConfig, rng: np.random.Generator,
+            start: float, name: str) -> EpochRun:
+    """Adam with exponential learning-rate decay, early stopping on the validation total."""
+    model = losses.model
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     gamma = (cfg.lr_final / cfg.lr) ** (1.0 / max(1, cfg.epochs))
     sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma)
-
-    P_tr = {k: _t(getattr(pairs_tr, k)) for k in ("t", "x0", "u", "x1")}
-    P_va = {k: _t(getattr(pairs_va, k)) for k in ("t", "x0", "u", "x1")}
-    W_tr, W_va = _windows_t(win_tr), _windows_t(win_va)
-
-    def one_step_loss(P, idx=None):
-        sel = (lambda a: a) if idx is None else (lambda a: a[idx])
-        pred = _multi_step(model, sel(P["x0"]), sel(P["u"]), p, cfg.dt, substeps, sel(P["t"]))
-        return torch.mean(((pred - sel(P["x1"])) / step_scale) ** 2)
-
-    def rollout_loss(Wd, idx=None):
-        sub = Wd if idx is None else {k: v[idx] for k, v in Wd.items()}
-        pred = _rollout(model, sub, p, cfg.dt, substeps)
-        return torch.mean(((pred - sub["x"][:, 1:]) / roll_scale) ** 2)
-
-    def evaluate(Pd, Wd):
-        with torch.no_grad():
-            a, b = float(one_step_loss(Pd)), float(rollout_loss(Wd))
-        return a, b, a + cfg.rollout_weight * b
-
-    history = []
-    v1, v2, vt = evaluate(P_va, W_va)
-    t1, t2, tt = evaluate(P_tr, W_tr)
-    history.append({"epoch": 0, "train_one_step": t1, "train_rollout": t2, "train_total": tt,
-                    "val_one_step": v1, "val_rollout": v2, "val_total": vt, "lr": cfg.lr,
-                    "seconds": time.perf_counter() - start})
-    best = (vt, 0, {k: v.clone() for k, v in model.state_dict().items()})
-    n_pairs = len(pairs_tr.t)
-    n_batches = max(1, n_pairs // cfg.batch_size)
+    P_tr, P_va = pair_tensors(data.pairs_train), pair_tensors(data.pairs_val)
+    W_tr, W_va = window_tensors(data.windows_train), window_tensors(data.windows_val)
+    val = losses.evaluate(P_va, W_va)
+    history = [_history_row(0, losses.evaluate(P_tr, W_tr), val, cfg.lr,
+                            time.perf_counter() - start)]
+    best = (val[2], 0, {k: v.clone() for k, v in model.state_dict().items()})
     stopped = "epochs"
-    bar = tqdm(range(1, cfg.epochs + 1), desc=f"train {airframe.name}", unit="epoch",
+    bar = tqdm(range(1, cfg.epochs + 1), desc=f"train {name}", unit="epoch",
                disable=not cfg.progress)
     for epoch in bar:
-        model.train()
-        perm = torch.as_tensor(rng.permutation(n_pairs))
         use_roll = epoch > cfg.warmup_epochs and cfg.rollout_weight > 0
-        roll_every = max(1, n_batches // max(1, cfg.rollout_batches_per_epoch))
-        sum1 = sum2 = 0.0
-        n1 = n2 = 0
-        for b in range(n_batches):
-            idx = perm[b * cfg.batch_size:(b + 1) * cfg.batch_size]
-            loss = one_step_loss(P_tr, idx)
-            sum1, n1 = sum1 + loss.item(), n1 + 1
-            if use_roll and b % roll_every == 0:
-                widx = torch.as_tensor(rng.choice(len(W_tr["x"]),
-                                                  min(cfg.rollout_batch, len(W_tr["x"])),
-                                                  replace=False))
-                lr_ = rollout_loss(W_tr, widx)
-                sum2, n2 = sum2 + lr_.item(), n2 + 1
-                loss = loss + cfg.rollout_weight * lr_
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
+        train = _train_epoch(losses, opt, P_tr, W_tr, use_roll, cfg, rng)
         sched.step()
-        v1, v2, vt = evaluate(P_va, W_va)
+        v1, v2, vt = losses.evaluate(P_va, W_va)
         elapsed = time.perf_counter() - start
-        history.append({"epoch": epoch, "train_one_step": sum1 / max(1, n1),
-                        "train_rollout": sum2 / n2 if n2 else None,
-                        "train_total": sum1 / max(1, n1) + cfg.rollout_weight * sum2 / max(1, n2),
-                        "val_one_step": v1, "val_rollout": v2, "val_total": vt,
-                        "lr": sched.get_last_lr()[0], "seconds": elapsed})
+        history.append(_history_row(epoch, train, (v1, v2, vt), sched.get_last_lr()[0],
+                                    elapsed))
         bar.set_postfix(val=f"{vt:.3g}", one=f"{v1:.3g}", roll=f"{v2:.3g}")
         if vt < best[0] and math.isfinite(vt):
             best = (vt, epoch, {k: v.clone() for k, v in model.state_dict().items()})
@@ -242,28 +297,52 @@ def train(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airf
             stopped = f"time budget ({cfg.max_seconds:g} s)"
             break
     bar.close()
-    model.load_state_dict(best[2])
+    return EpochRun(history, best[1], best[0], best[2], stopped)
+
+
+def train(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
+          config: TrainConfig | None = None, history_path: str | Path | None = None
+          ) -> TrainResult:
+    """Train the correction on ``train_sorties`` with early stopping on ``val_sorties``.
+
+    Returns the best (lowest validation loss) network, exported as a :class:`CorrectionNet`
+    tied to ``airframe.param_hash()``; the loss history has one entry per epoch, epoch 0 being
+    the untrained network.
+    """
+    cfg = config or TrainConfig()
+    rng = seeded_generator(cfg.seed, cfg.threads)
+    start = time.perf_counter()
+    data = training_data(train_sorties, val_sorties, airframe, cfg)
+    p = _t(airframe.p)
+    structure = correction_structure(airframe, airframe.kind)
+    resid, step_scale, roll_scale = _physics_scales(airframe, structure, data, p, cfg)
+    in_mean, in_scale, out_scale = _normalisation(airframe.kind, cfg.formulation,
+                                                  data.pairs_train, resid, data.interval,
+                                                  cfg.dt, data.substeps)
+    model = TorchCorrection(airframe.kind, cfg.formulation, cfg.hidden, cfg.activation,
+                            in_mean, in_scale, out_scale, cfg.dt, seed=cfg.seed,
+                            structure=structure)
+    losses = Losses(model, p, cfg.dt, data.substeps, step_scale, roll_scale,
+                    cfg.rollout_weight)
+    run = _epochs(losses, data, cfg, rng, start, airframe.name)
+    model.load_state_dict(run.best_state)
     seconds = time.perf_counter() - start
-    info = {"config": asdict(cfg), "airframe": airframe.name, "best_epoch": best[1],
-            "best_val_total": best[0], "initial_val_total": history[0]["val_total"],
-            "epochs_run": len(history) - 1, "stopped": stopped, "train_seconds": seconds,
+    info = {"config": asdict(cfg), "airframe": airframe.name, "best_epoch": run.best_epoch,
+            "best_val_total": run.best_val_total,
+            "initial_val_total": run.history[0]["val_total"],
+            "epochs_run": len(run.history) - 1, "stopped": run.stopped, "train_seconds": seconds,
             "n_train_sorties": len(train_sorties), "n_val_sorties": len(val_sorties),
-            "substeps_per_sample": substeps,
+            "substeps_per_sample": data.substeps,
             "train_sorties_source": sorted({str(s.meta.get("source", "")) for s in
                                             train_sorties})}
     # time range seen in training (time since each sortie's start), for a time-taking step
-    t_range = (0.0, float(max(tr_.time[-1] for tr_ in tr + va)))
     net = model.export(airframe.param_hash(), info,
-                       t_range if model.form.takes_time else None)
-    result = TrainResult(net, history, cfg, best[1], seconds, stopped,
+                       (0.0, data.t_max) if model.form.takes_time else None)
+    result = TrainResult(net, run.history, cfg, run.best_epoch, seconds, run.stopped,
                          {"step_scale": step_scale.tolist(), "rollout_scale": roll_scale.tolist()})
     if history_path is not None:
         write_history(result, history_path)
     return result
-
-
-def _windows_t(w: Windows) -> dict:
-    return {"t": _t(w.t), "x": _t(w.x), "u": _t(w.u)}
 
 
 def write_history(result: TrainResult, path: str | Path) -> tuple[Path, Path | None]:
@@ -300,119 +379,3 @@ def write_history(result: TrainResult, path: str | Path) -> tuple[Path, Path | N
         fig.savefig(tmp, dpi=120, format="png")
     plt.close(fig)
     return path, png
-
-
-def load_training_sorties(dataset: str | None, airframe: Airframe, n: int, seed: int,
-                          duration: float, lowpass_hz: float | None = None
-                          ) -> tuple[list[Sortie], list[Sortie], list[Sortie], str]:
-    """Train/validation/test sorties: a dataset folder (``uavdyn.flightdata.load_dataset``)
-    if given, else the perturbed-model stand-in data. Returns the split and a source label."""
-    if dataset:
-
-        if not hasattr(flightdata, "load_dataset"):
-            raise ValueError("this uavdyn has no flightdata.load_dataset; omit --dataset to "
-                             "train on generated perturbed-model sorties")
-        ds = flightdata.load_dataset(dataset, lowpass_hz=lowpass_hz)
-        parts = []
-        for name in ("train", "validation", "test"):
-            part = getattr(ds, name, None)
-            if callable(part):
-                part = part()
-            parts.append(list(part or []))
-        if not parts[0] or not parts[1]:
-            raise ValueError(f"{dataset}: the dataset needs train and validation sorties")
-        label = f"dataset {dataset}" + (f" (low-pass {lowpass_hz:g} Hz)" if lowpass_hz else "")
-        return parts[0], parts[1], parts[2], label
-
-    sorties = synthetic_sorties(airframe, n, seed=seed, duration=duration)
-    a, b, c = split_sorties(sorties, seed=seed)
-    return a, b, c, "perturbed-model stand-in sorties (uavdyn.learned.data.synthetic_sorties)"
-
-
-def _check_replaceable(weights: Path, history: Path, force: bool) -> None:
-    """Refuse, before training, to overwrite files that are not earlier training outputs."""
-    if force:
-        return
-    if weights.exists():
-        try:
-            load_weights(weights)
-        except WeightFileError:
-            raise ValueError(f"{weights} exists and is not a uavdyn weight file; choose another "
-                             "--out or give --force") from None
-    if history.exists():
-        try:
-            ok = "history" in json.loads(history.read_text())
-        except (OSError, ValueError, TypeError):
-            ok = False
-        if not ok:
-            raise ValueError(f"{history} exists and is not a uavdyn loss history; choose another "
-                             "--history or give --force")
-
-
-def run(args: argparse.Namespace) -> dict:
-    """Train from parsed options; write weights, history JSON and PNG; return a summary."""
-    airframe = load_airframe(args.airframe)
-    if (args.hidden is not None and args.hidden < 1) or (args.epochs is not None
-                                                         and args.epochs < 1):
-        raise ValueError("--hidden and --epochs must be >= 1")
-    safe = args.formulation == "improved" and args.target == "data"
-    if not safe:  # the legacy trainer's own defaults where an option was not given
-        args = argparse.Namespace(**{**vars(args), **{
-            k: (TrainConfig.__dataclass_fields__[k].default if getattr(args, k) is None
-                else getattr(args, k)) for k in ("epochs", "patience", "max_seconds",
-                                                 "hidden")}})
-    cfg = TrainConfig(formulation=args.formulation, target=args.target,
-                      rollout_batch=getattr(args, "rollout_batch", TrainConfig.rollout_batch),
-                      activation=args.activation, hidden=args.hidden, dt=args.dt,
-                      epochs=args.epochs, rollout_horizon=args.rollout_horizon,
-                      rollout_weight=args.rollout_weight, lr=args.lr, patience=args.patience,
-                      max_seconds=args.max_seconds, seed=args.seed, threads=args.threads,
-                      progress=not args.quiet)
-    tr, va, te, source = load_training_sorties(args.dataset, airframe, args.sorties, args.seed,
-                                               args.duration, getattr(args, "lowpass_hz", None))
-    out = Path(args.out or f"results/weights/{airframe.name}_{args.formulation}.npz")
-    hist = Path(args.history) if args.history else out.with_name(out.stem + "_history.json")
-    _check_replaceable(out, hist, getattr(args, "force", False))
-    if args.formulation == "improved" and args.target == "data":
-        return _run_safe(args, airframe, tr, va, te, source, out, hist)
-    result = train(tr, va, airframe, cfg)
-    net = CorrectionNet(**{**result.net.__dict__,
-                           "info": {**result.net.info, "data_source": source}})
-    save_weights(net, out)  # the weights first (atomic), then their history
-    write_history(result, hist)
-    h0, hb = result.history[0], result.history[result.best_epoch]
-    return {"weights": str(out), "history": str(hist), "png": str(hist.with_suffix(".png")),
-            "network": net.describe(), "data_source": source, "n_train": len(tr),
-            "n_val": len(va), "n_test": len(te), "best_epoch": result.best_epoch,
-            "stopped": result.stopped, "seconds": round(result.seconds, 1),
-            "val_total_initial": h0["val_total"], "val_total_best": hb["val_total"]}
-
-
-class NotKept(ValueError):
-    """Training ran but its correction is not written (unstable map or physics not beaten)."""
-
-
-def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist: Path) -> dict:
-    """``uavdyn train`` of the safe correction (improved formulation on flight data)."""
-    from uavdyn.learned.safe import SafeConfig, train_safe, write_safe_history
-
-    given = {k: getattr(args, k) for k in ("epochs", "patience", "max_seconds",
-                                           "stability_weight", "hidden")
-             if getattr(args, k) is not None}
-    cfg = SafeConfig(activation=args.activation, lr=args.lr,
-                     seed=args.seed, threads=args.threads, progress=not args.quiet,
-                     stability_margin=args.stability_margin, horizon_s=args.horizon,
-                     memory_tau=(tuple(args.memory_tau) if args.memory_tau is not None
-                                 else None), **given)
-    result = train_safe(tr, va, airframe, cfg)
-    write_safe_history(result, hist)
-    if not result.kept:
-        raise NotKept(f"no weights written: {result.reason} (history: {hist})")
-    net = CorrectionNet(**{**result.net.__dict__,
-                           "info": {**result.net.info, "data_source": source}})
-    save_weights(net, out)
-    return {"weights": str(out), "history": str(hist), "png": str(hist.with_suffix(".png")),
-            "network": net.describe(), "data_source": source, "n_train": len(tr),
-            "n_val": len(va), "n_test": len(te), "best_epoch": result.best_epoch,
-            "seconds": round(result.seconds, 1), "validation": result.validation,
-            "stability": result.stability.describe() if result.stability else None}
