@@ -112,13 +112,18 @@ def test_interrupted_train_keeps_the_old_weights_and_history(tmp_path, aerosonde
     history = tmp_path / "w_history.json"
     history.write_text(json.dumps({"history": [{"epoch": 0}]}))
     old_w, old_h = weights.read_bytes(), history.read_text()
-    proc = _cli(["train", "--airframe", "aerosonde", "--sorties", "12", "--duration", "10",
+    data = tmp_path / "data"
+    generate_dataset(Recipe(airframe="aerosonde", sorties=6, duration_s=10.0, seed=0,
+                            missions=["sysid_doublet", "sysid_3211", "sysid_chirp"],
+                            split={"train": 0.5, "validation": 0.5, "test": 0.0}),
+                     data, workers=1, progress=False)
+    proc = _cli(["train", "--airframe", "aerosonde", "--dataset", str(data),
                  "--epochs", "500", "--max-seconds", "120", "--out", str(weights)])
     started = time.monotonic()
     _interrupt_when(proc, lambda: time.monotonic() - started > 12.0)
     assert proc.returncode != 0
     assert weights.read_bytes() == old_w and history.read_text() == old_h
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["w.npz", "w_history.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "w.npz", "w_history.json"]
 
 
 def test_train_refuses_to_overwrite_a_file_that_is_not_its_output(tmp_path, capsys):
