@@ -1,0 +1,112 @@
+"""The pipeline commands: ``reproduce`` (the validation report) and ``evaluate`` (any dataset)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from uavdyn.airframes import load_airframe
+from uavdyn.cli.common import (
+    CliError,
+    add_airframe,
+    add_force,
+)
+from uavdyn.experiments.reproduce import (
+    ReproduceConfig,
+    _json,
+    evaluate_dataset,
+    evaluation_markdown,
+    run,
+)
+from uavdyn.outputs import check_output_file, write_text_atomic
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """The validation pipeline: dataset, weights, Tables 1-4, figures, report."""
+
+    if args.cost_repeats < 1:
+        raise CliError(f"--cost-repeats must be >= 1, got {args.cost_repeats}")
+    config = ReproduceConfig(airframes=tuple(args.airframes), out=args.out, quick=args.quick,
+                             retrain=args.retrain, cache=args.cache,
+                             cost_repeats=args.cost_repeats, sorties=args.sorties,
+                             duration_s=args.duration, force=args.force,
+                             identify=not args.no_identify,
+                             save_trajectories=args.save_trajectories)
+    result = run(config)
+    print(f"report: {Path(args.out) / 'report.md'} ({result['wall_s']:.0f} s, "
+          f"{result['size_bytes'] / 1e6:.1f} MB written)")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Table 1 and Table 4 for any dataset folder, as JSON and Markdown."""
+
+    out = Path(args.out)
+    md = out.with_suffix(".md")
+    for path in (out, md):
+        check_output_file(path)  # before the work, not after it
+    airframe = load_airframe(args.airframe)
+    for path in (out, md):
+        if path.exists() and not args.force and not _own_json(out):
+            raise CliError(f"{path} exists and is not an earlier 'uavdyn evaluate' result; "
+                           "choose another --out or give --force")
+    identified = load_airframe(args.identified) if args.identified else None
+    result = evaluate_dataset(airframe, args.dataset, args.weights or [],
+                              identified=identified, all_sorties=args.all_sorties)
+    result["command"] = "evaluate"
+    write_text_atomic(out, json.dumps(result, indent=2, default=_json) + "\n")
+    write_text_atomic(md, evaluation_markdown(result))
+    print(f"wrote {out} and {md}")
+    return 0
+
+
+def _own_json(path: Path) -> bool:
+    """Whether ``path`` is a JSON result of ``uavdyn evaluate`` (safe to replace)."""
+    try:
+        return json.loads(path.read_text()).get("command") == "evaluate"
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def add_reproduce(sub) -> None:
+    """Register ``reproduce``."""
+    p = sub.add_parser("reproduce", help="run the validation pipeline (Tables 1-4, figures, "
+                       "report) on the shipped recipe and weights")
+    add_force(p)
+    p.add_argument("--airframes", nargs="+", default=["quadrotor", "fixed_wing"],
+                   choices=["quadrotor", "fixed_wing"], help="which airframes (default both)")
+    p.add_argument("--out", default="results", help="output folder (default results/)")
+    p.add_argument("--quick", action="store_true", help="tiny configuration (seconds)")
+    p.add_argument("--no-identify", action="store_true",
+                   help="with --retrain: skip the identification (then no identified physics "
+                        "and no correction rung)")
+    p.add_argument("--retrain", action="store_true",
+                   help="identify the physics and train the networks here (needs torch) "
+                        "instead of using the shipped identified airframe and weights")
+    p.add_argument("--cache", default=None, help="dataset cache folder (default: user cache)")
+    p.add_argument("--cost-repeats", type=int, default=15,
+                   help="interleaved timing repeats (default 15)")
+    p.add_argument("--save-trajectories", action="store_true",
+                   help="also write every Table 1 prediction as compressed npz (large)")
+    p.add_argument("--sorties", type=int, default=None, help="override the recipe's count")
+    p.add_argument("--duration", type=float, default=None,
+                   help="override the recipe's sortie duration (s)")
+    p.set_defaults(func=cmd_reproduce)
+
+
+def add_evaluate(sub) -> None:
+    """Register ``evaluate``."""
+    p = sub.add_parser("evaluate", help="Table 1 and Table 4 metrics on any dataset folder")
+    add_force(p)
+    add_airframe(p, default=None)
+    p.add_argument("--dataset", required=True, help="dataset folder (manifest.json + CSVs)")
+    p.add_argument("--identified", default=None,
+                   help="airframe file fitted by 'uavdyn identify': adds the identified-physics "
+                        "rung (weights trained on it are run on it)")
+    p.add_argument("--weights", nargs="*", default=None, help="weight file(s) of the hybrid")
+    p.add_argument("--all-sorties", action="store_true",
+                   help="score every sortie of a dataset without a test split (the result "
+                        "says so; they may include sorties a model was fitted on)")
+    p.add_argument("--out", default="results/metrics.json", help="JSON output (Markdown beside)")
+    p.set_defaults(func=cmd_evaluate)
