@@ -274,6 +274,7 @@ PROCESS_SCRIPT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 @needs_cc
 def test_two_processes_compiling_the_same_function_both_succeed(cache, tmp_path):
     import time
@@ -406,6 +407,7 @@ def test_a_graph_calling_a_compiled_function_is_refused_not_crashed(tmp_path):
         "External")
 
 
+@pytest.mark.slow
 def test_a_compiler_that_never_exits_is_killed_and_the_vm_used(tmp_path, monkeypatch):
     """A compiler that hangs (and starts a child that hangs too) is killed, with its child,
     after $UAVDYN_CC_TIMEOUT seconds; the Function runs in the VM with one warning naming the

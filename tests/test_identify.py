@@ -44,6 +44,7 @@ def truth(aerosonde):
     return aerosonde.replace(**{k: getattr(aerosonde.params, k) * f for k, f in SCALED.items()})
 
 
+@pytest.mark.slow
 def test_recovers_scaled_parameters_from_noise_free_data(aerosonde, truth):
     result = identify(aerosonde, _sorties(truth, 4, 0), _sorties(truth, 1, 1), list(SCALED),
                       progress=False)
@@ -58,6 +59,7 @@ def test_recovers_scaled_parameters_from_noise_free_data(aerosonde, truth):
                result.flagged_pairs)
 
 
+@pytest.mark.slow
 def test_with_sensor_noise_estimates_fall_within_two_standard_errors(aerosonde, truth):
     names = [*SCALED, "C_m_delta_e"]  # C_m_delta_e is not scaled: it must stay at nominal
     result = identify(aerosonde, _sorties(truth, 4, 2, noise=1.0), [], names,
@@ -79,6 +81,7 @@ def test_refuses_unknown_and_unexcited_parameters(aerosonde):
         identify(aerosonde, steady, [], ["C_m_q"], progress=False)
 
 
+@pytest.mark.slow
 def test_cli_writes_a_loadable_airframe_with_provenance(tmp_path, aerosonde, truth, capsys):
     from uavdyn.flightdata import write_csv, write_manifest
 
@@ -107,6 +110,7 @@ def test_cli_writes_a_loadable_airframe_with_provenance(tmp_path, aerosonde, tru
                  "nope", "--out", str(out), "--quiet"]) == 2
 
 
+@pytest.mark.slow
 def test_recovers_an_alpha_dot_derivative_from_a_zero_nominal(aerosonde):
     """An unset optional key (nominal 0) is fitted inside the schema's physical bounds, with
     the alpha-dot terms switched into the model because the key is being fitted."""

@@ -81,6 +81,7 @@ def noise_free(aerosonde, truth):
                     _fixed_wing_sorties(truth, 1, 1), NAMES, progress=False)
 
 
+@pytest.mark.slow
 def test_recovers_lag_delay_density_and_coefficients_from_the_nominal_preset(
         aerosonde, truth, noise_free):
     for e in noise_free.estimates:
@@ -98,6 +99,7 @@ def test_recovers_lag_delay_density_and_coefficients_from_the_nominal_preset(
     assert fit["identified"] < 1e-6 < 1e-3 < fit["nominal"]
 
 
+@pytest.mark.slow
 def test_with_sensor_noise_estimates_fall_within_two_standard_errors(aerosonde, truth):
     result = identify(aerosonde, _fixed_wing_sorties(truth, 4, 2, noise=1.0), [],
                       [*NAMES, "C_m_delta_e"], progress=False)  # C_m_delta_e: truth = nominal
@@ -158,6 +160,7 @@ def test_refuses_unknown_and_unexcited_delays(aerosonde):
         identify(aerosonde, steady, [], ["delay_elevator"], progress=False)
 
 
+@pytest.mark.slow
 def test_recovers_breakpoint_table_values(aerosonde):
     """A C_m(alpha) table (sampled from the polynomial) whose values the truth changes: the
     table values flown through are identified as parameters like any other."""
@@ -178,6 +181,7 @@ def test_recovers_breakpoint_table_values(aerosonde):
         [_true_value(truth, n) for n in names], rel=5e-3)
 
 
+@pytest.mark.slow
 def test_isa_density_per_sortie_fits_the_sea_level_density(aerosonde):
     """With atmosphere = "isa" each sortie flies at the density of its manifest altitude;
     fitting rho gives the sea-level value, not one average over the altitudes."""
@@ -216,6 +220,7 @@ def _quadrotor_sorties(truth, n: int, seed: int, duration: float = 6.0) -> list[
     return out
 
 
+@pytest.mark.slow
 def test_recovers_a_quadrotor_rotor_lag_delays_and_mass(f450):
     truth = f450.replace(tau_rotor=0.04, mass=1.1 * f450.params.mass).with_delays(
         collective=2, pitch_cmd=1)

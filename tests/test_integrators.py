@@ -105,6 +105,7 @@ def test_compiled_vm_and_python_agree(name, request, tmp_path):
     assert np.abs(vm - point.x).max() > 1e-3  # the doublet really moved the aircraft
 
 
+@pytest.mark.slow
 def test_rollout_of_100k_steps_generates_small_c(aerosonde, tmp_path):
     func = rollout(rk4_step(build_model(aerosonde).f), 100_000)
     source = generate_c(func, tmp_path)

@@ -85,6 +85,7 @@ def _same(a, b):
 # ----------------------------------------------------------------------------- engines
 
 
+@pytest.mark.slow
 def test_identical_on_one_worker_two_threads_and_dask(tmp_path, aerosonde):
     pytest.importorskip("distributed")
     disp = _dispersions(tmp_path, GUSTY, aerosonde)
@@ -113,6 +114,7 @@ def test_identical_on_one_worker_two_threads_and_dask(tmp_path, aerosonde):
     assert np.ptp(one.table["max_abs_pitch_deg"]) > 0.1
 
 
+@pytest.mark.slow
 def test_scheduler_address_client_or_worker_writes(tmp_path, aerosonde):
     """On a cluster given by its address the client writes the chunk files (the workers may
     not see the folder) unless told the workers do; either way they verify on resume."""
@@ -198,6 +200,7 @@ run_study(spec, out=sys.argv[2], progress=False, on_chunk=killed_after_two)
 """
 
 
+@pytest.mark.slow
 def test_resume_after_kill_recomputes_only_missing_chunks(tmp_path, aerosonde):
     dispersion_file = tmp_path / "d.toml"
     dispersion_file.write_text(GUSTY)
@@ -254,6 +257,7 @@ def test_wilson_interval_known_values():
         wilson_interval(3, 2)
 
 
+@pytest.mark.slow
 def test_exceedance_with_known_probability_inside_interval(tmp_path, aerosonde):
     """Initial pitch offsets ~ N(0, 0.05 rad) and trim speeds ~ U(22, 28) m/s over one 1 ms
     step (in which the airspeed moves by < 5e-3 m/s and the pitch by ~1e-9 rad, shifting either

@@ -86,6 +86,7 @@ def _interrupt_when(proc: subprocess.Popen, ready, timeout: float = 120.0) -> No
     proc.wait(timeout=60)
 
 
+@pytest.mark.slow
 def test_interrupted_generate_data_leaves_the_old_dataset_unchanged(tmp_path):
     out = tmp_path / "data"
     generate_dataset(Recipe(airframe="quadrotor", sorties=6, duration_s=4.0, seed=0), out,
@@ -106,6 +107,7 @@ def test_interrupted_generate_data_leaves_the_old_dataset_unchanged(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["data"]  # the partial folder is gone
 
 
+@pytest.mark.slow
 def test_interrupted_train_keeps_the_old_weights_and_history(tmp_path, aerosonde):
     pytest.importorskip("torch")
     weights = save_weights(random_net(aerosonde), tmp_path / "w.npz")

@@ -17,6 +17,8 @@ from uavdyn.integrate import rk4_step, simulate
 from uavdyn.linear import trim
 from uavdyn.model import build_model
 
+pytestmark = pytest.mark.slow  # trains networks or runs whole pipelines
+
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 

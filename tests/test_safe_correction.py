@@ -326,6 +326,7 @@ def test_envelope_sweep_passes_a_damping_net_and_names_the_trim_a_feedback_net_b
     assert "trim at" in broken.describe()
 
 
+@pytest.mark.slow
 def test_safe_training_keeps_a_correction_only_under_its_rules(tmp_path):
     """A short run on emulated data whose physics has a pitch-moment error the nominal model
     lacks: kept only with every validation sortie no worse than the physics at 1 s, the output

@@ -28,6 +28,8 @@ from uavdyn.learned.data import (  # noqa: E402
 )
 from uavdyn.learned.train import TrainConfig, train  # noqa: E402
 
+pytestmark = pytest.mark.slow  # trains networks or runs whole pipelines
+
 
 @pytest.fixture(scope="module")
 def emulated(aerosonde, tmp_path_factory):

@@ -119,21 +119,8 @@ def physics_function(airframe: Airframe | ModelStructure, tableau: ButcherTablea
     """The bare SX Function ``(x, u, p, dt) -> x_next`` of :func:`uavdyn.physics_step` (for
     code that builds on the Function itself, e.g. the identification); ``x`` is the augmented
     state when the airframe has actuator lags or delays (state names:
-    ``structure.state_names()``), else the body state and the plain RK step.
-
-    Parameters
-    ----------
-    airframe : Airframe or ModelStructure
-        The airframe (its values decide the structure) or a structure.
-    tableau : ButcherTableau
-        The RK method (default classical RK4).
-    with_position : bool
-        Carry the ``[x_n, h]`` states.
-    substeps : int
-        RK steps per call (the delay buffers shift once per call).
-    fitting : sequence of str
-        Parameters about to be identified (their terms are kept even at a value of 0).
-    """
+    ``structure.state_names()``), else the body state and the plain RK step. The parameters
+    are those of :func:`uavdyn.integrate.physics_step`."""
     structure = (airframe if isinstance(airframe, ModelStructure)
                  else structure_of(airframe, fitting))
     if not structure.augmented and substeps == 1:
