@@ -7,19 +7,18 @@ within bounds, and the pitch-plane kinematics ``d theta/dt ~ q``.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
 
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.sortie import csv_columns
-from uavdyn.model import CONTROL_BOUNDS, CONTROL_NAMES, STATE_NAMES
+from uavdyn.model import (
+    CONTROL_BOUNDS,
+    CONTROL_NAMES,
+    first_departure,
+)
 
-# Physical plausibility limits (units slip-ups such as degrees or km/h land outside them).
-SPEED_LIMIT = {"fixed_wing": 100.0, "multirotor": 50.0}  # |u|, |w| in m/s
-PITCH_RATE_LIMIT = 10.0  # rad/s (573 deg/s)
-PITCH_LIMIT = math.pi    # rad
 CONTROL_TOLERANCE = 1e-9
 TIME_TOLERANCE = 1e-3    # allowed relative deviation of each interval from the nominal one
 KINEMATIC_WINDOW_S = 1.0
@@ -100,17 +99,10 @@ def check_values(path: str | Path, kind: str, time: np.ndarray, states: np.ndarr
         raise FlightDataError(f"time step {steps[k - 1]:.6g} s from the previous row differs "
                               f"from the nominal {nominal:.6g} s by more than "
                               f"{TIME_TOLERANCE:.1%} (time must be uniform)", path, k + 1, "time")
-    limits = {"u": SPEED_LIMIT[kind], "w": SPEED_LIMIT[kind], "q": PITCH_RATE_LIMIT,
-              "theta": PITCH_LIMIT}
-    units = {"u": "m/s", "w": "m/s", "q": "rad/s", "theta": "rad"}
-    for j, name in enumerate(STATE_NAMES):
-        over = np.flatnonzero(np.abs(states[:, j]) > limits[name])
-        if len(over):
-            r = int(over[0])
-            raise FlightDataError(
-                f"value {states[r, j]:.6g} {units[name]} is outside the physical range "
-                f"[-{limits[name]:g}, {limits[name]:g}] {units[name]} (wrong units, e.g. "
-                f"degrees or km/h?)", path, r + 1, name)
+    departure = first_departure(states, kind)  # physical ranges (units slip-ups land outside)
+    if departure is not None:
+        raise FlightDataError(f"value {departure.describe()} (wrong units, e.g. degrees or "
+                              "km/h?)", path, departure.index + 1, departure.state)
     for j, (name, (lo, hi)) in enumerate(zip(CONTROL_NAMES[kind], CONTROL_BOUNDS[kind])):
         out = np.flatnonzero((controls[:, j] < lo - CONTROL_TOLERANCE)
                              | (controls[:, j] > hi + CONTROL_TOLERANCE))

@@ -28,9 +28,6 @@ from uavdyn.flightdata.checks import (
     KINEMATIC_TOLERANCE,
     KINEMATIC_WINDOW_S,
     MIN_ROWS,
-    PITCH_LIMIT,
-    PITCH_RATE_LIMIT,
-    SPEED_LIMIT,
     TIME_TOLERANCE,
     check_kinematics,
     check_values,
@@ -59,6 +56,7 @@ from uavdyn.flightdata.manifest import (
 from uavdyn.flightdata.noise import excess_rmse, pitch_noise_std, white_noise_std
 from uavdyn.flightdata.preprocess import Normalisation, lowpass, normalisation
 from uavdyn.flightdata.sortie import SPLIT_NAMES, Sortie, csv_columns
+from uavdyn.model import PITCH_LIMIT, PITCH_RATE_LIMIT, SPEED_LIMIT
 from uavdyn.safefiles import describe_mode, os_reason
 
 __all__ = [

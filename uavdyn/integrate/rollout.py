@@ -18,7 +18,7 @@ import numpy as np
 from uavdyn.airframes import Airframe
 from uavdyn.integrate.codegen import compile_function
 from uavdyn.integrate.discrete import DiscreteModel, StepUseError, model_function
-from uavdyn.model import sortie_params
+from uavdyn.model import first_departure, sortie_params
 
 
 class GridError(ValueError):
@@ -219,6 +219,18 @@ def check_finite(traj: np.ndarray, time: np.ndarray, what: str = "rollout",
                               f"non-finite or beyond {bound:g}", float(time[k]))
 
 
+def check_departure(traj: np.ndarray, time: np.ndarray, kind: str, what: str = "rollout"
+                    ) -> None:
+    """Raise :class:`DivergenceError` at the first sample whose body states (the first four
+    columns) leave the physical ranges of ``kind`` (:func:`uavdyn.model.first_departure`, the
+    ranges the dataset loader enforces), naming the time and the state."""
+    departure = first_departure(traj[:, :4], kind)
+    if departure is not None:
+        k = departure.index
+        raise DivergenceError(f"{what} departed at t = {time[k]:.3f} s (sample {k}): "
+                              f"{departure.describe()}", float(time[k]))
+
+
 def free_run(step: DiscreteModel | ca.Function, x0, controls, p, dt: float, substeps: int = 1,
              t0: float = 0.0, compile: bool = True, check: bool = True) -> np.ndarray:
     """Open-loop replay of ``controls`` (``N x nu``, row k held over one interval of
@@ -240,7 +252,9 @@ def free_run(step: DiscreteModel | ca.Function, x0, controls, p, dt: float, subs
         Compile the rollout to C (cached) first; a step that is itself compiled (an
         ``External``) is looped in the CasADi VM around its compiled code.
     check : bool
-        Raise :class:`DivergenceError` on a non-finite or exploding state.
+        Raise :class:`DivergenceError` on a non-finite or exploding state, and for a
+        :class:`DiscreteModel` on body states leaving the physical ranges of its kind
+        (:func:`check_departure`).
     """
     controls = np.atleast_2d(np.asarray(controls, dtype=float))
     x0 = np.asarray(x0, float).ravel()
@@ -255,7 +269,10 @@ def free_run(step: DiscreteModel | ca.Function, x0, controls, p, dt: float, subs
     with np.errstate(all="ignore"):
         traj = np.vstack([x0.reshape(1, -1), np.array(sim(*args)).T])
     if check:
-        check_finite(traj, t0 + substeps * dt * np.arange(len(traj)), "free run")
+        time = t0 + substeps * dt * np.arange(len(traj))
+        check_finite(traj, time, "free run")
+        if isinstance(step, DiscreteModel):
+            check_departure(traj, time, step.kind, "free run")
     return traj
 
 
@@ -319,7 +336,8 @@ def sortie_free_run(model: DiscreteModel, sortie, p, dt: float, body0=None,
         The body state to start from (default the first record, e.g. a fitted start:
         :func:`estimate_start`).
     check : bool
-        Raise :class:`DivergenceError` on a non-finite or exploding state (else return it).
+        Raise :class:`DivergenceError` on a non-finite, exploding or departed state (else
+        return it).
 
     Returns
     -------

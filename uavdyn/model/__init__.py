@@ -29,6 +29,14 @@ from uavdyn.model.equations import (
 )
 from uavdyn.model.interpolation import interp1, interp2
 from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS, torch_ops
+from uavdyn.model.ranges import (
+    PITCH_LIMIT,
+    PITCH_RATE_LIMIT,
+    SPEED_LIMIT,
+    Departure,
+    first_departure,
+    state_limits,
+)
 from uavdyn.model.structure import (
     LAG_PARAMS,
     POSITION_STATE_NAMES,
@@ -44,4 +52,5 @@ __all__ = ["LongitudinalModel", "build_model", "numpy_rhs", "uses_alpha_dot", "s
            "FORCE_MODELS", "FORCE_NAMES", "fixed_wing_alpha_dot", "fixed_wing_forces",
            "multirotor_forces", "propeller_thrust", "rotor_thrust", "POSITION_STATE_NAMES",
            "STATE_NAMES", "make_rhs", "rigid_body_rates", "stall_blend", "symbolic_params",
-           "translational_accelerations", "CASADI_OPS", "NUMPY_OPS", "torch_ops"]
+           "translational_accelerations", "CASADI_OPS", "NUMPY_OPS", "torch_ops", "PITCH_LIMIT",
+           "PITCH_RATE_LIMIT", "SPEED_LIMIT", "Departure", "first_departure", "state_limits"]

@@ -14,7 +14,9 @@ residual acceleration is not part of it). It returns
 * ``hist``: :data:`SIGNALS` every ``stride`` steps (the envelope grid), ``x0`` first.
 
 Divergence: a sample whose state or signals are non-finite or beyond
-:data:`DIVERGENCE_BOUND` ends the statistics; its time is returned (never a silent NaN).
+:data:`DIVERGENCE_BOUND`, or whose body states leave their physical ranges (a departure:
+:func:`uavdyn.model.state_limits`), ends the statistics; its time is returned (never a silent
+NaN, never a tumbling run's finite nonsense).
 
 Gusts (:func:`gust_step`): the air-relative velocity ``[u - u_g, w - w_g, q - q_g]`` enters the
 airframe's force model and the inertial state the rigid-body equations, as in the emulator; the
@@ -30,7 +32,14 @@ import numpy as np
 from uavdyn.airframes import Airframe, param_names
 from uavdyn.integrate import DIVERGENCE_BOUND, augmented_rk_step, compile_function
 from uavdyn.learned.weights import CorrectionNet
-from uavdyn.model import CASADI_OPS, ModelStructure, body_forces, build_model, rigid_body_rates
+from uavdyn.model import (
+    CASADI_OPS,
+    ModelStructure,
+    body_forces,
+    build_model,
+    rigid_body_rates,
+    state_limits,
+)
 
 SIGNALS = ("theta", "q", "alpha", "airspeed", "load_factor")
 SIGNAL_UNITS = ("rad", "rad/s", "rad", "m/s", "-")
@@ -81,6 +90,19 @@ def _signals(forces: ca.Function, x, u, g, p, i_mass: int, i_g: int):
     return ca.vertcat(x[3], x[2], alpha, V, -Z / (p[i_mass] * p[i_g]))
 
 
+def _inside(x, signals, body_limits: list[float]):
+    """1 while the run is alive: every state and signal finite and within
+    :data:`DIVERGENCE_BOUND`, and the body states within their physical ranges
+    (:func:`uavdyn.model.state_limits`: a run that leaves them has departed, however finite its
+    numbers); false for NaN and inf."""
+    ok = 1
+    for e in ca.vertsplit(ca.vertcat(x, signals)):
+        ok = ca.logic_and(ok, ca.fabs(e) <= DIVERGENCE_BOUND)
+    for j, limit in enumerate(body_limits):
+        ok = ca.logic_and(ok, ca.fabs(x[j]) <= limit)
+    return ok
+
+
 def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructure,
                  n_steps: int, stride: int, gusts: bool, name: str = "mc_run"
                  ) -> ca.Function:
@@ -112,6 +134,7 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
     names = param_names(structure.kind)
     i_mass, i_g = names.index("mass"), names.index("gravity")
     forces = build_model(structure).forces
+    body_limits = list(state_limits(structure.kind).values())  # u, w, q, theta
     lo = ca.DM([b[0] for b in airframe.control_bounds()])
     hi = ca.DM([b[1] for b in airframe.control_bounds()])
     ns = len(STAT_NAMES) - 1  # the divergence time is kept apart
@@ -127,9 +150,7 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
     x_next = step(x, ca.vertcat(u, g) if gusts else u, p, dt)
     sig = _signals(forces, x_next, u, g, p, i_mass, i_g)
     theta_abs, alpha, V, n = ca.fabs(sig[0]), sig[2], sig[3], sig[4]
-    ok = 1
-    for e in ca.vertsplit(ca.vertcat(x_next, sig)):
-        ok = ca.logic_and(ok, ca.fabs(e) <= DIVERGENCE_BOUND)  # false for NaN and inf
+    ok = _inside(x_next, sig, body_limits)
     live = ca.logic_and(ok, t_div < 0)
     stats = ca.vertcat(ca.fmax(s[0], theta_abs), ca.fmax(s[1], alpha), ca.fmin(s[2], V),
                        ca.fmax(s[3], n), ca.fmin(s[4], n),
@@ -152,9 +173,7 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
                                                          i_mass, i_g)])
     u_first = ca.fmin(ca.fmax(U0 + DU[:, 0], lo), hi)
     sig0 = first(X0, u_first, G[:, 0] if gusts else ca.DM.zeros(N_GUST), P)
-    ok0 = 1
-    for e in ca.vertsplit(ca.vertcat(X0, sig0)):
-        ok0 = ca.logic_and(ok0, ca.fabs(e) <= DIVERGENCE_BOUND)
+    ok0 = _inside(X0, sig0, body_limits)
     th0 = ca.fabs(sig0[0])
     s0 = ca.vertcat(th0, sig0[2], sig0[3], sig0[4], sig0[4], 0, 0, 0, 0)
     a0 = ca.vertcat(X0, U0, s0, sig0[2:], 0, ca.if_else(ok0, -1, 0), P, DT, LIM)

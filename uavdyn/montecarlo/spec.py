@@ -32,7 +32,7 @@ from uavdyn.montecarlo.batch import gust_step
 from uavdyn.montecarlo.dispersions import LIMIT_KEYS, Dispersions
 from uavdyn.safefiles import UnreadableFile, read_regular
 
-SPEC_FORMAT = 2  # 2: the key hashes the whole airframe and the step Function
+SPEC_FORMAT = 3  # 2: the whole airframe and the step Function; 3: departures end a run
 MISSION_LOG_RATE_HZ = 100.0   # the emulator flies a mission at this log rate
 DEFAULT_HISTORY_DT = 0.1      # s between two envelope samples
 MAX_STEPS = 10_000_000        # per run
