@@ -488,15 +488,28 @@ def test_the_projects_dispersion_files_run_a_two_run_study_to_the_end(name, tmp_
     """Two runs of a narrow dispersion can agree to the last digits in a metric; the histogram
     of that metric used to crash the report (numpy cannot bin a zero-width range) after the
     chunks were written."""
-    from pathlib import Path
 
     from uavdyn.airframes import load_airframe
 
     af = load_airframe(name.split("_")[0])
-    disp = load_dispersions(Path(__file__).resolve().parents[1] / "data" / "dispersions"
-                            / f"{name}.toml", af)
+    disp = load_dispersions(name, af)  # shipped package data, addressed by name
     out = tmp_path / "out"
     run_study(build_spec(af, disp, runs=2, duration=1.0, dt=0.01, chunk_size=2), out,
               progress=False)
     assert (out / "figures" / "distributions.png").stat().st_size > 1000
     assert (out / "summary.md").is_file()
+
+
+def test_shipped_dispersion_files_are_addressed_by_name_from_any_folder(tmp_path, monkeypatch,
+                                                                         aerosonde):
+    """From a wheel install the README's example named a file of the source tree; the
+    examples are package data now, loaded by name wherever the command runs."""
+    from uavdyn.montecarlo.dispersions import DispersionError, shipped_dispersions
+
+    monkeypatch.chdir(tmp_path)
+    assert {"aerosonde_pm15", "aerosonde_gusty", "f450_pm15"} <= set(shipped_dispersions())
+    disp = load_dispersions("aerosonde_pm15", aerosonde)
+    assert "mass" in disp.params and "aerosonde_pm15" in disp.origin
+    with pytest.raises(DispersionError, match="aerosonde_pm1:.*shipped example: "
+                                              "aerosonde_gusty, aerosonde_pm15"):
+        load_dispersions("aerosonde_pm1", aerosonde)

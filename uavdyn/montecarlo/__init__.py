@@ -9,7 +9,7 @@ Typical use::
     from uavdyn.montecarlo import build_spec, load_dispersions, run_study
 
     af = load_airframe("aerosonde")
-    spec = build_spec(af, load_dispersions("data/dispersions/aerosonde_pm15.toml", af),
+    spec = build_spec(af, load_dispersions("aerosonde_pm15", af),
                       runs=1000, duration=60.0, dt=0.01, mission="doublet")
     result = run_study(spec, out="results/mc", threads=2)
     result.table["max_abs_pitch_deg"], result.exceedance, result.envelopes.band("alpha")

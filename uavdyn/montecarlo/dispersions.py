@@ -52,6 +52,7 @@ from __future__ import annotations
 import math
 import sys
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -431,13 +432,24 @@ def _reason(exc: BaseException) -> str:
     return text.split(": ", 1)[1] if ": " in text else text
 
 
+SHIPPED_DISPERSIONS = "uavdyn.montecarlo.shipped"
+
+
+def shipped_dispersions() -> list[str]:
+    """Names of the example dispersion files shipped with the package."""
+    return sorted(str(f.name)[:-5] for f in resources.files(SHIPPED_DISPERSIONS).iterdir()
+                  if str(f.name).endswith(".toml"))
+
+
 def load_dispersions(path: str | Path, airframe: Airframe) -> Dispersions:
     """Read and validate a dispersion file (TOML) for ``airframe``.
 
     Parameters
     ----------
     path : str or Path
-        The ``.toml`` file (a regular file of at most :data:`DISPERSION_MAX_BYTES`).
+        The ``.toml`` file (a regular file of at most :data:`DISPERSION_MAX_BYTES`), or the
+        name of a shipped example (:func:`shipped_dispersions`, e.g. ``aerosonde_pm15``) when
+        no such file exists.
     airframe : Airframe
         The nominal airframe.
 
@@ -451,10 +463,15 @@ def load_dispersions(path: str | Path, airframe: Airframe) -> Dispersions:
         One line naming the file and the key (or why the file cannot be read).
     """
     shown = str(path)
+    if isinstance(path, str) and path in shipped_dispersions() and not Path(path).exists():
+        path = Path(str(resources.files(SHIPPED_DISPERSIONS).joinpath(f"{path}.toml")))
+        shown = f"shipped dispersions '{shown}'"
     try:
         raw = read_regular(path, DISPERSION_MAX_BYTES, "a dispersion file")
     except UnreadableFile as exc:
-        raise DispersionError(f"{shown}: {exc.reason}") from None
+        hint = (f" (or the name of a shipped example: {', '.join(shipped_dispersions())})"
+                if not Path(path).exists() else "")
+        raise DispersionError(f"{shown}: {exc.reason}{hint}") from None
     try:
         data = tomllib.loads(raw.decode("utf-8"))
     except UnicodeDecodeError:

@@ -1,0 +1,1 @@
+"""Shipped example dispersion files (package data), addressable by name."""
