@@ -299,3 +299,32 @@ def test_hybrid_prediction_model_solves(aerosonde_trim):
             a = u + (a - u) * np.exp(-0.05 / np.array(tau_list))
         expected.extend(a)
     np.testing.assert_allclose(mpc.last_actuators, expected, rtol=0, atol=1e-12)
+
+
+def test_an_airframe_file_flies_its_physics_and_the_plant_can_differ(tmp_path):
+    """An airframe file without weights used to be refused ('no shipped correction'); it now
+    flies its physics alone, saying why there is no hybrid. A plant with +15 % C_m_alpha
+    (the truth a model was identified from) tracks worse than the matched plant."""
+    import json
+
+    from uavdyn.airframes import load_airframe, to_toml_dict
+    from uavdyn.mpc.study import fly_all, prediction_models
+
+    doc = to_toml_dict(load_airframe("aerosonde"))
+    doc["name"] = "mine"
+    mine = tmp_path / "mine.json"
+    mine.write_text(json.dumps(doc))
+    doc["params"]["C_m_alpha"]["value"] *= 1.15
+    doc["name"] = "truth"
+    truth = tmp_path / "truth.json"
+    truth.write_text(json.dumps(doc))
+    setup = prediction_models(str(mine))
+    assert list(setup.models) == ["physics"] and "give --weights" in setup.missing["hybrid"]
+    errors = {}
+    for plant in (None, str(truth)):
+        setup = prediction_models(str(mine), models=("physics",), plant=plant)
+        runs = fly_all(setup, MPCConfig(horizon=20, mode="rti"), scenarios=("pitch-step",))
+        result = runs[("pitch-step", "physics")][1]
+        assert result.success.all()
+        errors[setup.plant_airframe.name] = result.rmse("theta", 1.0)
+    assert errors["truth"] > 2 * errors["mine"], errors

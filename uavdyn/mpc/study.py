@@ -6,7 +6,9 @@ airframe it was trained on, and the physics prediction is that identified airfra
 so "hybrid vs physics" isolates the correction (a preset whose training kept no correction
 flies the identified physics alone); the plant is the emulator of the preset (the
 "real aircraft" the identification and the correction were fitted to). With ``weights`` both
-predictions run on the given airframe and the plant is its emulator.
+predictions run on the given airframe and the plant is its emulator; an airframe file without
+weights flies its physics alone. ``plant`` sets the emulated aircraft apart from the prediction
+model (e.g. the truth an identified model was fitted to).
 
 Statistics follow the status policy: solve-time medians and maxima are over successful solves
 only; failed solves and the fallbacks applied instead are their own columns.
@@ -70,7 +72,8 @@ class StudySetup:
 
 
 def prediction_models(airframe: str, weights: str | Path | None = None,
-                      mode: str = "rti", models: tuple[str, ...] = MODEL_NAMES) -> StudySetup:
+                      mode: str = "rti", models: tuple[str, ...] = MODEL_NAMES,
+                      plant: str | None = None) -> StudySetup:
     """The plant and prediction models of a study.
 
     Parameters
@@ -87,13 +90,17 @@ def prediction_models(airframe: str, weights: str | Path | None = None,
         search fails in most speed-step solves), softplus converges.
     models : tuple of str
         Which of ``hybrid``, ``physics`` to build.
+    plant : str, optional
+        Preset name or airframe file the emulator flies as the real aircraft (default
+        ``airframe``): an identified or corrected prediction model flown against a plant that
+        differs from it.
 
     Returns
     -------
     StudySetup
-        A preset whose shipped training kept no correction flies its
-        identified physics alone: ``missing["hybrid"]`` says why, unless only the hybrid was
-        asked for.
+        A preset whose shipped training kept no correction, or an airframe file given without
+        weights, flies its physics alone: ``missing["hybrid"]`` says why, unless only the
+        hybrid was asked for.
 
     Raises
     ------
@@ -101,23 +108,29 @@ def prediction_models(airframe: str, weights: str | Path | None = None,
         If the hybrid is the only model asked for and no correction is available, or the
         weights do not belong to the airframe.
     """
-    plant = load_airframe(airframe)
+    nominal = load_airframe(airframe)
+    plant_af = load_airframe(plant) if plant is not None else nominal
     missing: dict[str, str] = {}
     net = None
-    if weights is None:
-        if airframe not in list_presets():
-            raise WeightFileError(f"no shipped correction for the airframe file {airframe}; "
-                                  "give --weights FILE (trained on this airframe)")
+    if weights is None and airframe not in list_presets():
+        why = (f"no correction for the airframe file {airframe}; give --weights FILE "
+               "(trained on this airframe) to fly one")
+        if "physics" not in models:
+            raise WeightFileError(why)
+        weights, model_af = None, nominal
+        if "hybrid" in models:
+            missing["hybrid"] = why
+    elif weights is None:
         try:
-            weights, model_af = shipped_correction(plant.name)
+            weights, model_af = shipped_correction(nominal.name)
         except WeightFileError as exc:
             if "hybrid" in models and "physics" not in models:
                 raise
-            weights, model_af = None, shipped_identified(plant.name)
+            weights, model_af = None, shipped_identified(nominal.name)
             if "hybrid" in models:
                 missing["hybrid"] = str(exc)
     else:
-        weights, model_af = Path(weights), plant
+        weights, model_af = Path(weights), nominal
     if weights is not None:
         net = load_weights(weights, model_af)
     model_trim = trim(model_af)
@@ -131,7 +144,10 @@ def prediction_models(airframe: str, weights: str | Path | None = None,
     if "physics" in models:
         out["physics"] = PredictionModel("physics", physics_step(model_af), model_trim,
                                          f"RK4 of {model_af.name} (no correction)")
-    return StudySetup(plant, trim(plant), out, weights, missing)
+    if plant_af.kind != nominal.kind:
+        raise ValueError(f"plant {plant} is a {plant_af.kind}, the airframe {airframe} a "
+                         f"{nominal.kind}")
+    return StudySetup(plant_af, trim(plant_af), out, weights, missing)
 
 
 def fly_all(setup: StudySetup, config: MPCConfig,
