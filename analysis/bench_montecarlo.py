@@ -37,7 +37,7 @@ from uavdyn.montecarlo import build_spec, load_dispersions, run_study
 from uavdyn.montecarlo.chunks import compiled_batch
 
 ROOT = Path(__file__).resolve().parents[1]
-DISPERSIONS = ROOT / "data" / "dispersions" / "aerosonde_pm15.toml"
+DISPERSIONS = "aerosonde_pm15"  # shipped with the package (uavdyn/montecarlo/shipped/)
 TARGETS_S = {"physics": 60.0, "hybrid": 90.0}
 
 
@@ -141,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     doc: dict = {
         "benchmark": "montecarlo", "airframe": "aerosonde", "runs": args.runs,
         "duration_s": args.duration, "dt_s": args.dt, "steps_per_run": None,
-        "dispersions": str(DISPERSIONS.relative_to(ROOT)),
+        "dispersions": DISPERSIONS,
         "dispersed": dispersions.describe(), "input": "doublet (2 deg elevator at 1 s)",
         "chunk_size": args.chunk_size, "cpu_count": os.cpu_count(),
         "targets_s": TARGETS_S,

@@ -16,7 +16,6 @@ import os
 import subprocess
 import sys
 import textwrap
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -45,7 +44,6 @@ from uavdyn.montecarlo import (
 )
 from uavdyn.montecarlo.chunks import chunk_path
 
-DISPERSIONS = Path(__file__).resolve().parents[1] / "data" / "dispersions"
 GUSTY = """
 seed = 3
 [params.mass]
@@ -161,7 +159,7 @@ def test_without_dask_a_clear_error(tmp_path, aerosonde, monkeypatch):
 def test_runs_match_the_library_rollout(tmp_path, aerosonde):
     """Each run is the library's own compiled rollout of the dispersed airframe from its trim
     (uavdyn.integrate.free_run), and its statistics are those of that trajectory."""
-    disp = load_dispersions(DISPERSIONS / "aerosonde_pm15.toml", aerosonde)
+    disp = load_dispersions("aerosonde_pm15", aerosonde)
     spec = build_spec(aerosonde, disp, runs=4, duration=4.0, dt=0.01, mission="3211",
                       chunk_size=4, history_dt=0.5)
     result = run_study(spec, progress=False)
@@ -513,3 +511,32 @@ def test_shipped_dispersion_files_are_addressed_by_name_from_any_folder(tmp_path
     with pytest.raises(DispersionError, match="aerosonde_pm1:.*shipped example: "
                                               "aerosonde_gusty, aerosonde_pm15"):
         load_dispersions("aerosonde_pm1", aerosonde)
+
+
+def test_a_closed_loop_study_keeps_an_unstable_airframe_inside_its_ranges(tmp_path, aerosonde):
+    """With C_m_alpha = +1 the fixed wing is statically unstable (a real pole at +1.4 1/s):
+    flown open loop every run departs, and the summary says so in one line; flown closed loop
+    (an LQR at the nominal trim, stated with its gain) no run departs and the pitch stays
+    within a few degrees of trim."""
+    import warnings
+
+    from uavdyn.montecarlo.report import departure_warning, summary_markdown
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a positive C_m_alpha is flagged as implausible
+        unstable = aerosonde.replace(C_m_alpha=1.0)
+    disp = _dispersions(tmp_path, '[params.mass]\ndist = "uniform"\nlow = -0.1\nhigh = 0.1\n',
+                        unstable)
+    results = {}
+    for closed in (False, True):
+        spec = build_spec(unstable, disp, runs=8, duration=10.0, dt=0.01, chunk_size=8,
+                          closed_loop=closed)
+        results[closed] = run_study(spec, progress=False)
+    open_loop, closed_loop = results[False], results[True]
+    assert open_loop.table["diverged"].sum() == 8
+    assert "8 of 8 runs departed flown open loop" in summary_markdown(open_loop)
+    assert closed_loop.table["diverged"].sum() == 0 and departure_warning(closed_loop) is None
+    assert np.nanmax(closed_loop.table["max_abs_pitch_deg"]) < 10.0
+    assert closed_loop.spec.feedback.shape == (2, 4) and open_loop.spec.key != \
+        closed_loop.spec.key
+    assert "closed loop: u = trim + deviation - K (x - trim)" in summary_markdown(closed_loop)

@@ -103,13 +103,22 @@ def _inside(x, signals, body_limits: list[float]):
     return ok
 
 
+def _command(u_open, x, x_ref, feedback: np.ndarray | None, lo, hi):
+    """The command applied: open loop ``u_open``, or with the state feedback on the body
+    states, saturated at the airframe's control limits."""
+    if feedback is not None:
+        u_open = u_open - ca.mtimes(ca.DM(feedback), x[:4] - x_ref)
+    return ca.fmin(ca.fmax(u_open, lo), hi)
+
+
 def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructure,
-                 n_steps: int, stride: int, gusts: bool, name: str = "mc_run"
-                 ) -> ca.Function:
+                 n_steps: int, stride: int, gusts: bool, name: str = "mc_run",
+                 feedback: np.ndarray | None = None) -> ca.Function:
     """One Monte-Carlo run as an MX Function (see the module docstring).
 
-    Inputs ``x0, u0, p, du[nu x N], (g[3 x N] with gusts), dt, limits[4]``; outputs
-    ``stats[len(STAT_NAMES)]`` and ``hist[len(SIGNALS) x (N // stride + 1)]``.
+    Inputs ``x0, u0, p, du[nu x N], (g[3 x N] with gusts), dt, limits[4]`` (and ``xref[4]``
+    closed loop); outputs ``stats[len(STAT_NAMES)]`` and
+    ``hist[len(SIGNALS) x (N // stride + 1)]``.
 
     Parameters
     ----------
@@ -124,6 +133,10 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
         Steps per run and steps between two history samples.
     gusts : bool
         Whether the step takes gust inputs.
+    feedback : ndarray, shape (nu, 4), optional
+        Closed loop: the command is ``u0 + du - K (x_body - xref)`` before saturation (a
+        state feedback such as :func:`uavdyn.montecarlo.spec.lqr_gain`), ``xref`` the run's
+        trim body state; None flies the commands open loop.
     """
     if n_steps < 1 or stride < 1:
         raise ValueError(f"n_steps and stride must be >= 1, got {n_steps}, {stride}")
@@ -138,14 +151,14 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
     lo = ca.DM([b[0] for b in airframe.control_bounds()])
     hi = ca.DM([b[1] for b in airframe.control_bounds()])
     ns = len(STAT_NAMES) - 1  # the divergence time is kept apart
-    # accumulator: x, u0, stats, current signals (alpha, V, n), t, t_div, p, dt, limits
-    sizes = [nx, nu, ns, 3, 1, 1, n_p, 1, N_LIMITS]
+    # accumulator: x, u0, stats, current signals (alpha, V, n), t, t_div, p, dt, limits, xref
+    sizes = [nx, nu, ns, 3, 1, 1, n_p, 1, N_LIMITS, 4]
     offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
     acc = ca.SX.sym("acc", int(offsets[-1]))
-    x, u0, s, _, t, t_div, p, dt, lim = (acc[int(offsets[i]):int(offsets[i + 1])]
-                                         for i in range(len(sizes)))
+    x, u0, s, _, t, t_div, p, dt, lim, xr = (acc[int(offsets[i]):int(offsets[i + 1])]
+                                             for i in range(len(sizes)))
     inp = ca.SX.sym("in", n_in)
-    u = ca.fmin(ca.fmax(u0 + inp[:nu], lo), hi)
+    u = _command(u0 + inp[:nu], x, xr, feedback, lo, hi)
     g = inp[nu:] if gusts else None
     x_next = step(x, ca.vertcat(u, g) if gusts else u, p, dt)
     sig = _signals(forces, x_next, u, g, p, i_mass, i_g)
@@ -159,24 +172,26 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
     t_next = t + dt
     acc_next = ca.vertcat(x_next, u0, ca.if_else(live, stats, s), sig[2:], t_next,
                           ca.if_else(ca.logic_and(t_div < 0, ca.logic_not(ok)), t_next, t_div),
-                          p, dt, lim)
+                          p, dt, lim, xr)
     body = ca.Function(f"{name}_step", [acc, inp], [acc_next])
 
     # the run: initial signals, K intervals of `stride` steps (history), then the tail
     X0, U0, P = ca.MX.sym("x0", nx), ca.MX.sym("u0", nu), ca.MX.sym("p", n_p)
     DU, DT, LIM = ca.MX.sym("du", nu, n_steps), ca.MX.sym("dt"), ca.MX.sym("limits", N_LIMITS)
+    XR = ca.MX.sym("xref", 4)
     G = ca.MX.sym("g", N_GUST, n_steps) if gusts else None
     IN = ca.vertcat(DU, G) if gusts else DU
     sx = [ca.SX.sym(nm, n) for nm, n in (("x", nx), ("u", nu), ("g", N_GUST), ("p", n_p))]
     first = ca.Function(f"{name}_signals", sx, [_signals(forces, sx[0], sx[1],
                                                          sx[2] if gusts else None, sx[3],
                                                          i_mass, i_g)])
-    u_first = ca.fmin(ca.fmax(U0 + DU[:, 0], lo), hi)
+    u_first = _command(U0 + DU[:, 0], X0, XR, feedback, lo, hi)
     sig0 = first(X0, u_first, G[:, 0] if gusts else ca.DM.zeros(N_GUST), P)
     ok0 = _inside(X0, sig0, body_limits)
     th0 = ca.fabs(sig0[0])
     s0 = ca.vertcat(th0, sig0[2], sig0[3], sig0[4], sig0[4], 0, 0, 0, 0)
-    a0 = ca.vertcat(X0, U0, s0, sig0[2:], 0, ca.if_else(ok0, -1, 0), P, DT, LIM)
+    a0 = ca.vertcat(X0, U0, s0, sig0[2:], 0, ca.if_else(ok0, -1, 0), P, DT, LIM,
+                    XR if feedback is not None else ca.DM.zeros(4))
     n_int = n_steps // stride
     if stride > 1:
         inner = body.mapaccum(f"{name}_inner", stride)
@@ -196,6 +211,8 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
     stats = ca.vertcat(a_end[offsets[2]:offsets[3]], a_end[offsets[5]])
     inputs = [X0, U0, P, DU] + ([G] if gusts else []) + [DT, LIM]
     in_names = ["x0", "u0", "p", "du"] + (["g"] if gusts else []) + ["dt", "limits"]
+    if feedback is not None:
+        inputs, in_names = [*inputs, XR], [*in_names, "xref"]
     return ca.Function(name, inputs, [stats, hist], in_names, ["stats", "hist"])
 
 

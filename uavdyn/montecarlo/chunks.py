@@ -101,7 +101,8 @@ def compiled_batch(spec: StudySpec, n_runs: int, threads: int) -> ca.Function:
     key = (spec.model_key, n_runs, threads)
     if key not in _COMPILED:
         run = run_function(spec.step(), spec.airframe, spec.structure, spec.n_steps,
-                           spec.stride, spec.gusts, name=f"mc_{spec.model_key[:10]}")
+                           spec.stride, spec.gusts, name=f"mc_{spec.model_key[:10]}",
+                           feedback=spec.feedback)
         while len(_COMPILED) >= _COMPILED_MAX:
             _COMPILED.pop(next(iter(_COMPILED)))
         _COMPILED[key] = batch_function(run, n_runs, threads)
@@ -155,6 +156,7 @@ def _evaluate_chunk(spec: StudySpec, index: int, threads: int) -> ChunkResult:
     x0 = np.tile(_initial(spec, nom_point, nom_p, _zero_offsets(spec))[:, None],
                  (1, n))
     u0 = np.tile(np.asarray(nom_point.u, float)[:, None], (1, n))
+    x_ref = np.tile(np.asarray(nom_point.x, float)[:4, None], (1, n))  # closed loop: trims
     P = np.tile(nom_p[:, None], (1, n))
     G = np.zeros((N_GUST, spec.n_steps * n)) if spec.gusts else None
     columns = table_columns(spec)
@@ -188,6 +190,7 @@ def _evaluate_chunk(spec: StudySpec, index: int, threads: int) -> ChunkResult:
         p = point_params(airframe, point)
         x0[:, j] = _initial(spec, point, p, draw.offsets)
         u0[:, j] = point.u
+        x_ref[:, j] = point.x[:4]
         P[:, j] = p
         if spec.gusts and draw.gust_intensity > 0:
             from uavdyn.emulation import dryden_gusts, gust_span  # only for gusty studies
@@ -201,7 +204,8 @@ def _evaluate_chunk(spec: StudySpec, index: int, threads: int) -> ChunkResult:
                 :spec.n_steps].T
     batch = compiled_batch(spec, n, threads)
     args = [x0, u0, P, spec.deviations.T] + ([G] if spec.gusts else []) + \
-        [spec.dt, np.asarray(spec.limits, float)]
+        [spec.dt, np.asarray(spec.limits, float)] + ([x_ref] if spec.feedback is not None
+                                                      else [])
     with np.errstate(all="ignore"):
         stats, hist = (np.asarray(a) for a in batch(*args))
     n_hist = len(spec.history_time)

@@ -46,6 +46,26 @@ def results_json(result: MonteCarloResult) -> dict:
     }
 
 
+def control_description(spec) -> str:
+    """How the runs are controlled, in words (and the feedback gain when closed loop)."""
+    if spec.feedback is None:
+        return "open loop (each run flies its commands as they are)"
+    gain = "; ".join(", ".join(f"{v:.4g}" for v in row) for row in spec.feedback)
+    return ("closed loop: u = trim + deviation - K (x - trim) on u, w, q, theta, K of an LQR "
+            f"on the model linearised at the nominal trim (Bryson's rule), K = [{gain}]")
+
+
+def departure_warning(result: MonteCarloResult) -> str | None:
+    """One line when most runs of an open-loop study departed (None otherwise)."""
+    table, spec = result.table, result.spec
+    trimmed = int((table["trim_ok"] == 1).sum())
+    departed = int((table["diverged"] == 1).sum())
+    if spec.feedback is not None or not trimmed or departed * 2 <= trimmed:
+        return None
+    return (f"{departed} of {trimmed} runs departed flown open loop: the airframe is open-loop "
+            "unstable; fly the study closed loop (closed_loop=True, --closed-loop)")
+
+
 def summary_markdown(result: MonteCarloResult) -> str:
     """A Markdown page: settings, outcome counts, exceedance table, metric percentiles."""
     spec, table = result.spec, result.table
@@ -56,10 +76,13 @@ def summary_markdown(result: MonteCarloResult) -> str:
         f"- model: {spec.model}; step {spec.dt:g} s, envelope samples every "
         f"{spec.stride * spec.dt:g} s",
         f"- input: {spec.input_name} (deviations added to each run's own trim command)",
+        f"- control: {control_description(spec)}",
         f"- dispersions: {spec.dispersions.origin}; seed {spec.seed} (run k draws from "
         f"default_rng([{spec.seed}, k, 0]), gusts from [{spec.seed}, k, 1])",
         *[f"  - {line}" for line in spec.dispersions.describe()],
-        f"- runs: {n}; trimmed {trimmed}; diverged {int((table['diverged'] == 1).sum())}",
+        f"- runs: {n}; trimmed {trimmed}; departed or diverged "
+        f"{int((table['diverged'] == 1).sum())}",
+        *([f"- {departure_warning(result)}"] if departure_warning(result) else []),
         f"- wall time {result.wall_s:.1f} s for {result.runs_computed} computed runs "
         f"({_fmt(result.runs_per_s)} runs/s; {len(result.reused)} chunk(s) reused from an "
         f"earlier run)", "",

@@ -26,7 +26,7 @@ from uavdyn.integrate import DiscreteModel, physics_step
 from uavdyn.integrate.inputs import PROFILES, control_sequence
 from uavdyn.learned import CorrectionNet, hybrid_step, load_weights, shipped_weights
 from uavdyn.learned.hybrid import correction_structure
-from uavdyn.linear import TrimError, stall_speed, trim
+from uavdyn.linear import TrimError, linearise, stall_speed, trim
 from uavdyn.model import CONTROL_NAMES, ModelStructure, structure_of
 from uavdyn.montecarlo.batch import gust_step
 from uavdyn.montecarlo.dispersions import LIMIT_KEYS, Dispersions
@@ -87,6 +87,9 @@ class StudySpec:
     given : DiscreteModel or None
         A model the caller built (``build_spec(..., model=)``); None: the airframe's physics
         or the hybrid step of ``net``.
+    feedback : numpy.ndarray or None
+        Closed loop: the state-feedback gain (``nu x 4``, :func:`lqr_gain`) on the body states
+        about each run's trim; None: the commands are flown open loop.
     """
 
     airframe: Airframe
@@ -105,6 +108,7 @@ class StudySpec:
     limits: tuple[float, float, float, float]
     weights_digest: str = ""
     given: DiscreteModel | None = None
+    feedback: np.ndarray | None = None
     key: str = field(default="", init=False)
     model_key: str = field(default="", init=False)
 
@@ -114,7 +118,8 @@ class StudySpec:
             "airframe": self.airframe.param_hash(), "kind": self.airframe.kind,
             "structure": repr(self.structure), "weights": self.weights_digest,
             "n_steps": self.n_steps, "stride": self.stride, "gusts": self.gusts,
-            "bounds": self.airframe.control_bounds(), "casadi": ca.__version__}))
+            "bounds": self.airframe.control_bounds(), "casadi": ca.__version__,
+            "feedback": None if self.feedback is None else np.asarray(self.feedback).tolist()}))
 
     @property
     def duration(self) -> float:
@@ -200,6 +205,8 @@ class StudySpec:
             "deviations_sha256": hashlib.sha256(
                 np.ascontiguousarray(self.deviations, dtype="<f8").tobytes()).hexdigest(),
             "limits": [repr(float(v)) for v in self.limits],
+            "feedback": (None if self.feedback is None
+                         else [[repr(float(v)) for v in row] for row in self.feedback]),
         }
 
     def describe(self) -> dict:
@@ -354,11 +361,42 @@ def _given_model(model: DiscreteModel, weights, dispersions: Dispersions, airfra
     return model.description or model.name, digest
 
 
+# Bryson's rule for the closed-loop studies' LQR: the largest deviation the loop should
+# tolerate of u, w (m/s), q (rad/s), theta (rad), and the share of each control's half travel
+LQR_MAX_DEVIATION = (2.0, 2.0, 0.5, 0.1)
+LQR_CONTROL_SHARE = 0.5
+
+
+def lqr_gain(airframe: Airframe, point) -> np.ndarray:
+    """The gain ``K`` (``nu x 4``) of a continuous LQR on the body states ``u, w, q, theta``
+    linearised at ``point`` (actuator lags left out), weighted by Bryson's rule
+    (:data:`LQR_MAX_DEVIATION`; each control up to :data:`LQR_CONTROL_SHARE` of its half
+    travel): the stated feedback a closed-loop study flies each run with.
+
+    Raises
+    ------
+    MonteCarloError
+        If the linearised airframe cannot be stabilised from its controls.
+    """
+    import control
+
+    A, B = linearise(airframe, point, actuators=False)
+    half = np.array([(hi - lo) / 2 for lo, hi in airframe.control_bounds()])
+    Q = np.diag(1.0 / np.square(LQR_MAX_DEVIATION))
+    R = np.diag(1.0 / np.square(LQR_CONTROL_SHARE * half))
+    try:
+        K, _, _ = control.lqr(A, B, Q, R)
+    except Exception as exc:  # python-control raises its own types for an unsolvable Riccati
+        raise MonteCarloError(f"no LQR for airframe '{airframe.name}' at its trim: "
+                              f"{' '.join(str(exc).split())}") from None
+    return np.asarray(K, float)
+
+
 def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration: float,
                dt: float = 0.01, mission: str = "doublet", weights: str | Path | None = None,
                seed: int | None = None, chunk_size: int = 200,
                history_dt: float = DEFAULT_HISTORY_DT, airspeed: float | None = None,
-               model: DiscreteModel | None = None) -> StudySpec:
+               model: DiscreteModel | None = None, closed_loop: bool = False) -> StudySpec:
     """Check a study's settings and gather them in a :class:`StudySpec`.
 
     Parameters
@@ -383,6 +421,10 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
         Interval of the envelope samples (s, rounded to whole steps).
     airspeed : float, optional
         Nominal trim airspeed (default: the airframe's).
+    closed_loop : bool
+        Fly each run with the state feedback of :func:`lqr_gain` at the nominal trim about
+        the run's own trim (an open-loop unstable airframe, any multirotor, departs open
+        loop).
     model : DiscreteModel, optional
         Fly this model (e.g. ``uavdyn.physics_step(af)`` or ``uavdyn.hybrid_step(w, af)``)
         instead of building one from ``weights``; it must be built for ``airframe``'s
@@ -411,9 +453,10 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
         raise MonteCarloError(f"seed must be an integer >= 0, got {seed}")
     speed = airframe.nominal_airspeed if airspeed is None else float(airspeed)
     try:
-        trim(airframe, speed)
+        point = trim(airframe, speed)
     except TrimError as exc:
         raise MonteCarloError(f"the nominal airframe does not trim: {exc}") from None
+    feedback = lqr_gain(airframe, point) if closed_loop else None
     if model is not None:
         label, digest = _given_model(model, weights, dispersions, airframe)
         net = None
@@ -445,4 +488,4 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
                      seed=int(seed), chunk_size=chunk_size, airspeed=speed,
                      input_name=name, deviations=np.ascontiguousarray(deviations, float),
                      limits=resolve_limits(dispersions, airframe), weights_digest=digest,
-                     given=model)
+                     given=model, feedback=feedback)
