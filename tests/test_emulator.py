@@ -1,6 +1,7 @@
 """The flight-data emulator: richer than the baseline, converged, deterministic, and its parts
 (turbulence, actuators, noise, soft limits) behave as documented."""
 
+import dataclasses
 import math
 
 import casadi as ca
@@ -159,6 +160,49 @@ def test_actuator_lag_and_rate_limit(aerosonde, aerosonde_trim):
     assert rate.max() > 0.9 * limit  # the limit is reached: a 20 deg step is rate limited
     assert abs(act[101] - u[101, 0]) > math.radians(10)  # lagging
     assert abs(act[-1] - u[-1, 0]) < 1e-4
+
+
+def test_lags_and_rates_come_from_the_airframe_file(aerosonde, f450):
+    """A file's tau_elevator/tau_throttle/tau_rotor and [limits] rates become the truth
+    model's; a preset (none set) keeps the emulator's defaults; an explicit truth wins."""
+    assert Emulator(aerosonde).truth == TRUTH_DEFAULTS["fixed_wing"]
+    own = aerosonde.replace(tau_elevator=0.03, tau_throttle=0.1)
+    own = dataclasses.replace(own, limits={"elevator": (-0.35, 0.35), "elevator_rate": 5.0})
+    em = Emulator(own)
+    assert (em.truth["tau_elevator"], em.truth["tau_throttle"], em.truth["rate_elevator"]) == \
+        (0.03, 0.1, 5.0)
+    assert em.truth["rate_throttle"] == TRUTH_DEFAULTS["fixed_wing"]["rate_throttle"]
+    assert em.truth_sources["tau_elevator"] == "airframe file"
+    assert em.truth_sources["tau_alpha"] == "emulator default"
+    np.testing.assert_array_equal(em.command_limits, [-0.35, 0.35, 0.0, 1.0, 5.0, 0.0])
+    assert Emulator(own, truth={"tau_elevator": 0.05}).truth_sources["tau_elevator"] == "given"
+    quad_em = Emulator(f450.replace(tau_rotor=0.03))
+    assert quad_em.truth["tau_motor_up"] == 0.03
+    assert quad_em.truth["tau_motor_down"] == pytest.approx(0.06)
+
+
+def test_commands_saturate_at_the_files_travel_and_rate(aerosonde, aerosonde_trim):
+    """Open-loop elevator commands far beyond the file's travel: the logged command stays
+    inside [limits] and moves at most its rate per log interval; without [limits] the same
+    commands reach the physical range."""
+    u = np.tile(aerosonde_trim.u, (301, 1))
+    u[100:200, 0] = 0.6
+    u[200:, 0] = -0.6
+    own = dataclasses.replace(aerosonde, limits={"elevator": (-0.2, 0.3),
+                                                 "elevator_rate": 2.0})
+    out = {}
+    for af in (aerosonde, own):
+        em = Emulator(af)
+        fl = em.fly(em.initial_state(aerosonde_trim.x, aerosonde_trim.u, 150.0),
+                    open_loop_references(u), noise_scale=0.0)
+        out[af is own] = fl.controls[:, 0]
+    limited, free = out[True], out[False]
+    assert -0.2 - 1e-12 <= limited.min() and limited.max() <= 0.3 + 1e-12
+    assert limited.max() > 0.3 - 1e-3 and limited.min() < -0.2 + 1e-3  # the travel is reached
+    assert np.abs(np.diff(limited)).max() <= 2.0 * 0.01 + 1e-12
+    assert np.abs(np.diff(limited)).max() > 0.99 * 2.0 * 0.01  # ... and the rate
+    assert free.max() > 0.52 and free.min() < -0.52
+    np.testing.assert_allclose(limited[:100], free[:100], atol=1e-12)  # inside: unchanged
 
 
 def test_soft_clip_is_identity_inside_and_bounded():

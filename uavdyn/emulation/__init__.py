@@ -11,8 +11,17 @@ from uavdyn.emulation.emulator import (
     open_loop_references,
     wind_in_body,
 )
-from uavdyn.emulation.missions import MISSIONS, MissionError, missions_for, plan_mission
+from uavdyn.emulation.envelope import Envelope, envelope
+from uavdyn.emulation.missions import (
+    MISSIONS,
+    MissionError,
+    MissionUnflyable,
+    missions_for,
+    plan_mission,
+    unflyable_missions,
+)
 
 __all__ = ["Recipe", "generate_dataset", "shipped_recipe", "REFERENCE_NAMES", "WIND_NAMES",
            "Emulator", "dryden_gusts", "gust_span", "wind_in_body", "open_loop_references",
-           "MISSIONS", "MissionError", "missions_for", "plan_mission"]
+           "Envelope", "envelope", "MISSIONS", "MissionError", "MissionUnflyable",
+           "missions_for", "plan_mission", "unflyable_missions"]

@@ -11,14 +11,39 @@ from uavdyn.model import CONTROL_BOUNDS
 # Per-interval reference/gain rows fed to the autopilot (see :func:`autopilot`).
 REFERENCE_NAMES = ("ff0", "ff1", "theta_ref", "speed_ref", "h_ref",
                    "K_theta", "K_q", "K_speed", "K_h", "K_hdot")
+# The command limits the autopilot saturates at: travel of each control, then its rate
+# (per second; 0 = no rate limit). From the airframe's [limits] (:func:`command_limits`).
+COMMAND_LIMIT_NAMES = ("low0", "high0", "low1", "high1", "rate0", "rate1")
 
 
-def autopilot(kind: str, x, ref, gust):
+def command_limits(airframe) -> np.ndarray:
+    """``[low0, high0, low1, high1, rate0, rate1]`` of an airframe: the travel of its file's
+    ``[limits]`` (else the kind's physical range) and the command rates (0: none set)."""
+    bounds = airframe.control_bounds()
+    rates = airframe.rate_limits() or (None, None)
+    return np.array([bounds[0][0], bounds[0][1], bounds[1][0], bounds[1][1],
+                     rates[0] or 0.0, rates[1] or 0.0], float)
+
+
+def rate_limit(cmd, previous, rates, dt):
+    """The command moved at most ``rate * dt`` from the previous one, per channel; a rate of
+    0 passes the command unchanged (exactly)."""
+    out = []
+    for i in range(2):
+        step = rates[i] * dt
+        limited = previous[i] + ca.fmin(ca.fmax(cmd[i] - previous[i], -step), step)
+        out.append(ca.if_else(rates[i] > 0, limited, cmd[i]))
+    return ca.vertcat(*out)
+
+
+def autopilot(kind: str, x, ref, gust, limits=None):
     """Discrete autopilot evaluated once per log interval (the command is then held): pitch
     attitude PD with an outer speed loop and an altitude loop; gains come with the references,
     so a mission can schedule them (all zero = open-loop feed-forward ``ff0, ff1``).
     ``gust`` is ``[u_g, w_g, q_g, W_x, W_z]``: the fixed wing's speed loop uses the pitot
-    (air-relative) airspeed, the multirotor's the ground speed (inertial)."""
+    (air-relative) airspeed, the multirotor's the ground speed (inertial). Each command is
+    saturated (smoothly) at the travel in ``limits`` (:data:`COMMAND_LIMIT_NAMES`; None: the
+    kind's physical range); the rates are applied by :func:`rate_limit`."""
     u, w, q, theta, h = x[0], x[1], x[2], x[3], x[5]
     ff0, ff1, theta_ref, speed_ref, h_ref, k_th, k_q, k_sp, k_h, k_hd = (
         ref[i] for i in range(len(REFERENCE_NAMES)))
@@ -36,8 +61,11 @@ def autopilot(kind: str, x, ref, gust):
         pitch_cmd = ff1 + k_th * (theta_cmd - theta) - k_q * q
         collective = ff0 + k_h * (h_ref - h) - k_hd * h_dot
         cmd = ca.vertcat(collective, pitch_cmd)
-    lo = [b[0] for b in CONTROL_BOUNDS[kind]]
-    hi = [b[1] for b in CONTROL_BOUNDS[kind]]
+    if limits is None:
+        lo = [b[0] for b in CONTROL_BOUNDS[kind]]
+        hi = [b[1] for b in CONTROL_BOUNDS[kind]]
+    else:
+        lo, hi = [limits[0], limits[2]], [limits[1], limits[3]]
     return ca.vertcat(*(soft_clip(cmd[i], lo[i], hi[i]) for i in range(2)))
 
 

@@ -12,6 +12,13 @@ column; each sortie's manifest entry records it (``wind_inertial_mps``, ``[W_x, 
 Every sortie draws from its own generator seeded by ``(seed, sortie index)``, so the files do not
 depend on the number of worker processes or their scheduling: the same recipe gives
 byte-identical files on the same platform (compiler and libm).
+
+The missions follow the airframe's own envelope and ``[limits]`` and the truth model takes the
+file's actuator lags (:mod:`uavdyn.emulation.missions`, :mod:`uavdyn.emulation.emulator`); the
+manifest's ``truth`` records what the truth model used and the envelope. A mission the airframe
+cannot fly (its envelope, or the sortie duration) is left out with one warning line naming it
+and why, as is a mission one of whose sorties leaves the flight-data checks' ranges in every
+draw; a recipe with no mission left is refused.
 """
 
 from __future__ import annotations
@@ -30,7 +37,8 @@ from tqdm import tqdm
 
 from uavdyn.airframes import Airframe, load_airframe
 from uavdyn.emulation.emulator import Emulator, dryden_gusts, emulator_rollout, gust_span
-from uavdyn.emulation.missions import missions_for, plan_mission
+from uavdyn.emulation.envelope import envelope
+from uavdyn.emulation.missions import missions_for, plan_mission, unflyable_missions
 from uavdyn.flightdata import (
     FlightDataError,
     Sortie,
@@ -195,6 +203,8 @@ def _fly_one(recipe: Recipe, airframe: Airframe, emulator: Emulator, item: dict,
 
 
 def _generate_one(args: tuple[dict, dict, str]) -> dict:
+    """Fly and write one sortie: its manifest entry, or ``{"index", "mission", "failed"}``
+    if no draw of it passes the flight-data checks (the mission is then left out)."""
     recipe_dict, item, out = args
     recipe = Recipe(**recipe_dict)
     airframe = load_airframe(recipe.airframe)
@@ -211,8 +221,9 @@ def _generate_one(args: tuple[dict, dict, str]) -> dict:
         except FlightDataError as exc:  # e.g. a gust turned a zoom climb into a loop
             last_error = exc
     else:
-        raise RuntimeError(f"sortie {i} ({item['mission']}) failed the flight-data checks in "
-                           f"{MAX_ATTEMPTS} draws; last: {last_error}")
+        return {"index": i, "mission": item["mission"],
+                "failed": f"mission '{item['mission']}' left the flight-data checks' ranges "
+                          f"in all {MAX_ATTEMPTS} draws of sortie {i}; last: {last_error}"}
     name = f"sortie_{i:03d}"
     meas = Sortie(name, airframe.kind, flight.time, flight.measured_states, flight.controls,
                   item["mission"])
@@ -249,13 +260,37 @@ def generate_dataset(recipe: Recipe, out: str | Path, workers: int | None = None
     """
     airframe = load_airframe(recipe.airframe)
     recipe.validate(airframe)
+    recipe, skipped = flyable_recipe(recipe, airframe)
     with output_folder(out, "generate-data", force) as tmp:
-        _generate_into(recipe, airframe, tmp, workers, progress)
+        _generate_into(recipe, airframe, tmp, workers, progress, skipped)
     return Path(out) / "manifest.json"
 
 
+def flyable_recipe(recipe: Recipe, airframe: Airframe) -> tuple[Recipe, dict[str, str]]:
+    """The recipe with only the missions the airframe can fly, and ``{mission: why}`` of those
+    left out, each also warned about in one line. Unchanged if it can fly them all.
+
+    Raises
+    ------
+    ValueError
+        If the airframe can fly none of the recipe's missions (one line naming why).
+    """
+    missions = recipe.mission_list(airframe.kind)
+    skipped = unflyable_missions(airframe, missions, recipe.duration_s, recipe.sample_rate_hz)
+    if not skipped:
+        return recipe, {}
+    left = [m for m in missions if m not in skipped]
+    if not left:
+        raise ValueError(f"airframe '{airframe.name}' can fly none of the missions "
+                         f"{', '.join(missions)}: " + "; ".join(skipped.values()))
+    for reason in skipped.values():
+        warnings.warn(f"{reason}; skipped (the other missions are generated)", UserWarning,
+                      stacklevel=3)
+    return Recipe(**{**asdict(recipe), "missions": left}), skipped
+
+
 def _generate_into(recipe: Recipe, airframe: Airframe, out: Path, workers: int | None,
-                   progress: bool) -> Path:
+                   progress: bool, skipped: dict[str, str]) -> Path:
     items = assign_sorties(recipe, airframe.kind)
     # Compile the rollout once here so the workers only load the cached library.
     emulator = Emulator(airframe, sample_rate_hz=recipe.sample_rate_hz,
@@ -278,6 +313,7 @@ def _generate_into(recipe: Recipe, airframe: Airframe, out: Path, workers: int |
                 entries.append(entry)
                 bar.update()
     bar.close()
+    entries = _drop_failed_missions(entries, out, skipped)
     splits = {s: [e["file"] for e in entries if e["split"] == s] for s in SPLITS}
     return write_manifest(
         out, airframe=airframe.name, kind=airframe.kind, sample_rate_hz=recipe.sample_rate_hz,
@@ -292,8 +328,48 @@ def _generate_into(recipe: Recipe, airframe: Airframe, out: Path, workers: int |
                    "head wind), rotated into body axes with the pitch angle in the emulator",
         emulator={"internal_dt_s": emulator.internal_dt, "truth_params": emulator.truth,
                   "sensor_noise_std": asdict(emulator.noise.scaled(recipe.noise_scale))},
+        truth=truth_record(emulator, skipped),
         recipe=recipe_dict,
     )
+
+
+def _drop_failed_missions(entries: list[dict], out: Path, skipped: dict[str, str]
+                          ) -> list[dict]:
+    """Leave out every sortie of a mission one of whose sorties failed in every draw (its
+    files deleted, one warning line naming it and why, recorded in ``skipped``).
+
+    Raises
+    ------
+    ValueError
+        If no mission is left.
+    """
+    failed = {}
+    for e in entries:
+        if "failed" in e:
+            failed.setdefault(e["mission"], e["failed"])
+    if not failed:
+        return entries
+    kept = [e for e in entries if e["mission"] not in failed]
+    if not kept:
+        raise ValueError("no mission could be flown: " + "; ".join(failed.values()))
+    for e in entries:
+        if e["mission"] in failed and "failed" not in e:
+            for key in ("file", "true_file"):
+                (Path(out) / e[key]).unlink()
+    for mission, reason in failed.items():
+        warnings.warn(f"{reason}; skipped (the other missions are written)", UserWarning,
+                      stacklevel=4)
+        skipped[mission] = reason
+    return kept
+
+
+def truth_record(emulator: Emulator, skipped: dict[str, str] | None = None) -> dict:
+    """What the truth model of a dataset used (the manifest's ``truth``): its actuator lags
+    and rates and where each came from (the airframe file or the emulator's defaults), the
+    command limits the autopilot saturated at, the envelope the missions were drawn from
+    (speed range, cruise, stall speed, climb rate) and the missions left out and why."""
+    return {**emulator.truth, "sources": dict(emulator.truth_sources),
+            **envelope(emulator.airframe).as_dict(), "missions_skipped": dict(skipped or {})}
 
 
 def shipped_recipe(name: str) -> Recipe:

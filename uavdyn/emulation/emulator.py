@@ -19,6 +19,14 @@ Both kinds
       the autopilot's pitot tube are evaluated; the kinematics use the inertial velocities.
     * Actuator dynamics: each commanded input passes a smooth position limit, then a
       first-order lag whose rate is smoothly limited (``rate * tanh(error / (tau * rate))``).
+      The lags and rates are the airframe file's own where it sets them (``tau_elevator``,
+      ``tau_throttle``, ``tau_rotor``, ``[limits]`` ``<control>_rate``:
+      :func:`airframe_truth`), the defaults below otherwise; ``Emulator.truth_sources`` says
+      which.
+    * Commands: the autopilot saturates each command at the travel of the file's ``[limits]``
+      (else the kind's physical range), smoothly, and at its ``[limits]`` rate (a hard limit
+      per log interval; none where the file sets none), so the logged commands never leave
+      them.
     * Sensor noise: Gaussian white noise on every logged state and a constant gyro bias per
       sortie; the logged controls are the commands (exact, zero-order hold per log interval).
     * What is logged (``true_states`` and ``measured_states``, the interchange format's
@@ -32,7 +40,7 @@ Both kinds
 
 Fixed wing (extra states: elevator, throttle, alpha filter, separation)
     * Elevator servo lag 0.04 s, rate limit 3 rad/s; throttle (engine/propeller spool) lag
-      0.25 s, rate limit 2 /s.
+      0.25 s, rate limit 2 /s (defaults; the file's lags and rates replace them).
     * Unsteady aerodynamics: ``C_L_alphadot`` and ``C_m_alphadot`` terms, with alpha-dot taken
       from a first-order filtered derivative of the air-relative alpha (filter state). They add
       to the airframe's own optional ``C_L_alpha_dot``/``C_m_alpha_dot`` (0 in the presets),
@@ -48,7 +56,7 @@ Multirotor (extra states: front and rear rotor speeds, in throttle units)
     * Mixer saturation: each rotor pair's throttle ``collective +- pitch_mix * pitch_cmd`` is
       limited to [0, 1] (the baseline does not limit the mix).
     * Motor spin-up: first-order lag 0.04 s up / 0.08 s down (no active braking), rate
-      limited.
+      limited (a file's ``tau_rotor`` replaces the spin-up lag, spin-down keeps the ratio).
     * Airspeed-dependent rotors: axial-inflow thrust change (less thrust in climb), effective
       translational lift in forward flight, rotor drag proportional to rotor speed (replacing
       the baseline's constant ``drag_linear``), and a blade-flapping pitch moment
@@ -72,7 +80,14 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import Airframe
-from uavdyn.emulation.autopilot import REFERENCE_NAMES, autopilot, open_loop_references
+from uavdyn.emulation.autopilot import (
+    COMMAND_LIMIT_NAMES,
+    REFERENCE_NAMES,
+    autopilot,
+    command_limits,
+    open_loop_references,
+    rate_limit,
+)
 from uavdyn.emulation.truth import (
     AUX_NAMES,
     BODY_STATE_NAMES,
@@ -82,6 +97,7 @@ from uavdyn.emulation.truth import (
     TRUTH_DEFAULTS,
     WIND_NAMES,
     air_relative,
+    airframe_truth,
     emulator_aux,
     emulator_rhs,
     rate_limited_lag,
@@ -102,13 +118,13 @@ from uavdyn.emulation.turbulence import (
 from uavdyn.integrate import compile_function, rk4_step
 from uavdyn.model import NUMPY_OPS, stall_blend
 
-__all__ = ["AUX_NAMES", "BODY_STATE_NAMES", "EXTRA_STATE_NAMES", "GUST_NAMES",
-           "MULTIROTOR_PROP_DIAMETER_M", "REFERENCE_NAMES", "SATURATION_SHARPNESS",
-           "TRUTH_DEFAULTS", "WIND_NAMES", "EmulatedFlight", "Emulator", "SensorNoise",
-           "air_relative", "autopilot", "dryden_filter", "dryden_gusts", "emulator_aux",
-           "emulator_rhs", "emulator_rollout", "gust_span", "log_interval_step",
-           "open_loop_references", "rate_limited_lag", "soft_clip", "truth_param_names",
-           "wind_in_body"]
+__all__ = ["AUX_NAMES", "BODY_STATE_NAMES", "COMMAND_LIMIT_NAMES", "EXTRA_STATE_NAMES",
+           "GUST_NAMES", "MULTIROTOR_PROP_DIAMETER_M", "REFERENCE_NAMES",
+           "SATURATION_SHARPNESS", "TRUTH_DEFAULTS", "WIND_NAMES", "EmulatedFlight", "Emulator",
+           "SensorNoise", "air_relative", "airframe_truth", "autopilot", "command_limits",
+           "dryden_filter", "dryden_gusts", "emulator_aux", "emulator_rhs", "emulator_rollout",
+           "gust_span", "log_interval_step", "open_loop_references", "rate_limit",
+           "rate_limited_lag", "soft_clip", "truth_param_names", "wind_in_body"]
 
 
 @dataclass(frozen=True)
@@ -130,43 +146,53 @@ class SensorNoise:
 @cache
 def log_interval_step(kind: str, substeps: int) -> ca.Function:
     """One log interval: autopilot command (held), then ``substeps`` RK4 steps of the emulator.
-    Signature ``(z=[x; pe; dt_log], r=[ref; gust; wind]) -> (z_next, cmd, aux)`` for
-    ``mapaccum``; gust and inertial wind are held over the interval, the wind's body components
-    follow the pitch inside every RK4 stage."""
+    Signature ``(z=[x; pe; dt_log; limits; cmd_prev], r=[ref; gust; wind]) -> (z_next, cmd,
+    aux)`` for ``mapaccum``: the command is saturated at the travel and rate ``limits``
+    (:data:`COMMAND_LIMIT_NAMES`) from the previous command ``cmd_prev`` (which ``z_next``
+    carries on); gust and inertial wind are held over the interval, the wind's body
+    components follow the pitch inside every RK4 stage."""
     f = emulator_rhs(kind, with_wind=True)
     step = rk4_step(f, "emulator_rk4")
-    nx, n_pe = f.size1_in(0), f.size1_in(2)
-    z = ca.SX.sym("z", nx + n_pe + 1)
+    nx, n_pe, n_lim = f.size1_in(0), f.size1_in(2), len(COMMAND_LIMIT_NAMES)
+    z = ca.SX.sym("z", nx + n_pe + 1 + n_lim + 2)
     r = ca.SX.sym("r", len(REFERENCE_NAMES) + len(GUST_NAMES) + len(WIND_NAMES))
-    x, pe, dt_log = z[:nx], z[nx:nx + n_pe], z[-1]
+    x, pe, dt_log = z[:nx], z[nx:nx + n_pe], z[nx + n_pe]
+    limits, previous = z[nx + n_pe + 1:nx + n_pe + 1 + n_lim], z[nx + n_pe + 1 + n_lim:]
     disturbance = r[len(REFERENCE_NAMES):]
-    cmd = autopilot(kind, x, r[:len(REFERENCE_NAMES)], disturbance)
+    cmd = autopilot(kind, x, r[:len(REFERENCE_NAMES)], disturbance, limits)
+    cmd = rate_limit(cmd, previous, limits[4:], dt_log)
     v = ca.vertcat(cmd, disturbance)
     aux = emulator_aux(kind, with_wind=True)(x, v, pe)
     h = dt_log / substeps
     xk = x
     for _ in range(substeps):
         xk = step(xk, v, pe, h)
-    return ca.Function("emulator_interval", [z, r], [ca.vertcat(xk, pe, dt_log), cmd, aux],
+    return ca.Function("emulator_interval", [z, r],
+                       [ca.vertcat(xk, pe, dt_log, limits, cmd), cmd, aux],
                        ["z", "r"], ["z_next", "cmd", "aux"])
 
 
 @cache
 def emulator_rollout(kind: str, n_intervals: int, substeps: int, compiled: bool = True
                      ) -> ca.Function:
-    """ONE Function for a whole sortie: ``(x0, pe, dt_log, R[15 x N]) -> (X[nx x N+1],
-    CMD[2 x N], AUX[4 x N])`` built with ``mapaccum`` (a loop in the generated C) and compiled
-    (cached on disk by content hash)."""
+    """ONE Function for a whole sortie: ``(x0, pe, dt_log, R[15 x N], limits[6], cmd0[2]) ->
+    (X[nx x N+1], CMD[2 x N], AUX[4 x N])`` built with ``mapaccum`` (a loop in the generated
+    C) and compiled (cached on disk by content hash). ``limits`` are the autopilot's command
+    limits (:data:`COMMAND_LIMIT_NAMES`), ``cmd0`` the command before the first interval
+    (where the rate limit starts from)."""
     body = log_interval_step(kind, substeps)
     nx = 6 + len(EXTRA_STATE_NAMES[kind])
-    n_pe = body.size1_in(0) - nx - 1
+    n_lim = len(COMMAND_LIMIT_NAMES)
+    n_pe = body.size1_in(0) - nx - 1 - n_lim - 2
     acc = body.mapaccum("emulator_acc", n_intervals)
     x0, pe, dt = ca.MX.sym("x0", nx), ca.MX.sym("pe", n_pe), ca.MX.sym("dt")
+    limits, cmd0 = ca.MX.sym("limits", n_lim), ca.MX.sym("cmd0", 2)
     R = ca.MX.sym("R", body.size1_in(1), n_intervals)
-    Z, CMD, AUX = acc(ca.vertcat(x0, pe, dt), R)
+    Z, CMD, AUX = acc(ca.vertcat(x0, pe, dt, limits, cmd0), R)
     X = ca.horzcat(x0, Z[:nx, :])
-    func = ca.Function(f"emulator_{kind}_{n_intervals}_{substeps}", [x0, pe, dt, R],
-                       [X, CMD, AUX], ["x0", "pe", "dt", "R"], ["X", "cmd", "aux"])
+    func = ca.Function(f"emulator_{kind}_{n_intervals}_{substeps}",
+                       [x0, pe, dt, R, limits, cmd0], [X, CMD, AUX],
+                       ["x0", "pe", "dt", "R", "limits", "cmd0"], ["X", "cmd", "aux"])
     return compile_function(func) if compiled else func
 
 
@@ -216,10 +242,17 @@ class Emulator:
         if unknown:
             raise ValueError(f"unknown truth parameter(s) {sorted(unknown)} for "
                              f"{airframe.kind}; expected {sorted(values)}")
+        own = airframe_truth(airframe)
+        values.update(own)
         values.update({k: float(v) for k, v in (truth or {}).items()})
         self.airframe = airframe
         self.kind = airframe.kind
         self.truth = values
+        # where each truth value comes from: given here, the airframe file, or the default
+        self.truth_sources = {k: "given" if k in (truth or {}) else "airframe file"
+                              if k in own else "emulator default" for k in values}
+        # the autopilot's command saturation: the file's [limits] travel and rates
+        self.command_limits = command_limits(airframe)
         self.sample_rate_hz = float(sample_rate_hz)
         self.internal_dt = float(internal_dt)
         self.substeps = int(substeps)
@@ -269,6 +302,15 @@ class Emulator:
             extra = [u[0] + mix * u[1], u[0] - mix * u[1]]
         return np.concatenate([body, [0.0, altitude], extra])
 
+    def actuator_command(self, x0: np.ndarray) -> np.ndarray:
+        """The command that holds the actuators of the full emulator state ``x0`` where they
+        are (the previous command the autopilot's rate limit starts from)."""
+        extra = np.asarray(x0, float)[6:8]
+        if self.kind == "fixed_wing":
+            return extra.copy()
+        mix = self.airframe.params.pitch_mix
+        return np.array([0.5 * (extra[0] + extra[1]), (extra[0] - extra[1]) / (2 * mix)])
+
     def fly(self, x0: np.ndarray, references: np.ndarray, gusts: np.ndarray | None = None,
             rng: np.random.Generator | None = None, noise_scale: float = 1.0, *,
             wind: np.ndarray | None = None) -> EmulatedFlight:
@@ -299,7 +341,9 @@ class Emulator:
             raise ValueError("gusts and wind must be finite")
         func = emulator_rollout(self.kind, n, self.substeps, self.compiled)
         R = np.hstack([references, gusts, wind]).T
-        X, CMD, AUX = func(np.asarray(x0, float), self.pe, self.dt_log, R)
+        x0 = np.asarray(x0, float)
+        X, CMD, AUX = func(x0, self.pe, self.dt_log, R, self.command_limits,
+                           self.actuator_command(x0))
         X, CMD, AUX = np.asarray(X).T[:n], np.asarray(CMD).T, np.asarray(AUX).T
         # Logged velocities are air-relative (what the aerodynamics see), at the same instant
         # and with the same held gust and wind as the interval's aerodynamics.

@@ -87,6 +87,31 @@ def rate_limited_lag(actual, command, tau, rate):
     return rate * ca.tanh((command - actual) / (tau * rate))
 
 
+def airframe_truth(airframe) -> dict[str, float]:
+    """The truth-model extras an airframe file sets itself: its actuator lags and rate limits.
+
+    Fixed wing: ``tau_elevator`` and ``tau_throttle`` (where non-zero) are the servo and
+    engine lags, ``[limits]`` ``elevator_rate`` and ``throttle_rate`` the actuator rates.
+    Multirotor: ``tau_rotor`` (where non-zero) is the spin-up lag; spin-down keeps the
+    emulator's ratio (no active braking: ``tau_motor_down / tau_motor_up`` of
+    :data:`TRUTH_DEFAULTS`). Everything else keeps the emulator's defaults."""
+    P, out = airframe.params, {}
+    if airframe.kind == "fixed_wing":
+        for name in ("tau_elevator", "tau_throttle"):
+            if getattr(P, name) > 0:
+                out[name] = float(getattr(P, name))
+        for control in ("elevator", "throttle"):
+            rate = airframe.limits.get(f"{control}_rate")
+            if rate is not None:
+                out[f"rate_{control}"] = float(rate)
+    elif P.tau_rotor > 0:
+        defaults = TRUTH_DEFAULTS["multirotor"]
+        out["tau_motor_up"] = float(P.tau_rotor)
+        out["tau_motor_down"] = float(P.tau_rotor) * (defaults["tau_motor_down"]
+                                                      / defaults["tau_motor_up"])
+    return out
+
+
 def truth_param_names(kind: str) -> tuple[str, ...]:
     """Names of the truth-model extras for ``kind`` (order of the extra parameter vector)."""
     param_names(kind)
