@@ -67,8 +67,9 @@ def test_user_parameter_file(tmp_path, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["trim", "--airframe", "nosuch"], "neither a preset"),
     (["trim", "--airspeed", "5"], "below the stall speed"),
-    (["simulate", "--dt", "-1"], "--dt must be a positive number"),
-    (["simulate", "--duration", "nan"], "--duration must be a positive number"),
+    (["simulate", "--dt", "-1"], "argument --dt: must be a finite number with 1e-06 <= dt"),
+    (["simulate", "--duration", "nan"], "argument --duration: must be a finite number with "
+                                        "duration > 0 s, got 'nan'"),
 ])
 def test_errors_are_one_line(argv, message, capsys):
     assert main(argv) == 2

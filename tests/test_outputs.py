@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 from test_correction import random_net
 
+from uavdyn.airframes import load_airframe
 from uavdyn.cli import main
 from uavdyn.emulation import Recipe, generate_dataset
 from uavdyn.emulation.fingerprint import compare_fingerprints, dataset_fingerprint
@@ -144,7 +145,7 @@ def test_simulate_checks_amplitude_duration_and_folders(tmp_path, monkeypatch, c
             (["--amplitude", "2"], "outside its limits"),
             (["--duration", "1e7"], "rows, more than"),
             (["--out", "/nonexistent_uavdyn_dir/x.csv"], "will not create folder"),
-            (["--dt", "nan"], "--dt must be a positive")):
+            (["--dt", "nan"], "argument --dt: must be a finite number")):
         assert main(["simulate", "--airframe", "aerosonde", *argv]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], err
@@ -154,23 +155,24 @@ def test_simulate_checks_amplitude_duration_and_folders(tmp_path, monkeypatch, c
 
 
 def test_evaluate_checks_its_output_before_the_work(tmp_path, monkeypatch, capsys):
-    """An output that could not be written is refused before the dataset is even read (the
-    dataset here does not exist: the output's error must come first), and nothing is
-    created; an output that is a folder is refused too."""
+    """An output that could not be written is refused when the command line is parsed, before
+    the dataset is even read (its manifest here is broken: the output's error must come
+    first), and nothing is created; an output that is a folder is refused too."""
     monkeypatch.chdir(tmp_path)
+    broken = tmp_path / "broken_dataset"
+    broken.mkdir()
+    (broken / "manifest.json").write_text("{}")
     for out, message in (("/nonexistent_uavdyn_dir/e.json", "will not create folder"),
                          (str(tmp_path), "is a folder, not a file")):
-        assert main(["evaluate", "--airframe", "aerosonde", "--dataset", "no_such_dataset",
+        assert main(["evaluate", "--airframe", "aerosonde", "--dataset", str(broken),
                      "--out", out]) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and message in err[0], err
+        assert len(err) == 1 and "argument --out" in err[0] and message in err[0], err
     assert not Path("/nonexistent_uavdyn_dir").exists()
-    assert main(["evaluate", "--airframe", "aerosonde", "--dataset", "no_such_dataset",
+    assert main(["evaluate", "--airframe", "aerosonde", "--dataset", str(broken),
                  "--out", "sub/e.json"]) == 2
-    assert "no_such_dataset" in capsys.readouterr().err
+    assert "broken_dataset" in capsys.readouterr().err
     assert not (tmp_path / "sub").exists()
-
-
 
 
 def test_an_interrupt_during_a_forced_commit_never_leaves_a_mix(tmp_path, monkeypatch):
@@ -214,4 +216,91 @@ def test_an_interrupt_during_a_forced_commit_never_leaves_a_mix(tmp_path, monkey
         assert (folder / "notes.txt").read_text() == "mine"
         if contents == {"new"}:
             assert (folder / MARKER).exists()
+    assert outcomes == {"completed", "interrupted"}
+
+
+def _flaky_replace(monkeypatch, n: int) -> None:
+    """``os.replace`` raising KeyboardInterrupt at its ``n``-th call (every module's: one os)."""
+    real = os.replace
+    calls = {"n": 0}
+
+    def flaky(src, dst):
+        calls["n"] += 1
+        if calls["n"] == n:
+            raise KeyboardInterrupt
+        return real(src, dst)
+
+    monkeypatch.setattr(os, "replace", flaky)
+
+
+def test_atomic_files_put_a_set_in_place_all_or_none(tmp_path, monkeypatch):
+    """Interrupted at every rename in turn, the three files are all old or all new (one of
+    them new where there was none before), and no temporary file is left."""
+    from uavdyn.outputs import atomic_files
+
+    outcomes = set()
+    for n in range(1, 10):
+        folder = tmp_path / f"run{n}"
+        folder.mkdir()
+        paths = [folder / "w.npz", folder / "w_history.json", folder / "w_history.png"]
+        for p in paths[:2]:
+            p.write_text("old")
+        _flaky_replace(monkeypatch, n)
+        try:
+            with atomic_files(*paths) as tmps:
+                for t in tmps:
+                    t.write_text("new")
+            outcomes.add("completed")
+        except KeyboardInterrupt:
+            outcomes.add("interrupted")
+        monkeypatch.undo()
+        found = [p.read_text() if p.exists() else None for p in paths]
+        assert found in (["old", "old", None], ["new"] * 3), (n, found)
+        assert sorted(os.listdir(folder)) == sorted(p.name for p in paths if p.exists())
+    assert outcomes == {"completed", "interrupted"}
+    with pytest.raises(OutputError, match="same file"):
+        with atomic_files(tmp_path / "a", tmp_path / "." / "a"):
+            pass
+
+
+@pytest.mark.slow  # eleven (fake) training runs
+def test_an_interrupted_train_commit_leaves_the_old_pair_or_the_new_pair(tmp_path, monkeypatch,
+                                                                        capsys):
+    """train wrote the weights and the loss history as separate renames: an interrupt between
+    them left new weights beside the old history. Now the weights, history JSON and PNG are
+    one output: interrupted at every rename in turn (os.replace raising KeyboardInterrupt at
+    its n-th call, the trainer replaced by one that returns at once), the three files are the
+    old set or the new set, and the history's network is the weights' own."""
+    pytest.importorskip("torch")
+    from test_cli_options import _fake_trainer, steady_dataset
+
+    from uavdyn.learned import load_weights
+
+    _fake_trainer(monkeypatch)
+    data = steady_dataset(tmp_path / "data")
+    real_replace = os.replace
+    monkeypatch.chdir(tmp_path)
+    outcomes = set()
+    for n in range(1, 12):
+        folder = tmp_path / f"run{n}"
+        folder.mkdir()
+        old_net = random_net(load_airframe("aerosonde"), "paper", seed=7)
+        weights = save_weights(old_net, folder / "w.npz")
+        history, png = folder / "w_history.json", folder / "w_history.png"
+        history.write_text(json.dumps({"history": [{"epoch": 0}], "network": old_net.describe(),
+                                       "tag": "old"}))
+        png.write_bytes(b"old png")
+        old = (weights.read_bytes(), history.read_text(), png.read_bytes())
+        _flaky_replace(monkeypatch, n)
+        code = main(["train", "--airframe", "aerosonde", "--dataset", str(data), "--formulation",
+                     "paper", "--epochs", "1", "--quiet", "--out", str(weights)])
+        monkeypatch.setattr(os, "replace", real_replace)
+        outcomes.add({0: "completed", 130: "interrupted"}[code])
+        now = (weights.read_bytes(), history.read_text(), png.read_bytes())
+        if now != old:  # all three new, and they belong together
+            assert all(a != b for a, b in zip(now, old)), (n, "a mix of old and new files")
+            assert json.loads(now[1])["network"] == load_weights(weights).describe()
+            assert now[2].startswith(b"\x89PNG")
+        assert sorted(os.listdir(folder)) == ["w.npz", "w_history.json", "w_history.png"], n
+    capsys.readouterr()
     assert outcomes == {"completed", "interrupted"}

@@ -72,7 +72,7 @@ def test_cli_train_writes_weights_history_and_plot(tmp_path, emulated):
 
     out = tmp_path / "w.npz"
     code = main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
-                 "--epochs", "1", "--hidden", "4", "--rollout-horizon", "5", "--quiet",
+                 "--epochs", "1", "--hidden", "4", "--horizon", "1", "--quiet",
                  "--out", str(out)])
     assert code == 0
     net = load_weights(out)
@@ -102,17 +102,18 @@ def test_cli_defaults_match_train_config():
 
     args = build_parser().parse_args(["train"])
     d = asdict(TrainConfig())
-    for key in ("formulation", "target", "activation", "dt", "rollout_horizon",
-                "rollout_weight", "lr", "seed", "threads"):
+    for key in ("formulation", "target", "activation", "lr", "seed", "threads"):
         assert getattr(args, key) == d[key], key
-    # options whose default differs between the trainers are left to each trainer's config
+    # options whose default differs between the trainers, or that apply to one trainer only
+    # (given for the other, they are refused), are left to each trainer's config
     safe = asdict(SafeConfig())
     assert safe["hidden"] != d["hidden"]
-    for key in ("epochs", "patience", "max_seconds", "stability_weight", "hidden"):
+    for key in ("epochs", "patience", "max_seconds", "stability_weight", "hidden", "dt",
+                "rollout_horizon", "rollout_weight", "stability_margin", "horizon",
+                "memory_tau"):
         assert getattr(args, key) is None, key
-    for key in ("lr", "seed", "threads", "stability_margin"):
+    for key in ("lr", "seed", "threads"):
         assert getattr(args, key) == safe[key], key
-    assert args.horizon == safe["horizon_s"]
 
 
 def test_dataset_building(small_data, aerosonde, f450):

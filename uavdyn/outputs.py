@@ -90,6 +90,67 @@ def atomic_file(path: str | Path, create_parents: bool = True) -> Iterator[Path]
             tmp.unlink()
 
 
+@contextmanager
+def atomic_files(*paths: str | Path, create_parents: bool = True) -> Iterator[tuple[Path, ...]]:
+    """Yield a temporary sibling of each of ``paths`` to write; when the block ends without
+    error, put them in place as one output (e.g. weights and the history that belongs to
+    them): each old file is renamed aside, each new one renamed in, then the old ones are
+    deleted. An error or interrupt at any rename moves every new file out and every old file
+    back, so ``paths`` hold the old set or the new set, never a mix (a hard kill in the
+    microseconds between the renames may leave the old files beside under ``.<name>.old-*``).
+    Temporary files are deleted when the block fails.
+
+    Raises
+    ------
+    OutputError
+        If two paths are one file, a path is a folder, a parent is missing and may not be
+        created, or the block left a temporary file unwritten.
+    """
+    paths = tuple(Path(p) for p in paths)
+    if len({p.resolve() for p in paths}) != len(paths):
+        raise OutputError(f"{', '.join(map(str, paths))}: two outputs are the same file")
+    for path in paths:
+        if path.is_dir():
+            raise OutputError(f"{path}: is a folder, not a file")
+        _check_parent(path, create_parents)
+    tmps = tuple(_temp_sibling(p, "tmp") for p in paths)
+    try:
+        yield tmps
+        for path, tmp in zip(paths, tmps):
+            if not tmp.exists():
+                raise OutputError(f"{path}: nothing was written")
+        _replace_together(tmps, paths)
+    finally:
+        for tmp in tmps:
+            if tmp.exists():
+                tmp.unlink()
+
+
+def _replace_together(tmps: tuple[Path, ...], paths: tuple[Path, ...]) -> None:
+    """Rename each ``tmps[i]`` to ``paths[i]``, all or none (see :func:`atomic_files`)."""
+    moved: list[tuple[Path, Path]] = []   # (path, the old file's name aside)
+    placed: list[tuple[Path, Path]] = []  # (new file's temporary name, path)
+    try:
+        for path in paths:
+            if path.exists() or path.is_symlink():
+                old = _temp_sibling(path, "old")
+                moved.append((path, old))
+                os.replace(path, old)
+        for tmp, path in zip(tmps, paths):
+            placed.append((tmp, path))
+            os.replace(tmp, path)
+    except BaseException:
+        for tmp, path in reversed(placed):
+            if not tmp.exists() and path.exists():  # the new file went in: take it out
+                path.unlink()
+        for path, old in reversed(moved):
+            if old.exists() or old.is_symlink():
+                os.replace(old, path)
+        raise
+    for _, old in moved:
+        old.unlink(missing_ok=True)
+
+
 def write_text_atomic(path: str | Path, text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary sibling."""
     with atomic_file(path) as tmp:

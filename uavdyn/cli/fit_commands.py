@@ -4,24 +4,52 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
-from uavdyn.airframes import AirframeError, load_airframe
+from uavdyn.airframes import DELAY_MAX_SAMPLES, AirframeError, load_airframe
 from uavdyn.cli.common import (
+    SEED,
+    STEP,
+    THREADS,
     CliError,
     add_airframe,
     add_force,
+    check_dataset_fits,
+    count,
+    dataset_path,
+    file_to_write,
+    folder_to_write,
+    name_list,
+    number,
+    positive,
+    refuse_unused,
+    seconds,
 )
-from uavdyn.flightdata import load_dataset
+from uavdyn.flightdata import Sortie, load_dataset
 from uavdyn.identify import identify, write_outputs
+from uavdyn.identify.unknowns import DELAY_PREFIX, control_names
+from uavdyn.integrate import EvalGrid, GridError
+from uavdyn.learned.weights import MAX_MEMORY_FILTERS
+
+MAX_HIDDEN = 1024        # width of the correction's hidden layers (memory and time)
+MAX_EPOCHS = 100_000
+MAX_TRAIN_SECONDS = 7 * 86400.0  # a wall-clock budget that still ends the run
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
     """Fit named physical parameters to a dataset; write the fitted airframe and a report."""
     nominal = load_airframe(args.airframe)
-    names = [n.strip() for n in args.params.split(",") if n.strip()]
+    check_dataset_fits(nominal, args.dataset, args.lowpass_hz)
+    names = args.params
+    delays = [DELAY_PREFIX + c for c in control_names(nominal.kind)]
+    unknown = [n for n in names if n not in nominal.param_names and n not in delays]
+    if unknown:
+        raise CliError(f"--params {', '.join(unknown)}: not in the {nominal.kind} model of "
+                       f"--airframe {args.airframe}; choose from "
+                       f"{', '.join(nominal.param_names + tuple(delays))}")
+    refuse_unused(args, ("--max-delay",), any(n in delays for n in names),
+                  "with a delay_<control> name in --params")
     out = Path(args.out)
     if out.exists() and not args.force:
         try:
@@ -29,18 +57,16 @@ def cmd_identify(args: argparse.Namespace) -> int:
         except AirframeError:
             raise CliError(f"{out} exists and is not an airframe file; choose another --out or "
                            "give --force") from None
-    if not (args.window > 0 and math.isfinite(args.window)):
-        raise CliError(f"--window must be a positive number of seconds, got {args.window}")
     ds = load_dataset(args.dataset, lowpass_hz=args.lowpass_hz)
     if not ds.train:
         raise CliError(f"{args.dataset}: the dataset has no train split to fit on")
+    _check_identify_steps(args, ds.train)
     if not ds.validation:
         print("warning: no validation split; the fit is scored on the training sorties only",
               file=sys.stderr)
-    if args.max_delay < 0:
-        raise CliError(f"--max-delay must be >= 0 samples, got {args.max_delay}")
+    max_delay = 5 if args.max_delay is None else args.max_delay
     result = identify(nominal, ds.train, ds.validation, names, window_s=args.window,
-                      dt=args.dt, max_delay=args.max_delay, progress=not args.quiet)
+                      dt=args.dt, max_delay=max_delay, progress=not args.quiet)
     report = Path(args.report) if args.report else out.with_name(out.stem + "_report")
     command = "uavdyn " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["identify"] else \
         f"uavdyn identify --airframe {args.airframe} --dataset {args.dataset} --params " \
@@ -50,7 +76,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
           f"sorties in {result.seconds:.1f} s ({result.iterations} iterations)")
     for e in result.estimates:
         if e.searched:
-            print(f"  {e.name:>14} = {int(e.value):12d} samples (searched 0..{args.max_delay}; "
+            print(f"  {e.name:>14} = {int(e.value):12d} samples (searched 0..{max_delay}; "
                   f"nominal {int(e.nominal)})")
             continue
         change = f", {100 * e.relative_change:+.2f} %" if e.nominal else ""
@@ -69,6 +95,23 @@ def cmd_identify(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_identify_steps(args: argparse.Namespace, train: list[Sortie]) -> None:
+    """``--window`` no longer than the train sorties, ``--dt`` fitting their log interval."""
+    longest = max(s.duration for s in train)
+    if args.window > longest:
+        raise CliError(f"--window {args.window:g} s is longer than every train sortie of "
+                       f"--dataset {args.dataset} (the longest is {longest:g} s)")
+    if args.dt is None:
+        return
+    if args.dt > args.window:
+        raise CliError(f"--dt {args.dt:g} s is longer than --window {args.window:g} s")
+    try:
+        EvalGrid(train[0].dt, args.dt)
+    except GridError as exc:
+        raise CliError(f"--dt {args.dt:g} s does not fit the log interval of --dataset "
+                       f"{args.dataset}: {exc}") from None
+
+
 def training_module():
     """Import :mod:`uavdyn.learned.command` (needs torch, the ``[train]`` extra)."""
     try:
@@ -80,11 +123,36 @@ def training_module():
     return module
 
 
+SAFE_ONLY = ("--stability-weight", "--stability-margin", "--horizon", "--memory-tau")
+LEGACY_ONLY = ("--dt", "--rollout-horizon", "--rollout-weight")
+
+
+def check_train_options(args: argparse.Namespace) -> None:
+    """The relations of ``train``'s options: each applies to one trainer (the safe correction
+    of ``--formulation improved --target data``, or the legacy formulations), at most
+    :data:`MAX_MEMORY_FILTERS` memory filters."""
+    safe = args.formulation == "improved" and args.target == "data"
+    refuse_unused(args, SAFE_ONLY, safe, "to the safe correction (--formulation improved "
+                  "--target data)")
+    refuse_unused(args, LEGACY_ONLY, not safe, "to --formulation paper/hypersolver or --target "
+                  "reference (the safe correction steps once per log sample, with rollouts "
+                  "of --horizon s)")
+    if args.memory_tau is not None and len(args.memory_tau) > MAX_MEMORY_FILTERS:
+        raise CliError(f"--memory-tau gives {len(args.memory_tau)} time constants, at most "
+                       f"{MAX_MEMORY_FILTERS}")
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     """Train the learned correction on a dataset; write weights (.npz), loss history JSON and
-    PNG (the output files are checked first, then ``--dataset`` is required)."""
+    PNG. Checked first: the options' relations, the airframe's kind against the dataset's,
+    then (:func:`uavdyn.learned.command.run`) the output files, that ``--dataset`` is given
+    and the rollout windows against its sorties."""
+    check_train_options(args)
+    airframe = load_airframe(args.airframe)
+    if args.dataset:
+        check_dataset_fits(airframe, args.dataset, args.lowpass_hz)
     module = training_module()
-    summary = module.run(args)
+    summary = module.run(args, airframe)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -95,21 +163,27 @@ def add_identify(sub) -> None:
                        "(output error); write the fitted airframe file and a report")
     add_force(p)
     add_airframe(p)
-    p.add_argument("--dataset", required=True, help="dataset folder (manifest.json + CSVs)")
-    p.add_argument("--params", required=True,
+    p.add_argument("--dataset", required=True, type=dataset_path,
+                   help="dataset folder (manifest.json + CSVs)")
+    p.add_argument("--params", required=True, type=name_list("parameter"),
                    help="comma-separated parameter names, e.g. C_m_alpha,C_m_q,rho")
-    p.add_argument("--out", required=True, help="fitted airframe file (.toml)")
-    p.add_argument("--report", default=None,
+    p.add_argument("--out", required=True, type=file_to_write,
+                   help="fitted airframe file (.toml)")
+    p.add_argument("--report", default=None, type=folder_to_write,
                    help="report folder (JSON + PNG; default <out>_report beside --out)")
-    p.add_argument("--window", type=float, default=1.0,
-                   help="prediction window in s, restarted from recorded states (default 1)")
-    p.add_argument("--dt", type=float, default=None,
-                   help="RK4 step in s (default half the log interval)")
-    p.add_argument("--lowpass-hz", type=float, default=None,
-                   help="zero-phase low-pass filter of the data before fitting")
-    p.add_argument("--max-delay", type=int, default=5,
-                   help="largest transport delay (samples) searched for delay_<control> names "
-                        "(default 5)")
+    p.add_argument("--window", type=seconds(name="window"), default=1.0,
+                   help="prediction window in s, restarted from recorded states, no longer "
+                        "than the train sorties (default 1)")
+    p.add_argument("--dt", type=STEP, default=None,
+                   help="RK4 step in s, fitting the log interval (default half the log "
+                        "interval)")
+    p.add_argument("--lowpass-hz", type=positive(name="cut-off", unit="Hz"), default=None,
+                   help="zero-phase low-pass filter of the data before fitting (Hz, below half "
+                        "the log rate)")
+    p.add_argument("--max-delay", type=number(1, DELAY_MAX_SAMPLES, integer=True,
+                                              name="samples"), default=None,
+                   help=f"largest transport delay (samples, 1..{DELAY_MAX_SAMPLES}) searched for "
+                        "delay_<control> names (default 5)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_identify)
 
@@ -120,11 +194,12 @@ def add_train(sub) -> None:
                        "weights as .npz")
     add_force(p)
     add_airframe(p)
-    p.add_argument("--dataset", default=None, metavar="DIR",
+    p.add_argument("--dataset", default=None, metavar="DIR", type=dataset_path,
                    help="required: dataset folder (manifest.json + CSVs, with a train/validation "
                         "split), e.g. from `uavdyn generate-data`")
-    p.add_argument("--lowpass-hz", type=float, default=None,
-                   help="zero-phase low-pass filter of the dataset's measured states (Hz)")
+    p.add_argument("--lowpass-hz", type=positive(name="cut-off", unit="Hz"), default=None,
+                   help="zero-phase low-pass filter of the dataset's measured states (Hz, "
+                        "below half the log rate)")
     p.add_argument("--formulation", default="improved",
                    choices=["improved", "paper", "hypersolver"],
                    help="improved (default): residual force/moment inside RK4; paper: "
@@ -135,42 +210,47 @@ def add_train(sub) -> None:
     p.add_argument("--activation", default="relu", choices=["relu", "tanh"],
                    help="hidden-layer activation (default relu: cheapest in C; tanh is smooth "
                         "and bounded)")
-    p.add_argument("--hidden", type=int, default=None,
+    p.add_argument("--hidden", type=count(MAX_HIDDEN, "width"), default=None,
                    help="hidden-layer width (default for the safe correction: 8 for a fixed "
                         "wing, 6 for a multirotor, whose physics step is cheaper; 16 for the "
-                        "legacy formulations)")
-    p.add_argument("--dt", type=float, default=0.005,
-                   help="hybrid step in s (default 0.005; the improved correction on flight "
-                        "data steps once per log sample)")
-    p.add_argument("--epochs", type=int, default=None,
+                        f"legacy formulations; at most {MAX_HIDDEN})")
+    p.add_argument("--dt", type=STEP, default=None,
+                   help="paper/hypersolver/reference: hybrid step in s (default 0.005; the "
+                        "safe correction steps once per log sample)")
+    p.add_argument("--epochs", type=count(MAX_EPOCHS, "epochs"), default=None,
                    help="maximum epochs (default 100 for the safe correction, 60 otherwise)")
-    p.add_argument("--rollout-horizon", type=int, default=25,
-                   help="rollout-loss window in samples (default 25)")
-    p.add_argument("--rollout-weight", type=float, default=1.0,
-                   help="weight of the rollout loss (default 1, 0 = one-step loss only)")
-    p.add_argument("--lr", type=float, default=3e-3, help="initial Adam learning rate")
-    p.add_argument("--patience", type=int, default=None,
+    p.add_argument("--rollout-horizon", type=count(MAX_EPOCHS, "samples"), default=None,
+                   help="paper/hypersolver/reference: rollout-loss window in samples, no longer "
+                        "than the sorties (default 25)")
+    p.add_argument("--rollout-weight", type=number(0.0, name="weight"), default=None,
+                   help="paper/hypersolver/reference: weight of the rollout loss (default 1, "
+                        "0 = one-step loss only)")
+    p.add_argument("--lr", type=number(0.0, 1.0, low_open=True, name="lr"), default=3e-3,
+                   help="initial Adam learning rate, 0 < lr <= 1 (default 0.003)")
+    p.add_argument("--patience", type=count(MAX_EPOCHS, "epochs"), default=None,
                    help="early stopping: epochs without validation improvement (default 8 for "
                         "the safe correction, 12 otherwise)")
-    p.add_argument("--max-seconds", type=float, default=None,
-                   help="wall-clock budget in s (default 3600 for the safe correction, a safety "
-                        "net only; 270 otherwise)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    p.add_argument("--stability-weight", type=float, default=None,
+    p.add_argument("--max-seconds", type=seconds(MAX_TRAIN_SECONDS, "budget"), default=None,
+                   help="wall-clock budget in s, at most a week (default 3600 for the safe "
+                        "correction, a safety net only; 270 otherwise)")
+    p.add_argument("--seed", type=SEED, default=0, help="random seed >= 0 (default 0)")
+    p.add_argument("--threads", type=THREADS, default=1, help="torch threads (default 1)")
+    p.add_argument("--stability-weight", type=number(0.0, name="weight"), default=None,
                    help="improved/data: weight of the stability penalty at trims over the "
-                        "training envelope (default 10)")
-    p.add_argument("--stability-margin", type=float, default=0.5,
+                        "training envelope, >= 0 (default 10)")
+    p.add_argument("--stability-margin", type=number(0.0, 1.0, name="fraction"), default=None,
                    help="improved/data: how much a stable physics mode's decay rate may shrink "
-                        "(fraction, default 0.5); a neutral mode may never grow")
-    p.add_argument("--horizon", type=float, default=2.0,
-                   help="improved/data: rollout window from recorded states in s (default 2)")
-    p.add_argument("--memory-tau", type=float, nargs="*", default=None,
-                   help="improved/data: command-memory time constants in s (default 0.05 0.2 "
-                        "when the airframe has no actuator lag, none otherwise)")
-    p.add_argument("--out", default=None,
+                        "(fraction 0..1, default 0.5); a neutral mode may never grow")
+    p.add_argument("--horizon", type=seconds(name="horizon"), default=None,
+                   help="improved/data: rollout window from recorded states in s, no longer "
+                        "than the sorties (default 2)")
+    p.add_argument("--memory-tau", type=seconds(10.0, "tau"), nargs="*", default=None,
+                   help="improved/data: command-memory time constants in s (0 < tau <= 10, at "
+                        f"most {MAX_MEMORY_FILTERS}; default 0.05 0.2 when the airframe has no "
+                        "actuator lag, none otherwise)")
+    p.add_argument("--out", default=None, type=file_to_write,
                    help="weight file (default results/weights/<airframe>_<formulation>.npz)")
-    p.add_argument("--history", default=None,
+    p.add_argument("--history", default=None, type=file_to_write,
                    help="loss-history JSON (default beside --out; a PNG is written too)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train)

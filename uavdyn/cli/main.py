@@ -1,7 +1,8 @@
 """The ``uavdyn`` command line: one subcommand per step of the pipeline.
 
-Errors are reported as one readable line on stderr with a non-zero exit code; ``--help`` works
-on every command. Every ``--airframe`` takes a preset name or the path of a parameter file.
+Errors are reported as one readable line on stderr with a non-zero exit code (a bad option
+value when the command line is parsed, naming the option and its allowed range); ``--help``
+works on every command. Every ``--airframe`` takes a preset name or the path of a parameter file.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import warnings
 from uavdyn import __version__
 from uavdyn.airframes import AirframeError
 from uavdyn.cli import data_commands, fit_commands, model_commands, pipeline_commands
-from uavdyn.cli.common import CliError
+from uavdyn.cli.common import CliError, OneLineParser
 from uavdyn.cli.montecarlo import add_parser as add_montecarlo_parser
 from uavdyn.cli.mpc import add_parser as add_mpc_parser
 from uavdyn.integrate import CompileError, DivergenceError
@@ -30,7 +31,7 @@ REGISTER = (model_commands.add_airframes, model_commands.add_trim, model_command
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``uavdyn`` parser with every subcommand registered."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="uavdyn", description="Nonlinear longitudinal UAV flight dynamics with a "
         "learned-residual, compiled RK4 integrator.")
     parser.add_argument("--version", action="version", version=f"uavdyn {__version__}")
@@ -47,7 +48,12 @@ def main(argv: list[str] | None = None) -> int:
     """Run ``uavdyn`` with ``argv``: the exit code; errors and warnings as one line each on
     stderr (``--debug``: the traceback and Python's own warning format)."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # a refused option value (one line printed): its exit code
+        if exc.code in (0, None):  # --help, --version
+            raise
+        return exc.code if isinstance(exc.code, int) else 2
     with warnings.catch_warnings():
         if not args.debug:
             warnings.showwarning = _one_line_warning(args.command)

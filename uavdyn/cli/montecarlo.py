@@ -8,9 +8,24 @@ subclasses), which ``uavdyn.cli.main`` prints as one line with exit code 2.
 from __future__ import annotations
 
 import argparse
+import re
 import sys
+from pathlib import Path
 
-from uavdyn.airframes import list_presets, load_airframe
+from uavdyn.airframes import KINDS, list_presets, load_airframe
+from uavdyn.cli.common import (
+    AIRSPEED,
+    SEED,
+    STEP,
+    THREADS,
+    WORKERS,
+    CliError,
+    airframe_name,
+    count,
+    existing_file,
+    folder_to_write,
+    seconds,
+)
 from uavdyn.learned import shipped_correction
 from uavdyn.montecarlo import (
     MonteCarloError,
@@ -19,9 +34,36 @@ from uavdyn.montecarlo import (
     load_dispersions,
     run_study,
 )
+from uavdyn.montecarlo.dispersions import shipped_dispersions
+from uavdyn.montecarlo.spec import MAX_STEPS
 from uavdyn.outputs import check_output_folder
 
 COMMAND = "montecarlo"
+MAX_RUNS = 1_000_000
+MAX_CHUNK_SIZE = 100_000
+# memory (measured, aerosonde_pm15): a chunk takes ~100 B per run-step (0.7 GB peak for 1000
+# runs x 6000 steps, 2.1 GB for 200 x 100 000); the envelopes hold 5 signals x 8 B per sample
+MAX_CHUNK_RUN_STEPS = 10_000_000  # runs x steps of one chunk (~1 GB)
+MAX_HISTORY_SAMPLES = 10_000_000  # runs x envelope samples of the study (~0.4 GB)
+INPUTS = tuple(dict.fromkeys(name for kind in KINDS for name in input_names(kind)))
+
+
+def mission_input(text: str) -> str:
+    """A mission or profile name (of either kind) or an existing CSV file."""
+    if text in INPUTS or Path(text).is_file():
+        return text
+    what = "a folder" if Path(text).is_dir() else "neither a mission or profile nor a file"
+    raise argparse.ArgumentTypeError(f"{text!r} is {what}; give one of {', '.join(INPUTS)} or "
+                                     "a recorded interchange CSV")
+
+
+def scheduler_address(text: str) -> str:
+    """A Dask scheduler address ``[protocol://]host:port`` (port 1..65535)."""
+    found = re.fullmatch(r"(?:[a-z][a-z0-9+.-]*://)?(\[[0-9a-fA-F:]+\]|[\w.-]+):(\d{1,5})", text)
+    if not found or not 1 <= int(found.group(2)) <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a scheduler address [protocol://]host:port "
+                                         f"(port 1..65535), got {text!r}")
+    return text
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -37,65 +79,94 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="write into a non-empty folder that is not this study's output "
                         "(replaces only montecarlo files; discards another study's chunks)")
-    p.add_argument("--airframe", default="aerosonde",
+    p.add_argument("--airframe", default="aerosonde", type=airframe_name,
                    help=f"preset name ({', '.join(list_presets())}) or path of a TOML/JSON "
                         "parameter file (default aerosonde)")
     p.add_argument("--weights", default=None,
+                   type=existing_file("weight file", also=("shipped",)),
                    help="weight file of a hybrid study ('shipped' = the preset's shipped safe "
                         "correction, run on the identified airframe it was trained on); "
                         "default: the physics RK4 step")
-    p.add_argument("--runs", type=int, default=1000, help="number of runs (default 1000)")
-    p.add_argument("--duration", type=float, default=60.0, help="seconds per run (default 60)")
+    p.add_argument("--runs", type=count(MAX_RUNS, "runs"), default=1000,
+                   help=f"number of runs, 1..{MAX_RUNS} (default 1000)")
+    p.add_argument("--duration", type=seconds(name="duration"), default=60.0,
+                   help=f"seconds per run (default 60; at most {MAX_STEPS} steps of --dt)")
     p.add_argument("--dispersions", required=True,
+                   type=existing_file("dispersion file", also=shipped_dispersions()),
                    help="dispersion file (TOML; e.g. data/dispersions/aerosonde_pm15.toml; "
                         "format in docs/montecarlo.md)")
-    p.add_argument("--mission", default="doublet",
+    p.add_argument("--mission", default="doublet", type=mission_input,
                    help="command input: a mission or profile (fixed wing: "
                         f"{', '.join(input_names('fixed_wing'))}; multirotor adds inspection) "
                         "or a recorded interchange CSV; added to each run's trim command, "
                         "zero-order held (default doublet)")
-    p.add_argument("--dt", type=float, default=0.01, help="RK4 step in s (default 0.01)")
-    p.add_argument("--airspeed", type=float, default=None,
-                   help="nominal trim airspeed in m/s before dispersion (default: the "
+    p.add_argument("--dt", type=STEP, default=0.01, help="RK4 step in s, 1e-6..1 (default "
+                   "0.01)")
+    p.add_argument("--airspeed", type=AIRSPEED, default=None,
+                   help="nominal trim airspeed in m/s before dispersion, 0..100 (default: the "
                         "airframe's)")
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=1,
+    where.add_argument("--workers", type=WORKERS, default=1,
                        help="worker processes: 1 (default) runs in this process, more start a "
                             "Dask LocalCluster (needs dask[distributed])")
-    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS", type=scheduler_address,
                        help="run the chunks on an existing Dask cluster (e.g. "
                             "tcp://host:8786)")
     p.add_argument("--workers-write", action="store_true",
                    help="with --scheduler: the cluster's workers see --out at the same path "
                         "(shared file system) and write their chunk files themselves; by "
                         "default the client writes them (a LocalCluster's workers always do)")
-    p.add_argument("--threads", type=int, default=1,
+    p.add_argument("--threads", type=THREADS, default=1,
                    help="CasADi threads per chunk (default 1)")
-    p.add_argument("--chunk-size", type=int, default=200,
-                   help="runs per chunk: one task, one file, the unit of resume (default 200)")
-    p.add_argument("--seed", type=int, default=None,
-                   help="study seed (default: the dispersion file's, else 0)")
-    p.add_argument("--history-dt", type=float, default=0.1,
-                   help="interval of the envelope samples in s (default 0.1)")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--chunk-size", type=count(MAX_CHUNK_SIZE, "runs"), default=200,
+                   help="runs per chunk: one task, one file, the unit of resume (default 200; "
+                        f"chunk-size x steps per run at most {MAX_CHUNK_RUN_STEPS})")
+    p.add_argument("--seed", type=SEED, default=None,
+                   help="study seed >= 0 (default: the dispersion file's, else 0)")
+    p.add_argument("--history-dt", type=seconds(name="history-dt"), default=0.1,
+                   help="interval of the envelope samples in s, from --dt to --duration "
+                        f"(default 0.1; runs x samples at most {MAX_HISTORY_SAMPLES})")
+    p.add_argument("--out", required=True, type=folder_to_write, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_montecarlo)
     return p
 
 
+def check_sizes(args: argparse.Namespace) -> None:
+    """The relations of the sizes: steps per run, a chunk's and the envelopes' memory, the
+    envelope interval between the step and the run."""
+    steps = round(args.duration / args.dt)
+    if not 1 <= steps <= MAX_STEPS:
+        raise CliError(f"--duration {args.duration:g} s at --dt {args.dt:g} s is {steps:.4g} "
+                       f"steps per run; 1 to {MAX_STEPS} are allowed")
+    if args.chunk_size * steps > MAX_CHUNK_RUN_STEPS:
+        raise CliError(f"--chunk-size {args.chunk_size} x {steps} steps per run (--duration "
+                       f"{args.duration:g} s at --dt {args.dt:g} s) is "
+                       f"{args.chunk_size * steps:.4g} run-steps in one chunk, more than "
+                       f"{MAX_CHUNK_RUN_STEPS} (memory); give a smaller --chunk-size")
+    if not args.dt * (1 - 1e-9) <= args.history_dt <= args.duration:
+        raise CliError(f"--history-dt {args.history_dt:g} s must lie between --dt "
+                       f"{args.dt:g} s and --duration {args.duration:g} s")
+    samples = args.runs * (steps // max(1, round(args.history_dt / args.dt)) + 1)
+    if samples > MAX_HISTORY_SAMPLES:
+        raise CliError(f"--runs {args.runs} x {samples // args.runs} envelope samples "
+                       f"(--duration / --history-dt) is {samples:.4g}, more than "
+                       f"{MAX_HISTORY_SAMPLES} (memory); give fewer --runs or a longer "
+                       "--history-dt")
+
+
 def cmd_montecarlo(args: argparse.Namespace) -> int:
     """Run (or resume) a Monte-Carlo study and print where its results are."""
-    for name in ("runs", "workers", "threads", "chunk_size"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise MonteCarloError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
     if args.workers_write and args.scheduler is None:
         raise MonteCarloError("--workers-write applies to --scheduler (a LocalCluster's "
                               "workers write their chunk files anyway)")
-    if args.seed is not None and args.seed < 0:
-        raise MonteCarloError(f"--seed must be >= 0, got {args.seed}")
+    check_sizes(args)
     check_output_folder(args.out, COMMAND, args.force)  # before any work
     airframe, weights = load_airframe(args.airframe), args.weights
+    if args.mission in INPUTS and args.mission not in input_names(airframe.kind):
+        raise CliError(f"--mission {args.mission} is not an input of the {airframe.kind} "
+                       f"--airframe {args.airframe}; choose from "
+                       f"{', '.join(input_names(airframe.kind))} or a CSV")
     if weights == "shipped":  # the shipped safe correction, on the airframe it was trained on
         weights, airframe = shipped_correction(airframe.name)
     dispersions = load_dispersions(args.dispersions, airframe)

@@ -2,8 +2,9 @@
 that flies one closed-loop scenario on the calm emulator and writes its time histories (CSV),
 solve-time statistics (JSON) and a figure (PNG).
 
-Errors are ``ValueError`` subclasses (:class:`MPCCommandError`, weight-file and output-folder
-errors), which ``uavdyn.cli.main`` prints as one line with exit code 2.
+Option values are checked when parsed (:mod:`uavdyn.cli.common`); the relation of the options
+(a :class:`~uavdyn.cli.common.CliError`), weight-file and output-folder errors are
+``uavdyn.cli.main``'s one line with exit code 2.
 """
 
 from __future__ import annotations
@@ -18,18 +19,24 @@ from pathlib import Path
 import numpy as np
 
 from uavdyn.airframes import list_presets
+from uavdyn.cli.common import (
+    airframe_name,
+    count,
+    existing_file,
+    folder_to_write,
+    number,
+    refuse_unused,
+)
 from uavdyn.mpc import SCENARIO_NAMES, MPCConfig, scenario
 from uavdyn.mpc.study import fly_all, prediction_models, solve_statistics, startup_seconds
 from uavdyn.outputs import check_output_folder, output_folder
 
 COMMAND = "mpc"
 MAX_HORIZON = 200
+LOG_INTERVAL = 0.01  # the calm emulator's log interval (s)
+MAX_DT = 1.0
 HISTORY_COLUMNS = ("time", "u", "w", "q", "theta", "h", "speed", "theta_ref", "h_ref",
                    "speed_ref", "control_1", "control_2", "solve_ms", "success", "source")
-
-
-class MPCCommandError(ValueError):
-    """A bad option of ``uavdyn mpc`` (one line naming it)."""
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -44,17 +51,20 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "same airframe without the correction. A failed solve is never applied (shifted "
         "previous plan, then the last control; counted). Writes history_<model>.csv, "
         "stats.json and mpc.png under --out.")
-    p.add_argument("--airframe", default="aerosonde",
+    p.add_argument("--airframe", default="aerosonde", type=airframe_name,
                    help=f"preset name ({', '.join(list_presets())}) or path of an airframe "
                         "file (default aerosonde)")
-    p.add_argument("--weights", default=None,
+    p.add_argument("--weights", default=None, type=existing_file("weight file"),
                    help="weight file trained on --airframe (default: the preset's shipped safe "
                         "correction)")
     p.add_argument("--scenario", required=True, choices=SCENARIO_NAMES,
                    help="closed-loop test (references: docs/mpc.md)")
-    p.add_argument("--horizon", type=int, default=20, help="prediction intervals (default 20)")
-    p.add_argument("--dt", type=float, default=0.05,
-                   help="MPC interval in s, a multiple of 0.01 (default 0.05)")
+    p.add_argument("--horizon", type=count(MAX_HORIZON, "intervals"), default=20,
+                   help=f"prediction intervals, 1..{MAX_HORIZON} (default 20)")
+    p.add_argument("--dt", type=number(LOG_INTERVAL, MAX_DT, name="dt", unit="s",
+                                       multiple_of=LOG_INTERVAL), default=0.05,
+                   help=f"MPC interval in s, a multiple of the emulator's {LOG_INTERVAL:g} s "
+                        f"log interval up to {MAX_DT:g} (default 0.05)")
     p.add_argument("--rti", action="store_true",
                    help="real-time iteration (one QP per step, compiled and cached) instead "
                         "of the full SQP")
@@ -62,21 +72,15 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="prediction model(s) to fly (default both, for the comparison)")
     p.add_argument("--force", action="store_true",
                    help="write into a non-empty folder that is not this command's output")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", required=True, type=folder_to_write, help="output folder")
     p.set_defaults(func=cmd_mpc)
     return p
 
 
 def _check(args: argparse.Namespace) -> None:
-    if not 1 <= args.horizon <= MAX_HORIZON:
-        raise MPCCommandError(f"--horizon must be 1..{MAX_HORIZON}, got {args.horizon}")
-    if not (math.isfinite(args.dt) and args.dt > 0):
-        raise MPCCommandError(f"--dt must be a positive number of seconds, got {args.dt}")
-    if abs(round(args.dt / 0.01) * 0.01 - args.dt) > 1e-9:
-        raise MPCCommandError(f"--dt must be a multiple of the emulator's 0.01 s log interval, "
-                              f"got {args.dt}")
-    if args.weights is not None and not Path(args.weights).is_file():
-        raise MPCCommandError(f"no weight file {args.weights}; give --weights FILE")
+    """The relation of the options (their values are checked when parsed)."""
+    refuse_unused(args, ("--weights",), args.model != "physics",
+                  "with --model hybrid or both")
 
 
 def _write_history(path: Path, res) -> None:

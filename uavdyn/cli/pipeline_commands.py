@@ -8,10 +8,22 @@ from pathlib import Path
 
 from uavdyn.airframes import load_airframe
 from uavdyn.cli.common import (
+    MAX_SORTIE_ROWS,
     CliError,
     add_airframe,
     add_force,
+    airframe_name,
+    check_dataset_fits,
+    check_sortie_rows,
+    count,
+    dataset_path,
+    existing_file,
+    file_to_write,
+    folder_to_write,
+    refuse_unused,
+    seconds,
 )
+from uavdyn.emulation.datagen import shipped_recipe
 from uavdyn.experiments.reproduce import (
     ReproduceConfig,
     _json,
@@ -19,14 +31,27 @@ from uavdyn.experiments.reproduce import (
     evaluation_markdown,
     run,
 )
+from uavdyn.flightdata.manifest import MANIFEST_MAX_SORTIES
 from uavdyn.outputs import check_output_file, write_text_atomic
+
+MAX_COST_REPEATS = 1000
+MAX_DATASET_ROWS = 5_000_000  # the pipeline holds its whole dataset and the predictions on it
+RECIPES = ("datagen_quadrotor", "datagen_fixed_wing")
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """The validation pipeline: dataset, weights, Tables 1-4, figures, report."""
 
-    if args.cost_repeats < 1:
-        raise CliError(f"--cost-repeats must be >= 1, got {args.cost_repeats}")
+    refuse_unused(args, ("--no-identify",), args.retrain, "with --retrain")
+    for recipe in (shipped_recipe(name) for name in RECIPES):
+        sorties = args.sorties or recipe.sorties
+        duration = args.duration or recipe.duration_s
+        check_sortie_rows(duration, recipe.sample_rate_hz, "the recipe's rate")
+        rows = sorties * (duration * recipe.sample_rate_hz + 1)
+        if rows > MAX_DATASET_ROWS:
+            raise CliError(f"--sorties {sorties} x --duration {duration:g} s at the recipe's "
+                           f"{recipe.sample_rate_hz:g} Hz is {rows:.4g} log rows, more than "
+                           f"{MAX_DATASET_ROWS} (memory: the pipeline holds the whole dataset)")
     config = ReproduceConfig(airframes=tuple(args.airframes), out=args.out, quick=args.quick,
                              retrain=args.retrain, cache=args.cache,
                              cost_repeats=args.cost_repeats, sorties=args.sorties,
@@ -47,6 +72,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     for path in (out, md):
         check_output_file(path)  # before the work, not after it
     airframe = load_airframe(args.airframe)
+    check_dataset_fits(airframe, args.dataset)
     for path in (out, md):
         if path.exists() and not args.force and not _own_json(out):
             raise CliError(f"{path} exists and is not an earlier 'uavdyn evaluate' result; "
@@ -76,7 +102,8 @@ def add_reproduce(sub) -> None:
     add_force(p)
     p.add_argument("--airframes", nargs="+", default=["quadrotor", "fixed_wing"],
                    choices=["quadrotor", "fixed_wing"], help="which airframes (default both)")
-    p.add_argument("--out", default="results", help="output folder (default results/)")
+    p.add_argument("--out", default="results", type=folder_to_write,
+                   help="output folder (default results/)")
     p.add_argument("--quick", action="store_true", help="tiny configuration (seconds)")
     p.add_argument("--no-identify", action="store_true",
                    help="with --retrain: skip the identification (then no identified physics "
@@ -84,14 +111,17 @@ def add_reproduce(sub) -> None:
     p.add_argument("--retrain", action="store_true",
                    help="identify the physics and train the networks here (needs torch) "
                         "instead of using the shipped identified airframe and weights")
-    p.add_argument("--cache", default=None, help="dataset cache folder (default: user cache)")
-    p.add_argument("--cost-repeats", type=int, default=15,
-                   help="interleaved timing repeats (default 15)")
+    p.add_argument("--cache", default=None, type=folder_to_write,
+                   help="dataset cache folder (default: user cache)")
+    p.add_argument("--cost-repeats", type=count(MAX_COST_REPEATS, "repeats"), default=15,
+                   help=f"interleaved timing repeats, 1..{MAX_COST_REPEATS} (default 15)")
     p.add_argument("--save-trajectories", action="store_true",
                    help="also write every Table 1 prediction as compressed npz (large)")
-    p.add_argument("--sorties", type=int, default=None, help="override the recipe's count")
-    p.add_argument("--duration", type=float, default=None,
-                   help="override the recipe's sortie duration (s)")
+    p.add_argument("--sorties", type=count(MANIFEST_MAX_SORTIES, "sorties"), default=None,
+                   help=f"override the recipe's count (1..{MANIFEST_MAX_SORTIES})")
+    p.add_argument("--duration", type=seconds(name="duration"), default=None,
+                   help="override the recipe's sortie duration (s; at most "
+                        f"{MAX_SORTIE_ROWS} log rows per sortie, {MAX_DATASET_ROWS} in all)")
     p.set_defaults(func=cmd_reproduce)
 
 
@@ -100,13 +130,16 @@ def add_evaluate(sub) -> None:
     p = sub.add_parser("evaluate", help="Table 1 and Table 4 metrics on any dataset folder")
     add_force(p)
     add_airframe(p, default=None)
-    p.add_argument("--dataset", required=True, help="dataset folder (manifest.json + CSVs)")
-    p.add_argument("--identified", default=None,
+    p.add_argument("--dataset", required=True, type=dataset_path,
+                   help="dataset folder (manifest.json + CSVs)")
+    p.add_argument("--identified", default=None, type=airframe_name,
                    help="airframe file fitted by 'uavdyn identify': adds the identified-physics "
                         "rung (weights trained on it are run on it)")
-    p.add_argument("--weights", nargs="*", default=None, help="weight file(s) of the hybrid")
+    p.add_argument("--weights", nargs="*", default=None, type=existing_file("weight file"),
+                   help="weight file(s) of the hybrid")
     p.add_argument("--all-sorties", action="store_true",
                    help="score every sortie of a dataset without a test split (the result "
                         "says so; they may include sorties a model was fitted on)")
-    p.add_argument("--out", default="results/metrics.json", help="JSON output (Markdown beside)")
+    p.add_argument("--out", default="results/metrics.json", type=file_to_write,
+                   help="JSON output (Markdown beside)")
     p.set_defaults(func=cmd_evaluate)

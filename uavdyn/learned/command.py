@@ -1,6 +1,13 @@
 """``uavdyn train`` from parsed options: the dataset's splits, the trainer (the safe
 correction for the improved formulation on flight data, :func:`uavdyn.learned.train.train`
-otherwise), and the weights, history JSON and PNG it writes (needs torch)."""
+otherwise), and the weights, history JSON and PNG it writes (needs torch).
+
+The weights and their history JSON and PNG are one output: written under temporary names,
+then renamed into place together by :func:`uavdyn.outputs.atomic_files`, so an interrupt at
+any point leaves the old three files or the new three, never weights beside a history that
+does not belong to them. A safe run that keeps no weights leaves the weights already at
+``--out`` and their history as they are; its own record goes beside them
+(``<history>_not_kept.json``), or to the history path when there are no weights yet."""
 
 from __future__ import annotations
 
@@ -10,8 +17,9 @@ from pathlib import Path
 
 from uavdyn.airframes import Airframe, load_airframe
 from uavdyn.flightdata import Sortie, load_dataset
-from uavdyn.learned.train import TrainConfig, train, write_history
+from uavdyn.learned.train import TrainConfig, train, write_history_files
 from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights, save_weights
+from uavdyn.outputs import atomic_files
 
 
 class NotKept(ValueError):
@@ -39,7 +47,7 @@ def load_training_sorties(dataset: str | None, lowpass_hz: float | None = None
     return list(ds.train), list(ds.validation), list(ds.test), label
 
 
-def _check_replaceable(weights: Path, history: Path, force: bool) -> None:
+def _check_replaceable(weights: Path, histories: list[Path], force: bool) -> None:
     """Refuse, before training, to overwrite files that are not earlier training outputs."""
     if force:
         return
@@ -49,7 +57,9 @@ def _check_replaceable(weights: Path, history: Path, force: bool) -> None:
         except WeightFileError:
             raise ValueError(f"{weights} exists and is not a uavdyn weight file; choose another "
                              "--out or give --force") from None
-    if history.exists():
+    for history in histories:
+        if not history.exists():
+            continue
         try:
             ok = "history" in json.loads(history.read_text())
         except (OSError, ValueError, TypeError):
@@ -59,22 +69,47 @@ def _check_replaceable(weights: Path, history: Path, force: bool) -> None:
                              "--history or give --force")
 
 
-def run(args: argparse.Namespace) -> dict:
-    """Train from parsed options; write weights, history JSON and PNG; return a summary."""
-    airframe = load_airframe(args.airframe)
-    if (args.hidden is not None and args.hidden < 1) or (args.epochs is not None
-                                                         and args.epochs < 1):
-        raise ValueError("--hidden and --epochs must be >= 1")
+def not_kept_path(history: Path) -> Path:
+    """Where a safe run that kept no weights leaves its record when a weight file is already
+    at ``--out``: beside the history that belongs to those weights, not over it."""
+    return history.with_name(history.stem + "_not_kept.json")
+
+
+def check_horizons(args: argparse.Namespace, sorties: list[Sortie]) -> None:
+    """Refuse a rollout window longer than the shortest train or validation sortie
+    (``--horizon`` of the safe correction in s, ``--rollout-horizon`` in log samples)."""
+    shortest = min(sorties, key=lambda s: s.duration)
+    if getattr(args, "horizon", None) is not None and args.horizon > shortest.duration:
+        raise ValueError(f"--horizon {args.horizon:g} s is longer than sortie {shortest.name} "
+                         f"({shortest.duration:g} s) of --dataset {args.dataset}")
+    samples = len(shortest.time) - 1
+    if getattr(args, "rollout_horizon", None) is not None and args.rollout_horizon > samples:
+        raise ValueError(f"--rollout-horizon {args.rollout_horizon} samples is longer than "
+                         f"sortie {shortest.name} ({samples} samples) of --dataset "
+                         f"{args.dataset}")
+
+
+def run(args: argparse.Namespace, airframe: Airframe | None = None) -> dict:
+    """Train from parsed options (on ``airframe``, default ``--airframe`` loaded); write the
+    weights, history JSON and PNG as one output; return a summary."""
+    airframe = airframe if airframe is not None else load_airframe(args.airframe)
     out = Path(args.out or f"results/weights/{airframe.name}_{args.formulation}.npz")
     hist = Path(args.history) if args.history else out.with_name(out.stem + "_history.json")
-    _check_replaceable(out, hist, getattr(args, "force", False))
+    if len({p.resolve() for p in (out, hist, hist.with_suffix(".png"))}) < 3:
+        raise ValueError(f"--history {hist} and its PNG {hist.with_suffix('.png')} must not be "
+                         f"the --out weight file {out}")
+    _check_replaceable(out, [hist, not_kept_path(hist)] if out.exists() else [hist],
+                       getattr(args, "force", False))
     tr, va, te, source = load_training_sorties(args.dataset, getattr(args, "lowpass_hz", None))
+    check_horizons(args, tr + va)
     if args.formulation == "improved" and args.target == "data":
         return _run_safe(args, airframe, tr, va, te, source, out, hist)
     # the legacy trainer's own defaults where an option was not given
+    fields = TrainConfig.__dataclass_fields__
     args = argparse.Namespace(**{**vars(args), **{
-        k: (TrainConfig.__dataclass_fields__[k].default if getattr(args, k) is None
-            else getattr(args, k)) for k in ("epochs", "patience", "max_seconds", "hidden")}})
+        k: (fields[k].default if getattr(args, k, None) is None else getattr(args, k))
+        for k in ("epochs", "patience", "max_seconds", "hidden", "dt", "rollout_horizon",
+                  "rollout_weight")}})
     cfg = TrainConfig(formulation=args.formulation, target=args.target,
                       rollout_batch=getattr(args, "rollout_batch", TrainConfig.rollout_batch),
                       activation=args.activation, hidden=args.hidden, dt=args.dt,
@@ -85,10 +120,12 @@ def run(args: argparse.Namespace) -> dict:
     result = train(tr, va, airframe, cfg)
     net = CorrectionNet(**{**result.net.__dict__,
                            "info": {**result.net.info, "data_source": source}})
-    save_weights(net, out)  # the weights first (atomic), then their history
-    write_history(result, hist)
+    png = hist.with_suffix(".png")
+    with atomic_files(out, hist, png) as (w_tmp, h_tmp, p_tmp):  # one output: all or none
+        save_weights(net, w_tmp)
+        write_history_files(result, h_tmp, p_tmp)
     h0, hb = result.history[0], result.history[result.best_epoch]
-    return {"weights": str(out), "history": str(hist), "png": str(hist.with_suffix(".png")),
+    return {"weights": str(out), "history": str(hist), "png": str(png),
             "network": net.describe(), "data_source": source, "n_train": len(tr),
             "n_val": len(va), "n_test": len(te), "best_epoch": result.best_epoch,
             "stopped": result.stopped, "seconds": round(result.seconds, 1),
@@ -97,24 +134,31 @@ def run(args: argparse.Namespace) -> dict:
 
 def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist: Path) -> dict:
     """``uavdyn train`` of the safe correction (improved formulation on flight data)."""
-    from uavdyn.learned.safe import SafeConfig, train_safe, write_safe_history
+    from uavdyn.learned.safe import SafeConfig, train_safe
+    from uavdyn.learned.safe.history import write_safe_history_files
 
     given = {k: getattr(args, k) for k in ("epochs", "patience", "max_seconds",
-                                           "stability_weight", "hidden")
-             if getattr(args, k) is not None}
+                                           "stability_weight", "hidden", "stability_margin")
+             if getattr(args, k, None) is not None}
+    if getattr(args, "horizon", None) is not None:
+        given["horizon_s"] = args.horizon
     cfg = SafeConfig(activation=args.activation, lr=args.lr,
                      seed=args.seed, threads=args.threads, progress=not args.quiet,
-                     stability_margin=args.stability_margin, horizon_s=args.horizon,
                      memory_tau=(tuple(args.memory_tau) if args.memory_tau is not None
                                  else None), **given)
     result = train_safe(tr, va, airframe, cfg)
-    write_safe_history(result, hist)
-    if not result.kept:
-        raise NotKept(f"no weights written: {result.reason} (history: {hist})")
+    if not result.kept:  # the weights at --out (if any) and their history stay as they are
+        record = not_kept_path(hist) if out.exists() else hist
+        with atomic_files(record, record.with_suffix(".png")) as (h_tmp, p_tmp):
+            write_safe_history_files(result, h_tmp, p_tmp)
+        raise NotKept(f"no weights written: {result.reason} (history: {record})")
     net = CorrectionNet(**{**result.net.__dict__,
                            "info": {**result.net.info, "data_source": source}})
-    save_weights(net, out)
-    return {"weights": str(out), "history": str(hist), "png": str(hist.with_suffix(".png")),
+    png = hist.with_suffix(".png")
+    with atomic_files(out, hist, png) as (w_tmp, h_tmp, p_tmp):  # one output: all or none
+        save_weights(net, w_tmp)
+        write_safe_history_files(result, h_tmp, p_tmp)
+    return {"weights": str(out), "history": str(hist), "png": str(png),
             "network": net.describe(), "data_source": source, "n_train": len(tr),
             "n_val": len(va), "n_test": len(te), "best_epoch": result.best_epoch,
             "seconds": round(result.seconds, 1), "validation": result.validation,

@@ -39,7 +39,7 @@ from uavdyn.learned.hybrid import correction_structure
 from uavdyn.learned.torch_model import DTYPE, TorchCorrection, seeded_generator
 from uavdyn.learned.weights import CorrectionNet
 from uavdyn.model import ModelStructure
-from uavdyn.outputs import atomic_file, write_text_atomic
+from uavdyn.outputs import atomic_files
 
 
 @dataclass
@@ -345,21 +345,29 @@ def train(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airf
     return result
 
 
-def write_history(result: TrainResult, path: str | Path) -> tuple[Path, Path | None]:
-    """Loss history as JSON (``path``) and a PNG plot beside it (if matplotlib works)."""
+def write_history(result: TrainResult, path: str | Path) -> tuple[Path, Path]:
+    """Loss history as JSON (``path``) and a PNG plot beside it, put in place together
+    (:func:`uavdyn.outputs.atomic_files`)."""
     path = Path(path)
+    png = path.with_suffix(".png")
+    with atomic_files(path, png) as (json_tmp, png_tmp):
+        write_history_files(result, json_tmp, png_tmp)
+    return path, png
+
+
+def write_history_files(result: TrainResult, json_path: Path, png_path: Path) -> None:
+    """Write the loss history JSON and its PNG to exactly these paths (temporary names that
+    the caller renames into place with :func:`uavdyn.outputs.atomic_files`, with the weights
+    they belong to)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     doc = {"config": asdict(result.config), "best_epoch": result.best_epoch,
            "stopped": result.stopped, "seconds": result.seconds, "scales": result.scales,
            "network": result.net.describe(), "history": result.history}
-    write_text_atomic(path, json.dumps(doc, indent=2) + "\n")
-    png = path.with_suffix(".png")
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # pragma: no cover
-        return path, None
+    Path(json_path).write_text(json.dumps(doc, indent=2) + "\n")
     ep = [h["epoch"] for h in result.history]
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for key, style in (("train_one_step", "C0-"), ("val_one_step", "C0--"),
@@ -375,7 +383,5 @@ def write_history(result: TrainResult, path: str | Path) -> tuple[Path, Path | N
     ax.set_title(result.net.describe(), fontsize=8)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    with atomic_file(png) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
+    fig.savefig(png_path, dpi=120, format="png")
     plt.close(fig)
-    return path, png

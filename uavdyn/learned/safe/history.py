@@ -5,32 +5,40 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict
+from pathlib import Path
 
 from uavdyn.learned.safe.config import SafeResult
 
 
-def write_safe_history(result: SafeResult, path) -> tuple:
+def write_safe_history(result: SafeResult, path) -> tuple[Path, Path]:
     """The run's history, validation figures and stability check as JSON (``path``) and a PNG
-    beside it (validation pitch RMSE per epoch against the physics, training loss, penalty)."""
-    from pathlib import Path
-
-    from uavdyn.outputs import atomic_file, write_text_atomic
+    beside it (validation pitch RMSE per epoch against the physics, training loss, penalty),
+    put in place together (:func:`uavdyn.outputs.atomic_files`)."""
+    from uavdyn.outputs import atomic_files
 
     path = Path(path)
+    png = path.with_suffix(".png")
+    with atomic_files(path, png) as (json_tmp, png_tmp):
+        write_safe_history_files(result, json_tmp, png_tmp)
+    return path, png
+
+
+def write_safe_history_files(result: SafeResult, json_path: Path, png_path: Path) -> None:
+    """Write the record of :func:`write_safe_history` to exactly these paths (temporary names
+    that the caller renames into place with :func:`uavdyn.outputs.atomic_files`, with the
+    weights they belong to)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
     doc = {"kind": "safe correction training", "kept": result.kept, "reason": result.reason,
            "config": asdict(result.config), "best_epoch": result.best_epoch,
            "seconds": result.seconds, "validation": result.validation,
            "stability": result.stability.to_dict() if result.stability else None,
            "network": result.net.describe() if result.net is not None else None,
            "history": result.history}
-    write_text_atomic(path, json.dumps(doc, indent=2, default=str) + "\n")
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # pragma: no cover
-        return path, None
+    Path(json_path).write_text(json.dumps(doc, indent=2, default=str) + "\n")
     epochs = [h["epoch"] for h in result.history]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     ax = axes[0]
@@ -54,8 +62,5 @@ def write_safe_history(result: SafeResult, path) -> tuple:
     ax.legend(fontsize=8)
     fig.suptitle(result.reason[:150], fontsize=8)
     fig.tight_layout()
-    png = path.with_suffix(".png")
-    with atomic_file(png) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+    fig.savefig(png_path, dpi=110, format="png")
     plt.close(fig)
-    return path, png
