@@ -538,7 +538,8 @@ class _suppress:
 
 def make_fixtures(folder: Path) -> dict[str, str]:
     """A small fixed-wing dataset (2 sorties x 4 s at 50 Hz, split train/validation), a
-    synthetic ULog, a folder, a file, the shipped Aerosonde weights and a dispersion file."""
+    real PX4 ULog (../shared's sample), a folder, a file, the shipped Aerosonde weights and a
+    dispersion file."""
     from uavdyn.emulation import Recipe, generate_dataset
     from uavdyn.learned import shipped_correction
 
@@ -551,13 +552,11 @@ def make_fixtures(folder: Path) -> dict[str, str]:
                      ds, workers=1, progress=False)
     (folder / "afolder").mkdir()
     (folder / "afile.txt").write_text("not what the option wants\n")
-    sys.path.insert(0, str(ROOT / "tests"))
-    try:
-        from test_ulog_synthetic import multirotor_log
-
-        multirotor_log(folder / "log.ulg")
-    except ImportError as exc:  # pyulog or scipy missing: import-log's base run fails too
-        print(f"(no synthetic ULog: {exc})", file=sys.stderr)
+    real_log = ROOT.parent / "shared" / "data" / "flightlogs" / "pyulog_sample.ulg"
+    if real_log.is_file():  # a real PX4 log beside the checkout (analysis imports no tests)
+        shutil.copyfile(real_log, folder / "log.ulg")
+    else:  # import-log's base run then fails, and the report says so
+        print(f"(no ULog for import-log: {real_log} is absent)", file=sys.stderr)
     weights, _ = shipped_correction("aerosonde")
     return {"F": str(folder), "DS": str(ds), "WEIGHTS": str(weights),
             "DISP": "aerosonde_pm15" if (ROOT / "uavdyn/montecarlo/shipped/aerosonde_pm15.toml"

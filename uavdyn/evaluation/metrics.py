@@ -28,6 +28,7 @@ from uavdyn.integrate import (
     EvalGrid,
     StepUseError,
     body_model,
+    check_finite,
     free_run,
     physics_step,
     predict_windows,
@@ -205,19 +206,26 @@ def fine_reference(kind: str | Airframe | ModelStructure, time: np.ndarray, x0: 
     ``kind`` is a kind name (its generic model), or an airframe (or structure): its own
     physics step (:func:`uavdyn.integrate.physics_step`); with actuator lags or delays, one
     call per log sample with ``substeps`` RK steps inside, started with the actuators at rest
-    on the first command, and the body states returned."""
+    on the first command, and the body states returned. A reference that leaves the physical
+    ranges (an open-loop replay of a closed-loop flight of an unstable airframe) is returned
+    as it is: the comparisons against it say so (their divergence flags); only a non-finite
+    one raises :class:`uavdyn.integrate.DivergenceError`."""
     sample_dt = float(np.median(np.diff(time)))
+    fine = sample_dt / substeps
     if isinstance(kind, str):
-        model = body_model(rk4_step(build_model(kind).f), kind)
-        return free_run(model, x0, controls[:-1], p, sample_dt / substeps, substeps)
-    structure = kind if isinstance(kind, ModelStructure) else structure_of(kind)
-    if not structure.augmented:
-        return free_run(physics_step(structure), x0, controls[:-1], p, sample_dt / substeps,
-                        substeps)
-    model = physics_step(structure, substeps=substeps)
-    x0 = np.asarray(x0, float).ravel()
-    z0 = model.initial_state(x0, np.asarray(controls, float)[:1], p, sample_dt)
-    return free_run(model, z0, controls[:-1], p, sample_dt)[:, :len(x0)]
+        model, z0, dt, n = body_model(rk4_step(build_model(kind).f), kind), x0, fine, substeps
+    else:
+        structure = kind if isinstance(kind, ModelStructure) else structure_of(kind)
+        if structure.augmented:  # one call per log sample, the RK sub-steps inside
+            model = physics_step(structure, substeps=substeps)
+            z0 = model.initial_state(np.asarray(x0, float).ravel(),
+                                     np.asarray(controls, float)[:1], p, sample_dt)
+            dt, n = sample_dt, 1
+        else:
+            model, z0, dt, n = physics_step(structure), x0, fine, substeps
+    traj = free_run(model, z0, controls[:-1], p, dt, n, check=False)
+    check_finite(traj, time[0] + sample_dt * np.arange(len(traj)), "fine reference")
+    return traj[:, :4]
 
 
 def pitch_rmse(model: DiscreteModel, sorties, p, dt: float) -> float:
