@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -186,9 +187,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_export_c(args: argparse.Namespace) -> int:
     """Write a dependency-free C bundle (step or rollout, double or float) and say how to build."""
 
-    refuse_unused(args, ("--weights",), args.model == "hybrid", "with --model hybrid")
+    refuse_unused(args, ("--weights",), args.model != "rk4", "with --model hybrid")
     airframe = load_airframe(args.airframe)
-    if args.model == "hybrid":  # the correction runs on the airframe it was trained on
+    chosen = args.model or ("hybrid" if args.weights or args.airframe in list_presets()
+                            else "rk4")
+    if args.model is None and chosen == "rk4":
+        print(f"(no correction for the airframe file {args.airframe}: exporting its physics "
+              "step; --weights FILE adds one)", file=sys.stderr)
+    if chosen == "hybrid":  # the correction runs on the airframe it was trained on
         weights, airframe = correction(args, airframe)
         model = hybrid_step(load_weights(weights, airframe), airframe, compile=False)
     else:
@@ -264,8 +270,9 @@ def add_export_c(sub) -> None:
     add_force(p)
     add_airframe(p)
     add_trim_args(p)
-    p.add_argument("--model", choices=["hybrid", "rk4"], default="hybrid",
-                   help="hybrid step (default; shipped or --weights) or plain physics RK4")
+    p.add_argument("--model", choices=["hybrid", "rk4"], default=None,
+                   help="hybrid step (shipped or --weights) or the airframe's physics RK4 "
+                        "(default: hybrid for a preset or with --weights, else physics)")
     p.add_argument("--weights", default=None, type=existing_file("weight file"),
                    help="weight file for --model hybrid")
     p.add_argument("--real", choices=["double", "float"], default="double",

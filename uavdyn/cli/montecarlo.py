@@ -35,6 +35,7 @@ from uavdyn.montecarlo import (
     run_study,
 )
 from uavdyn.montecarlo.dispersions import shipped_dispersions
+from uavdyn.montecarlo.report import departure_warning
 from uavdyn.montecarlo.spec import MAX_STEPS
 from uavdyn.outputs import check_output_folder
 
@@ -93,8 +94,12 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help=f"seconds per run (default 60; at most {MAX_STEPS} steps of --dt)")
     p.add_argument("--dispersions", required=True,
                    type=existing_file("dispersion file", also=shipped_dispersions()),
-                   help="dispersion file (TOML; e.g. data/dispersions/aerosonde_pm15.toml; "
-                        "format in docs/montecarlo.md)")
+                   help="dispersion file (TOML; format in docs/montecarlo.md) or the name of "
+                        f"a shipped example ({', '.join(shipped_dispersions())})")
+    p.add_argument("--closed-loop", action="store_true",
+                   help="fly every run with an LQR state feedback about its own trim (the "
+                        "gain of the model linearised at the nominal trim, stated in the "
+                        "summary); default open loop (an unstable airframe departs)")
     p.add_argument("--mission", default="doublet", type=mission_input,
                    help="command input: a mission or profile (fixed wing: "
                         f"{', '.join(input_names('fixed_wing'))}; multirotor adds inspection) "
@@ -173,7 +178,7 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     spec = build_spec(airframe, dispersions, runs=args.runs, duration=args.duration,
                       dt=args.dt, mission=args.mission, weights=weights, seed=args.seed,
                       chunk_size=args.chunk_size, history_dt=args.history_dt,
-                      airspeed=args.airspeed)
+                      airspeed=args.airspeed, closed_loop=args.closed_loop)
     try:
         result = run_study(spec, out=args.out, workers=args.workers, threads=args.threads,
                            scheduler=args.scheduler, progress=not args.no_progress,
@@ -190,5 +195,8 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     for e in result.exceedance:
         print(f"  P({e.event}) = {e.probability:.4g}  [{e.low:.4g}, {e.high:.4g}]  "
               f"({e.count}/{e.runs})")
+    warning = departure_warning(result)
+    if warning:
+        print(f"  {warning}")
     print(f"summary: {result.files.get('summary.md')}")
     return 0

@@ -54,6 +54,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--airframe", default="aerosonde", type=airframe_name,
                    help=f"preset name ({', '.join(list_presets())}) or path of an airframe "
                         "file (default aerosonde)")
+    p.add_argument("--plant", default=None, type=airframe_name,
+                   help="preset name or airframe file the calm emulator flies as the real "
+                        "aircraft (default: --airframe's emulator): e.g. the truth an "
+                        "identified --airframe was fitted to")
     p.add_argument("--weights", default=None, type=existing_file("weight file"),
                    help="weight file trained on --airframe (default: the preset's shipped safe "
                         "correction)")
@@ -143,7 +147,7 @@ def cmd_mpc(args: argparse.Namespace) -> int:
     check_output_folder(args.out, COMMAND, args.force)  # before any work
     mode = "rti" if args.rti else "sqp"
     models = ("hybrid", "physics") if args.model == "both" else (args.model,)
-    setup = prediction_models(args.airframe, args.weights, mode, models)
+    setup = prediction_models(args.airframe, args.weights, mode, models, plant=args.plant)
     config = MPCConfig(horizon=args.horizon, dt=args.dt, mode=mode)
     sc = scenario(setup.plant_airframe.kind, args.scenario)
     print(f"(prediction: {'; '.join(m.description for m in setup.models.values())}; plant: "
@@ -155,7 +159,7 @@ def cmd_mpc(args: argparse.Namespace) -> int:
                    progress=lambda msg: print(f"flying {msg} ...", file=sys.stderr))
     results = {m: runs[(args.scenario, m)][1] for m in models}
     stats = {
-        "command": "uavdyn mpc", "airframe": setup.plant_airframe.name,
+        "command": "uavdyn mpc", "airframe": args.airframe,
         "scenario": args.scenario, "tracked": sc.tracked, "unit": sc.unit,
         "mode": mode, "horizon": args.horizon, "dt": args.dt,
         "qp_solver": config.qp_solver if mode == "rti" else "sqpmethod + qrqp",
