@@ -459,3 +459,15 @@ def test_a_bad_compiler_timeout_is_refused_naming_the_variable(value, monkeypatc
     monkeypatch.setenv("UAVDYN_CC_TIMEOUT", value)
     with pytest.raises(ValueError, match="UAVDYN_CC_TIMEOUT must be a positive number"):
         compile_timeout()
+
+
+def test_the_default_compiler_timeout_grows_with_the_source(monkeypatch):
+    """Half a minute for a step or rollout (kilobytes of C), more for the identification's
+    tens of megabytes; $UAVDYN_CC_TIMEOUT overrides it."""
+    from uavdyn.integrate.compiler import compile_timeout
+
+    monkeypatch.delenv("UAVDYN_CC_TIMEOUT", raising=False)
+    assert compile_timeout(20_000) == pytest.approx(30.4)
+    assert compile_timeout(50_000_000) == pytest.approx(1030.0)
+    monkeypatch.setenv("UAVDYN_CC_TIMEOUT", "7")
+    assert compile_timeout(50_000_000) == 7.0

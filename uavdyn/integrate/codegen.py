@@ -98,7 +98,8 @@ def compile_function(func: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS,
     library already built for that hash is reused only after its SHA-256 matches the sidecar
     written by the build that produced it. If no compiler is available, ``func`` itself is
     returned and a :class:`CodegenWarning` is issued once per process; so it is when the
-    compiler does not finish within :func:`compile_timeout` seconds (``$UAVDYN_CC_TIMEOUT``),
+    compiler does not finish within its time limit (:func:`compile_timeout`: 30 s plus 20 s per
+    MB of generated C, or ``$UAVDYN_CC_TIMEOUT``),
     and that compiler is not called again in this process.
 
     Parameters

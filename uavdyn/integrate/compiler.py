@@ -7,7 +7,11 @@ import shutil
 
 COMPILER_ENV = "UAVDYN_CC"
 TIMEOUT_ENV = "UAVDYN_CC_TIMEOUT"
-DEFAULT_TIMEOUT_S = 600.0  # the largest generated sources (identification) build in minutes
+# Without $UAVDYN_CC_TIMEOUT a build may take this long plus TIMEOUT_PER_MB per megabyte of
+# generated C: a step or a rollout (kilobytes) gets half a minute, the identification's large
+# sources (tens of MB) proportionally more.
+DEFAULT_TIMEOUT_S = 30.0
+TIMEOUT_PER_MB = 20.0
 DEFAULT_FLAGS = ("-O3", "-fPIC", "-shared")
 
 
@@ -50,9 +54,10 @@ class CompileTimeout(CompileError):
     """The compiler did not finish within :func:`compile_timeout` seconds (it was killed)."""
 
 
-def compile_timeout() -> float:
+def compile_timeout(source_bytes: int = 0) -> float:
     """Seconds a compiler call may take: ``$UAVDYN_CC_TIMEOUT`` if set to a positive number,
-    else :data:`DEFAULT_TIMEOUT_S`.
+    else :data:`DEFAULT_TIMEOUT_S` plus :data:`TIMEOUT_PER_MB` per megabyte of the generated
+    source (``source_bytes``).
 
     Raises
     ------
@@ -61,7 +66,7 @@ def compile_timeout() -> float:
     """
     raw = os.environ.get(TIMEOUT_ENV)
     if raw is None or not raw.strip():
-        return DEFAULT_TIMEOUT_S
+        return DEFAULT_TIMEOUT_S + TIMEOUT_PER_MB * source_bytes / 1e6
     try:
         value = float(raw)
     except ValueError:

@@ -150,12 +150,12 @@ def _build(source: Path, compiler: str, flags: tuple[str, ...], lib: Path, key: 
     cmd = [compiler, *flags, str(source), "-o", str(partial), "-lm"]
     err = {"compiler": compiler, "function": name, "command": cmd}
     try:
-        timeout = compile_timeout()
+        timeout = compile_timeout(source.stat().st_size)
         try:
             proc = run_compiler(cmd, timeout)
         except subprocess.TimeoutExpired:
             raise CompileTimeout(f"compiler {compiler} did not finish CasADi Function '{name}' "
-                                 f"within {timeout:g} s (killed; ${TIMEOUT_ENV} sets the "
+                                 f"within {timeout:.3g} s (killed; ${TIMEOUT_ENV} sets the "
                                  "limit)", **err) from None
         except OSError as exc:
             raise CompileError(f"cannot run compiler {compiler} for CasADi Function '{name}': "
