@@ -33,6 +33,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import AirframeError
+from uavdyn.integrate import StateLayout
 from uavdyn.linear import TrimError, point_params, trim
 from uavdyn.montecarlo.batch import N_GUST, SIGNALS, STAT_NAMES, batch_function, run_function
 from uavdyn.montecarlo.dispersions import STATE_KEYS
@@ -109,14 +110,15 @@ def compiled_batch(spec: StudySpec, n_runs: int, threads: int) -> ca.Function:
     return _COMPILED[key]
 
 
-def _initial(spec: StudySpec, point, p: np.ndarray, offsets: dict) -> np.ndarray:
+def _initial(spec: StudySpec, layout: StateLayout, point, p: np.ndarray, offsets: dict
+             ) -> np.ndarray:
     """The step's state at the start of a run: trim plus the initial-state offsets, with the
     actuator, delay and command-memory states at rest on the trim command."""
     body = np.asarray(point.x, float)[:4].copy()
     for name, dist in spec.dispersions.initial.items():
         i = STATE_KEYS.index(name)
         body[i] = dist.apply(body[i], offsets[f"initial.{name}"])
-    return spec.discrete_model().initial_state(body, point.u, p, spec.dt)
+    return layout.states(body, point.u, p, spec.dt)[0]
 
 
 def evaluate_chunk(spec: StudySpec, index: int, threads: int = 1) -> ChunkResult:
@@ -153,7 +155,8 @@ def _evaluate_chunk(spec: StudySpec, index: int, threads: int) -> ChunkResult:
     nominal = spec.airframe
     nom_point = trim(nominal, spec.airspeed)
     nom_p = point_params(nominal, nom_point)
-    x0 = np.tile(_initial(spec, nom_point, nom_p, _zero_offsets(spec))[:, None],
+    layout = spec.discrete_model().layout  # built once per chunk, not once per run
+    x0 = np.tile(_initial(spec, layout, nom_point, nom_p, _zero_offsets(spec))[:, None],
                  (1, n))
     u0 = np.tile(np.asarray(nom_point.u, float)[:, None], (1, n))
     x_ref = np.tile(np.asarray(nom_point.x, float)[:4, None], (1, n))  # closed loop: trims
@@ -188,7 +191,7 @@ def _evaluate_chunk(spec: StudySpec, index: int, threads: int) -> ChunkResult:
         trimmed[j] = True
         table[j, columns.index("trim_ok")] = 1.0
         p = point_params(airframe, point)
-        x0[:, j] = _initial(spec, point, p, draw.offsets)
+        x0[:, j] = _initial(spec, layout, point, p, draw.offsets)
         u0[:, j] = point.u
         x_ref[:, j] = point.x[:4]
         P[:, j] = p
