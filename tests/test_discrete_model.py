@@ -219,3 +219,39 @@ def test_a_departure_from_the_physical_ranges_is_never_silent(tmp_path, capsys):
     err_lines = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and not out.exists()
     assert len(err_lines) == 1 and "departed at t =" in err_lines[0] and "theta" in err_lines[0]
+
+
+def test_evaluation_flags_a_free_run_that_leaves_the_physical_ranges(f450):
+    """A quadrotor replayed open loop with a constant pitch command tumbles: evaluate's free
+    run says when and which state left the ranges (flagged, not raised; the table counts it),
+    while the short-horizon modes are still scored."""
+    from uavdyn.evaluation import Solver, evaluate_trajectory
+    from uavdyn.linear import trim
+    from uavdyn.model import first_departure
+
+    point = trim(f450)
+    n = 1001
+    time = 0.01 * np.arange(n)
+    states = np.tile(point.x[:4], (n, 1))
+    controls = np.tile([point.u[0], 0.3], (n, 1))
+    res = evaluate_trajectory(Solver("f450", uavdyn.physics_step(f450), 0.01), time, states,
+                              controls, f450.p)
+    dep = res["free_run_departure"]
+    pred = res["free_run"][0]
+    left = first_departure(pred, "multirotor")
+    assert left is not None and dep["state"] == left.state
+    assert dep["time_s"] == pytest.approx(res["free_run_time"][left.index])
+    assert 0.0 < dep["time_s"] < time[-1]
+    assert "one_step" in res and "horizon_1s" in res
+    from types import SimpleNamespace
+
+    from uavdyn.experiments.report import table1_lines
+    from uavdyn.experiments.tables import _accuracy_row
+
+    cand = SimpleNamespace(label="f450 @ 0.01 s", solver=SimpleNamespace(dt=0.01),
+                           physics="nominal")
+    row = _accuracy_row(cand, {"hover_tilt": res})
+    assert row["departed"] == {"hover_tilt": dep}
+    text = "\n".join(table1_lines({"table1": {"flight data": {"sorties": ["hover_tilt"],
+                                                                "rows": [row]}}}))
+    assert f"free run of hover_tilt: departed at t = {dep['time_s']:.2f} s" in text

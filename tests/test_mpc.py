@@ -328,3 +328,37 @@ def test_an_airframe_file_flies_its_physics_and_the_plant_can_differ(tmp_path):
         assert result.success.all()
         errors[setup.plant_airframe.name] = result.rmse("theta", 1.0)
     assert errors["truth"] > 2 * errors["mine"], errors
+
+
+def test_a_plant_leaving_the_physical_ranges_ends_the_flight_flagged(f450):
+    """A quadrotor held at a constant pitch command tumbles: the flight stops at the first
+    sample outside the loader's physical ranges, says when and which state, and the flight
+    up to then is kept (a tumbling plant is never reported as a finite tracking error)."""
+    from uavdyn.linear import trim, trim_state
+    from uavdyn.model import first_departure
+    from uavdyn.mpc import physics_plant
+    from uavdyn.mpc.policy import MPCResult
+    from uavdyn.mpc.study import lost_control
+
+    point = trim(f450)
+    command = np.array([point.u[0], 0.3])
+
+    class ConstantCommand:  # a controller that ignores the plant: open loop
+        config = MPCConfig(horizon=5, dt=0.05)
+        kind = "multirotor"
+
+        def reset(self):
+            pass
+
+        def solve(self, *args):
+            return MPCResult(command, "solved", True, 0.0, 1, "ok", None, None)
+
+    x0 = trim_state(f450, point, with_position=True)
+    res = fly_closed_loop(ConstantCommand(), physics_plant(f450, 0.05), x0, point.u, 400,
+                          lambda t: 0 * t, lambda t: 0 * t + 100.0, 0.0)
+    assert res.departure is not None and "departed at t = " in res.departure
+    left = first_departure(res.states[:, :4], "multirotor")
+    assert left is not None and left.index == len(res.states) - 1  # stopped at the first
+    assert f"t = {res.time[-1]:.3f} s" in res.departure and left.state in res.departure
+    assert len(res.controls) == len(res.states) - 1 == len(res.theta_ref) < 400
+    assert lost_control(res)

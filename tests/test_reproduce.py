@@ -440,3 +440,30 @@ def test_retrain_trains_the_earlier_formulations_on_the_nominal_airframe(monkeyp
     # and the refusal this avoids is real: the paper weights on the identified airframe
     with pytest.raises(ValueError, match="paper"):
         hybrid_step(data.weights_path(nominal, "paper", config), identified)
+
+
+def test_headline_counts_sorties_where_identification_is_worse(quick_run):
+    """The headline's identified-vs-nominal sentence, recounted by hand from the per-sortie
+    table (issue: a pooled gain must not hide sorties the identification made worse)."""
+    out, _, _, _ = quick_run
+    metrics = json.loads((out / "metrics.json").read_text())
+    report = (out / "report.md").read_text()
+    checked = 0
+    for af in metrics["airframes"]:
+        rows = af["ladder"]["per_sortie"]
+        for cond in ("calm", "turbulent"):
+            for mode, label in (("horizon_1s", "1 s"), ("free_run", "free run")):
+                def rmse(model):
+                    return {r["sortie"]: np.sqrt(float(r[mode]["sse"]) / r[mode]["n"])
+                            for r in rows if r["condition"] == cond and r["model"] == model
+                            and mode in r}
+                nominal, identified = rmse("nominal physics"), rmse("identified physics")
+                if not nominal or set(nominal) != set(identified):
+                    continue
+                worse = sum(identified[s] > nominal[s] for s in nominal)
+                line = next(ln for ln in report.splitlines() if ln.startswith(
+                    f"- **{af['airframe']}, {cond}, {label}**"))
+                assert (f"Against the nominal physics, identification is worse on {worse} of "
+                        f"{len(nominal)} sorties") in line, line
+                checked += 1
+    assert checked >= 2

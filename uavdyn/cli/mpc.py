@@ -28,7 +28,13 @@ from uavdyn.cli.common import (
     refuse_unused,
 )
 from uavdyn.mpc import SCENARIO_NAMES, MPCConfig, scenario
-from uavdyn.mpc.study import fly_all, prediction_models, solve_statistics, startup_seconds
+from uavdyn.mpc.study import (
+    flight_outcome,
+    fly_all,
+    prediction_models,
+    solve_statistics,
+    startup_seconds,
+)
 from uavdyn.outputs import check_output_folder, output_folder
 
 COMMAND = "mpc"
@@ -166,11 +172,9 @@ def cmd_mpc(args: argparse.Namespace) -> int:
         "plant": f"calm emulator of {setup.plant_airframe.name}",
         "missing": setup.missing, "models": {}}
     for name, res in results.items():
-        finite = bool(np.all(np.isfinite(res.states)))
         stats["models"][name] = {
-            "prediction": setup.models[name].description,
-            "tracking_rmse": res.rmse(sc.tracked, sc.start) if finite else None,
-            "finite_flight": finite, **solve_statistics(res)}
+            "prediction": setup.models[name].description, **flight_outcome(res, sc),
+            **solve_statistics(res)}
         if mode == "rti":  # the library is in the cache now: a second start loads it
             stats["models"][name]["startup_s_cached"] = startup_seconds(setup.models[name],
                                                                         config)
@@ -182,11 +186,17 @@ def cmd_mpc(args: argparse.Namespace) -> int:
         (tmp / "stats.json").write_text(json.dumps(stats, indent=2) + "\n")
         _plot(tmp / "mpc.png", sc, results, title)
     for name, s in stats["models"].items():
-        rmse = "diverged" if s["tracking_rmse"] is None else f"{s['tracking_rmse']:.4g} {sc.unit}"
+        rmse = (s["departure"] or "diverged" if s["tracking_rmse"] is None
+                else f"{s['tracking_rmse']:.4g} {sc.unit}")
         med = "-" if s["solve_ms_median"] is None else f"{s['solve_ms_median']:.3g}"
         mx = "-" if s["solve_ms_max"] is None else f"{s['solve_ms_max']:.3g}"
         print(f"  {name}: tracking RMSE {rmse}; solves {s['success_rate']:.1%} succeeded "
               f"(median {med} ms, max {mx} ms); fallbacks {s['fallback_shifted']} shifted, "
               f"{s['fallback_held']} held")
     print(f"wrote {args.out}/ (history_*.csv, stats.json, mpc.png)")
+    departed = [name for name, s in stats["models"].items() if s["departure"]]
+    if departed:
+        print(f"error: the closed loop with {' and '.join(departed)} prediction left the "
+              "physical ranges (see above; the flight up to then is written)", file=sys.stderr)
+        return 1
     return 0

@@ -24,6 +24,7 @@ from uavdyn.cli.common import (
     seconds,
 )
 from uavdyn.emulation.datagen import shipped_recipe
+from uavdyn.experiments.report import headline_lines
 from uavdyn.experiments.reproduce import (
     ReproduceConfig,
     _json,
@@ -83,6 +84,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     result["command"] = "evaluate"
     write_text_atomic(out, json.dumps(result, indent=2, default=_json) + "\n")
     write_text_atomic(md, evaluation_markdown(result))
+    for line in headline_lines(result) if result.get("ladder") else []:
+        print(line.replace("**", ""))
     print(f"wrote {out} and {md}")
     return 0
 

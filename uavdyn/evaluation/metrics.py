@@ -36,7 +36,7 @@ from uavdyn.integrate import (
     sortie_free_run,
     step_states,
 )
-from uavdyn.model import ModelStructure, build_model, structure_of
+from uavdyn.model import ModelStructure, build_model, first_departure, structure_of
 
 METRIC_STATES = {"theta": 3, "q": 2, "u": 0}
 MODES = ("one_step", "horizon_1s", "free_run")
@@ -104,11 +104,12 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
                         ) -> dict[str, np.ndarray]:
     """Predictions of one solver on one target trajectory (states ``N x 4`` at the log times,
     ``controls`` row k held over [t_k, t_k+1)). Returns, per mode, ``(predicted, target)``
-    arrays of matching shape, plus the free-run time axis. A mode the step refuses (outside
-    its trained step size or time range; delays at another step size) is absent and its
-    reason is under ``"refused"``. A model with extra states restarts from the recorded states
-    with the actuator/buffer/memory states of the recorded commands; predictions are its body
-    states."""
+    arrays of matching shape, plus the free-run time axis and, when the free run leaves the
+    physical ranges (:func:`uavdyn.model.first_departure`), ``"free_run_departure"`` (time,
+    state, text). A mode the step refuses (outside its trained step size or time range;
+    delays at another step size) is absent and its reason is under ``"refused"``. A model with
+    extra states restarts from the recorded states with the actuator/buffer/memory states of
+    the recorded commands; predictions are its body states."""
     sample_dt = float(np.median(np.diff(time)))
     N = len(time)
     grid = EvalGrid(sample_dt, solver.dt)
@@ -141,6 +142,11 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
         idx = stride * (1 + np.arange(L // stride))
         results["free_run"] = (pred[0, :, :nb], states[idx])
         results["free_run_time"] = time[idx]
+        departure = first_departure(pred[0, :, :nb], solver.model.kind)
+        if departure is not None:  # flagged, not raised: the table counts it
+            results["free_run_departure"] = {
+                "time_s": float(time[idx][departure.index]), "state": departure.state,
+                "what": departure.describe()}
 
     for mode, run in (("one_step", one_step), ("horizon_1s", horizon), ("free_run", whole)):
         try:

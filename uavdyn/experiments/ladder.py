@@ -32,6 +32,9 @@ LADDER = (NOMINAL_PHYSICS, IDENTIFIED_PHYSICS, "corrected")
 CONDITIONS = ("calm", "turbulent")
 HEADLINE_MODES = {"horizon_1s": "1 s", "free_run": "free run"}
 HORIZONS_S = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
+# Sortie-by-sortie comparisons in the headline: each rung against the one below it.
+PAIRED = {"identified_vs_nominal": (NOMINAL_PHYSICS, IDENTIFIED_PHYSICS),
+          "corrected_vs_identified": (IDENTIFIED_PHYSICS, "corrected")}
 WORSE_TOLERANCE = 0.10  # "never worse by more than 10 % on any sortie" (the safe rule)
 
 
@@ -138,8 +141,9 @@ def _conditions(rows: list[dict], conditions) -> tuple[str, ...]:
 
 def headline(rows: list[dict], conditions=None) -> list[dict]:
     """Per condition and headline mode: each model's pooled pitch RMSE with its 95 % bootstrap
-    interval over sorties, and the corrected model against the identified physics sortie by
-    sortie (sorties worse, worse by more than 10 %, free runs diverging only when corrected).
+    interval over sorties, the identified physics against the nominal and the corrected model
+    against the identified physics sortie by sortie (sorties worse, worse by more than 10 %,
+    free runs diverging only in the upper rung).
     Computed from ``rows`` (:func:`per_sortie_rows`) only. A condition with no sortie is
     listed with ``missing``."""
     models = [m for m in LADDER if any(r["model"] == m for r in rows)]
@@ -164,9 +168,10 @@ def headline(rows: list[dict], conditions=None) -> list[dict]:
                         entry["models"][m]["departed"] = len(left)
                         entry["models"][m]["median_departure_s"] = (
                             float(np.median(left)) if left else None)
-            a, b = errors.get("identified physics"), errors.get("corrected")
-            if a and b and len(a) == len(b):
-                entry["corrected_vs_identified"] = compare_paired(a, b, WORSE_TOLERANCE).to_dict()
+            for key, (base, model) in PAIRED.items():
+                a, b = errors.get(base), errors.get(model)
+                if a and b and len(a) == len(b):
+                    entry[key] = compare_paired(a, b, WORSE_TOLERANCE).to_dict()
             out.append(entry)
     return out
 

@@ -43,6 +43,21 @@ def corrected_cost_ratio(af: dict) -> dict | None:
                  and (dt is None or abs(r["dt"] - dt) <= 1e-9 * max(1.0, dt))), None)
 
 
+PAIRED_WORDS = {"identified_vs_nominal": ("identification", "the nominal physics"),
+                "corrected_vs_identified": ("the correction", "the identified physics")}
+
+
+def _paired_sentence(cmp: dict, upper: str, lower: str, sorties: int) -> str:
+    """One sentence of a sortie-by-sortie comparison (``compare_paired``'s dict)."""
+    return (f" Against {lower}, {upper} is worse on {len(cmp['worse'])} of {sorties} "
+            f"sorties, by more than {100 * cmp['tolerance']:.0f} % on "
+            f"{len(cmp['worse_beyond_tolerance'])}"
+            + (f" ({', '.join(cmp['worse_beyond_tolerance'])})"
+               if cmp["worse_beyond_tolerance"] else "")
+            + (f"; it diverges where {lower} does not on {', '.join(cmp['new_divergence'])}"
+               if cmp["new_divergence"] else "") + ".")
+
+
 def headline_lines(af: dict) -> list[str]:
     """The headline bullets of one airframe, from its ladder (computed from the per-sortie
     table only: every figure here can be recomputed from it)."""
@@ -70,16 +85,9 @@ def headline_lines(af: dict) -> list[str]:
                 text += (f" Free runs whose pitch error passed {DEPARTURE_RAD:g} rad: "
                          + ", ".join(gone) +
                          " (their RMSE is that of a run that has left the data).")
-        cmp = entry.get("corrected_vs_identified")
-        if cmp:
-            text += (f" The correction is worse than the identified physics on "
-                     f"{len(cmp['worse'])} of {entry['sorties']} sorties, by more than "
-                     f"{100 * cmp['tolerance']:.0f} % on {len(cmp['worse_beyond_tolerance'])}"
-                     + (f" ({', '.join(cmp['worse_beyond_tolerance'])})"
-                        if cmp["worse_beyond_tolerance"] else "")
-                     + (f"; it diverges where the physics does not on "
-                        f"{', '.join(cmp['new_divergence'])}" if cmp["new_divergence"] else "")
-                     + ".")
+        for key, (upper, lower) in PAIRED_WORDS.items():
+            if entry.get(key):
+                text += _paired_sentence(entry[key], upper, lower, entry["sorties"])
         lines.append(text)
     ratio = corrected_cost_ratio(af)
     if ratio:
@@ -170,6 +178,9 @@ def table1_lines(af: dict) -> list[str]:
         for r in table["rows"]:
             for mode, why in r.get("missing", {}).items():
                 lines.append(f"- {r['solver']}, {mode.replace('_', ' ')}: missing ({why})")
+            for sortie, dep in r.get("departed", {}).items():
+                lines.append(f"- {r['solver']}, free run of {sortie}: departed at "
+                             f"t = {dep['time_s']:.2f} s ({dep['what']})")
         lines.append("")
     return lines + ["| metric | the paper's published figure (its own data; not comparable) |",
                     "|---|---|", "| pitch RMSE | 1.82e-3 rad |", "| pitch MAE | 1.47e-3 rad |",

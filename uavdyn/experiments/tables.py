@@ -60,7 +60,7 @@ def accuracy_tables(sorties: list[Sortie], candidates: dict[str, list[Candidate]
             if progress:
                 for _ in members:
                     progress()
-            rows.append(_accuracy_row(cand, list(saved.values())))
+            rows.append(_accuracy_row(cand, saved))
             if traj_dir is not None:
                 _save_trajectories(traj_dir, store.nominal.name, label, cand.label, saved)
         tables[label] = {"target": target, "sorties": [m[0].name for m in members],
@@ -68,9 +68,15 @@ def accuracy_tables(sorties: list[Sortie], candidates: dict[str, list[Candidate]
     return tables
 
 
-def _accuracy_row(cand: Candidate, results: list[dict]) -> dict:
-    """One row of Table 1: each mode pooled over the sorties, or missing with the reason."""
+def _accuracy_row(cand: Candidate, saved: dict[str, dict]) -> dict:
+    """One row of Table 1: each mode pooled over the sorties, or missing with the reason;
+    ``departed`` lists the sorties whose free run left the physical ranges (when and how)."""
+    results = list(saved.values())
     row = {"solver": cand.label, "dt": cand.solver.dt, "physics": cand.physics}
+    departed = {name: res["free_run_departure"] for name, res in saved.items()
+                if "free_run_departure" in res}
+    if departed:
+        row["departed"] = departed
     for m in MODES:
         pairs = [res[m] for res in results if m in res]
         refusals = [res["refused"][m] for res in results

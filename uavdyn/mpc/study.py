@@ -190,21 +190,29 @@ def solve_statistics(res: ClosedLoopResult) -> dict:
 
 
 def lost_control(res: ClosedLoopResult, pitch_deg: float = 60.0) -> bool:
-    """Whether a flight left any sensible envelope: a non-finite state or pitch beyond
-    ``pitch_deg`` (no scenario commands more than 5 deg and the soft bound is 30 deg)."""
-    return bool(not np.all(np.isfinite(res.states))
+    """Whether a flight left any sensible envelope: departed from the physical ranges, a
+    non-finite state or pitch beyond ``pitch_deg`` (no scenario commands more than 5 deg and
+    the soft bound is 30 deg)."""
+    return bool(res.departure is not None or not np.all(np.isfinite(res.states))
                 or np.max(np.abs(res.states[:, 3])) > np.radians(pitch_deg))
+
+
+def flight_outcome(res: ClosedLoopResult, sc: Scenario) -> dict:
+    """Tracking RMSE of a flight that stayed finite and inside the physical ranges (else
+    None), whether it stayed finite, and its departure (None when it did not depart)."""
+    finite = bool(np.all(np.isfinite(res.states)))
+    whole = finite and res.departure is None
+    return {"tracking_rmse": res.rmse(sc.tracked, t_from=sc.start) if whole else None,
+            "finite_flight": finite, "departure": res.departure}
 
 
 def summarise(results: dict) -> dict:
     """Tracking RMSE and solve statistics per scenario and model (JSON-ready)."""
     out: dict = {}
     for (sc_name, model), (sc, res) in results.items():
-        finite = bool(np.all(np.isfinite(res.states)))
         out.setdefault(sc_name, {})[model] = {
             "tracked": sc.tracked, "tracking_rmse_unit": sc.unit,
-            "tracking_rmse": res.rmse(sc.tracked, t_from=sc.start) if finite else None,
-            "finite_flight": finite,
+            **flight_outcome(res, sc),
             "max_abs_pitch_deg": float(np.degrees(np.max(np.abs(res.states[:, 3])))),
             "lost_control": lost_control(res), **solve_statistics(res)}
     return out

@@ -26,6 +26,7 @@ import numpy as np
 from uavdyn.airframes import Airframe
 from uavdyn.emulation import open_loop_references
 from uavdyn.integrate import DiscreteModel, physics_step
+from uavdyn.model import first_departure
 from uavdyn.mpc.policy import HELD, SHIFTED, SOLVED, Controller, MPCResult, SolveOutcome
 from uavdyn.mpc.problem import DEFAULT_RATE_LIMITS, MPCConfig, TrackingProblem
 
@@ -177,6 +178,9 @@ class ClosedLoopResult:
         Whether each solve succeeded.
     source : ndarray of str
         Where each applied control came from (``solved``, ``shifted``, ``held``).
+    departure : str or None
+        When the plant left the physical ranges (:func:`uavdyn.model.first_departure`): the
+        time and the state. The flight stops at that sample.
     """
 
     time: np.ndarray
@@ -189,6 +193,7 @@ class ClosedLoopResult:
     solve_times_s: np.ndarray
     success: np.ndarray
     source: np.ndarray
+    departure: str | None = None
 
     def rmse(self, which: str = "theta", t_from: float = 0.0) -> float:
         """Tracking RMSE of ``"theta"`` (rad), ``"h"`` (m) or ``"speed"`` (m/s) over times
@@ -235,7 +240,8 @@ def fly_closed_loop(mpc: Controller, plant_step: Callable, x0, u0, n_steps: int,
     -------
     ClosedLoopResult
         What was flown; the control of a failed solve is never applied (the policy's
-        fallback is, and each step's source is recorded).
+        fallback is, and each step's source is recorded). A plant leaving the physical
+        ranges ends the flight there, with ``departure`` saying when and how.
     """
     dt, N = mpc.config.dt, mpc.config.horizon
     v_ref = speed_ref if callable(speed_ref) else (lambda t: np.full_like(t, float(speed_ref)))
@@ -243,6 +249,7 @@ def fly_closed_loop(mpc: Controller, plant_step: Callable, x0, u0, n_steps: int,
     xp, y = plant_step(x0, None)
     u = np.asarray(u0, float)
     ys, us, times, ok, src = [y], [], [], [], []
+    departure = None
     for k in range(n_steps):
         t_pred = (k + 1 + np.arange(N)) * dt
         res = mpc.solve(y, u, theta_ref(t_pred), h_ref(t_pred), v_ref(t_pred), weights)
@@ -253,7 +260,11 @@ def fly_closed_loop(mpc: Controller, plant_step: Callable, x0, u0, n_steps: int,
         xp, y = plant_step(xp, u)
         ys.append(y)
         us.append(u)
-    t = np.arange(n_steps + 1) * dt
+        left = first_departure(np.asarray(y)[None, :4], mpc.kind)
+        if left is not None:  # the plant has left any flight: stop, flagged
+            departure = f"departed at t = {(k + 1) * dt:.3f} s: {left.describe()}"
+            break
+    t = np.arange(len(ys)) * dt
     states = np.array(ys)
     return ClosedLoopResult(time=t, states=states, controls=np.array(us),
                             theta_ref=np.asarray(theta_ref(t[1:]), float),
@@ -261,7 +272,7 @@ def fly_closed_loop(mpc: Controller, plant_step: Callable, x0, u0, n_steps: int,
                             speed_ref=np.asarray(v_ref(t[1:]), float),
                             speed=np.array([_speed(mpc.kind, s) for s in states]),
                             solve_times_s=np.array(times), success=np.array(ok, bool),
-                            source=np.array(src))
+                            source=np.array(src), departure=departure)
 
 
 def emulator_plant(emulator, dt: float):
