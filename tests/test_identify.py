@@ -132,3 +132,35 @@ def test_bound_flag_marks_estimates_on_a_bound_not_small_interior_ones():
     assert _at_bound(-0.9 + 1e-8, -0.9, 0.9) == "lower"
     assert _at_bound(0.9 - 1e-7, -0.9, 0.9) == "upper"
     assert _at_bound(0.3, -0.9, 0.9) == ""
+
+
+def test_a_fit_ending_on_its_bound_writes_its_file_and_says_so(tmp_path, aerosonde, truth,
+                                                                capsys):
+    """--bounds below the truth: the optimum is on the bound, the estimate is the bound
+    (projected, never outside it), the file is written and loads, and the headline flags it."""
+    from uavdyn.flightdata import write_csv, write_manifest
+
+    data = tmp_path / "data"
+    data.mkdir()
+    entries = []
+    for s, split in zip(_sorties(truth, 3, 7, duration=6.0), ("train", "train", "validation")):
+        write_csv(s, data / f"{s.name}.csv")
+        entries.append({"file": f"{s.name}.csv", "mission": "sysid", "duration_s": 6.0,
+                        "split": split})
+    write_manifest(data, airframe="aerosonde", kind="fixed_wing", sample_rate_hz=100.0,
+                   source="test", sorties=entries)
+    nominal, true = aerosonde.params.C_m_alpha, truth.params.C_m_alpha  # true: 1.15 x nominal
+    low, high = sorted((nominal, 0.5 * (nominal + true)))  # the truth is outside
+    out = tmp_path / "fitted.toml"
+    assert main(["identify", "--airframe", "aerosonde", "--dataset", str(data), "--params",
+                 "C_m_alpha", "--bounds", f"C_m_alpha={low}:{high}", "--out", str(out),
+                 "--quiet"]) == 0
+    value = load_airframe(out).params.C_m_alpha
+    edge = low if true < low else high
+    assert low <= value <= high and value == pytest.approx(edge, rel=1e-6)
+    printed = capsys.readouterr().out
+    assert "the fit ended on its" in printed and "bound" in printed
+    assert main(["identify", "--airframe", "aerosonde", "--dataset", str(data), "--params",
+                 "C_m_alpha", "--bounds", "C_m_q=-1:0", "--out", str(out), "--force"]) == 2
+    assert "--bounds C_m_q: only a continuous parameter named in --params" in \
+        capsys.readouterr().err

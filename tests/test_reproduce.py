@@ -453,11 +453,10 @@ def test_headline_counts_sorties_where_identification_is_worse(quick_run):
         rows = af["ladder"]["per_sortie"]
         for cond in ("calm", "turbulent"):
             for mode, label in (("horizon_1s", "1 s"), ("free_run", "free run")):
-                def rmse(model):
-                    return {r["sortie"]: np.sqrt(float(r[mode]["sse"]) / r[mode]["n"])
-                            for r in rows if r["condition"] == cond and r["model"] == model
-                            and mode in r}
-                nominal, identified = rmse("nominal physics"), rmse("identified physics")
+                nominal, identified = ({r["sortie"]: np.sqrt(float(r[mode]["sse"]) / r[mode]["n"])
+                                        for r in rows if r["condition"] == cond
+                                        and r["model"] == model and mode in r}
+                                       for model in ("nominal physics", "identified physics"))
                 if not nominal or set(nominal) != set(identified):
                     continue
                 worse = sum(identified[s] > nominal[s] for s in nominal)

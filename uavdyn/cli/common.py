@@ -228,6 +228,28 @@ def name_list(what: str, known: Iterable[str] | None = None) -> Callable[[str], 
     return parse
 
 
+def bound_list(text: str) -> dict[str, tuple[float, float]]:
+    """``NAME=LOW:HIGH[,NAME=LOW:HIGH...]``: finite numbers, LOW < HIGH, each name once."""
+    out: dict[str, tuple[float, float]] = {}
+    for item in text.split(","):
+        name, sep, rng = item.strip().partition("=")
+        low, colon, high = rng.partition(":")
+        try:
+            lo, hi = float(low), float(high)
+        except ValueError:
+            lo = hi = math.nan
+        if not (sep and colon and name.strip()) or not (math.isfinite(lo) and math.isfinite(hi)):
+            raise argparse.ArgumentTypeError(f"must be NAME=LOW:HIGH with finite numbers, "
+                                             f"comma-separated; got {item.strip()!r}")
+        if not lo < hi:
+            raise argparse.ArgumentTypeError(f"{name.strip()}: LOW {lo:g} must be below HIGH "
+                                             f"{hi:g}")
+        if name.strip() in out:
+            raise argparse.ArgumentTypeError(f"bounds for {name.strip()} given twice")
+        out[name.strip()] = (lo, hi)
+    return out
+
+
 C_KEYWORDS = frozenset(
     "auto break case char const continue default do double else enum extern float for goto "
     "if inline int long register restrict return short signed sizeof static struct switch "

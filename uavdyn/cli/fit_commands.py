@@ -15,6 +15,7 @@ from uavdyn.cli.common import (
     CliError,
     add_airframe,
     add_force,
+    bound_list,
     check_dataset_fits,
     count,
     dataset_path,
@@ -28,6 +29,7 @@ from uavdyn.cli.common import (
 )
 from uavdyn.flightdata import Sortie, load_dataset
 from uavdyn.identify import identify, write_outputs
+from uavdyn.identify.report import estimate_line
 from uavdyn.identify.unknowns import DELAY_PREFIX, control_names
 from uavdyn.integrate import EvalGrid, GridError
 from uavdyn.learned.weights import MAX_MEMORY_FILTERS
@@ -50,6 +52,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
                        f"{', '.join(nominal.param_names + tuple(delays))}")
     refuse_unused(args, ("--max-delay",), any(n in delays for n in names),
                   "with a delay_<control> name in --params")
+    stray = sorted(set(args.bounds or {}) - set(names) | set(args.bounds or {}) & set(delays))
+    if stray:
+        raise CliError(f"--bounds {', '.join(stray)}: only a continuous parameter named in "
+                       "--params takes bounds")
     out = Path(args.out)
     if out.exists() and not args.force:
         try:
@@ -66,7 +72,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
               file=sys.stderr)
     max_delay = 5 if args.max_delay is None else args.max_delay
     result = identify(nominal, ds.train, ds.validation, names, window_s=args.window,
-                      dt=args.dt, max_delay=max_delay, progress=not args.quiet)
+                      dt=args.dt, max_delay=max_delay, bounds=args.bounds,
+                      progress=not args.quiet)
     report = Path(args.report) if args.report else out.with_name(out.stem + "_report")
     command = "uavdyn " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["identify"] else \
         f"uavdyn identify --airframe {args.airframe} --dataset {args.dataset} --params " \
@@ -79,12 +86,13 @@ def cmd_identify(args: argparse.Namespace) -> int:
             print(f"  {e.name:>14} = {int(e.value):12d} samples (searched 0..{max_delay}; "
                   f"nominal {int(e.nominal)})")
             continue
-        change = f", {100 * e.relative_change:+.2f} %" if e.nominal else ""
-        bound = f", on its {e.at_bound} bound" if e.at_bound else ""
-        print(f"  {e.name:>14} = {e.value:12.6g} +- {e.std_error:.2g}  (nominal "
-              f"{e.nominal:.6g}{change}{bound})")
+        print("  " + estimate_line(e))
     for a, b, c in result.flagged_pairs:
         print(f"  highly correlated: {a} and {b} (r = {c:+.3f})")
+    undetermined = [e.name for e in result.estimates if e.flags()]
+    print(f"  {len(result.estimates) - len(undetermined)} of {len(result.estimates)} "
+          "parameters determined by these data"
+          + (f"; flagged: {', '.join(undetermined)}" if undetermined else ""))
     for split in ("train", "validation"):
         fit = result.fit.get(split)
         if fit:
@@ -184,6 +192,10 @@ def add_identify(sub) -> None:
                                               name="samples"), default=None,
                    help=f"largest transport delay (samples, 1..{DELAY_MAX_SAMPLES}) searched for "
                         "delay_<control> names (default 5)")
+    p.add_argument("--bounds", type=bound_list, default=None,
+                   help="NAME=LOW:HIGH[,...]: narrow a fitted parameter's range (default: its "
+                        "physical range by meaning and sign convention, e.g. a coefficient "
+                        "of either sign, a time constant >= 0, a share in [0, 1])")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_identify)
 

@@ -4,20 +4,22 @@ The model's discrete step (:func:`uavdyn.integrate.physics_step`: RK sub-steps p
 actuator lags as augmented states) is rolled out over short windows, each restarted from a
 recorded state (multiple shooting on data: closed-loop flights and marginally stable airframes
 stay fit-able), and the chosen entries of ``p`` minimise the weighted squared difference between
-predicted and recorded body states ``(u, w, q, theta)``. The NLP is solved with CasADi
-``nlpsol`` (IPOPT) using exact Jacobians and the Gauss-Newton Hessian ``J^T J``; standard errors
-are the Cramer-Rao bound from that Hessian with the residual variance estimated per state after
-the fit. Residuals of real data are correlated in time, so these standard errors are optimistic;
-the report says so.
+predicted and recorded body states ``(u, w, q, theta)``. The least squares are solved by a
+bounded Levenberg-Marquardt method on exact Jacobians (:mod:`uavdyn.identify.problem`: one
+compiled per-window Function mapped over the windows). Standard errors
+(:mod:`uavdyn.identify.uncertainty`): the Cramer-Rao bound (white residuals assumed, optimistic
+on real data) and the one corrected for the residuals' autocorrelation and for how the sorties
+pull the estimate apart, the one to use; collinear groups and intervals spanning zero are
+flagged as not determined by the data, with the excitation that would determine them.
 
 What each kind of name means:
 
 * a parameter of ``p`` (coefficients, ``rho``, table values ``C_m_table_2_1``, time constants
-  ``tau_*``): continuous, inside the schema's bounds and ``(1 +- relative_bound)`` of a
-  nonzero nominal value. A time constant whose nominal value is 0 (no lag) starts from the best
-  of :data:`TAU_GRID` on the cost and stays in :data:`TAU_BOUNDS`. Each window's lag states
-  start from the exact lag recursion over the commands before it, in the same CasADi graph, so
-  the Jacobian with respect to the time constant is exact too.
+  ``tau_*``): continuous, inside its physical range (and any bounds the caller gives). A time
+  constant whose nominal value is 0 (no lag) starts from the best of :data:`TAU_GRID` on the
+  cost and stays in :data:`TAU_BOUNDS`. Each window's lag states start from the exact lag
+  recursion over the commands before it, in the same CasADi graph, so the Jacobian with
+  respect to the time constant is exact too.
 * ``delay_<control>``: an integer transport delay in samples, found by a coordinate search over
   ``0..max_delay`` on the cost, then re-checked at +-1 after the continuous fit. A delay is
   data to the fit (the commands shifted by it), so every candidate uses the one compiled graph.
@@ -37,9 +39,11 @@ import numpy as np
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
 from uavdyn.identify.errors import IdentifyError
-from uavdyn.identify.problem import COMPILE_FLAGS, IPOPT_TOL, _Problem
+from uavdyn.identify.excitation import excitation_for
+from uavdyn.identify.problem import COMPILE_FLAGS, _Problem
 from uavdyn.identify.result import DEFAULT_SUBSTEPS, Estimate, IdentificationResult
 from uavdyn.identify.search import RECHECK_STEPS, SEARCH_ROUNDS, _recheck_delays, _search
+from uavdyn.identify.uncertainty import SPANS_ZERO, estimate_uncertainty
 from uavdyn.identify.unknowns import (
     DELAY_PREFIX,
     TAU_BOUNDS,
@@ -48,6 +52,7 @@ from uavdyn.identify.unknowns import (
     TAU_SCALE,
     Unknowns,
     _at_bound,
+    _bound_of,
     _check_request,
     control_names,
     scaled_unknowns,
@@ -62,8 +67,9 @@ from uavdyn.identify.windows import (
 from uavdyn.integrate import EvalGrid
 from uavdyn.model import LAG_PARAMS, ModelStructure, structure_of
 
-__all__ = ["COMPILE_FLAGS", "CORRELATION_FLAG", "DEFAULT_SUBSTEPS", "DELAY_PREFIX", "IPOPT_TOL",
-           "PREROLL_MIN_S", "PREROLL_TAUS", "RECHECK_STEPS", "REWEIGHT_FLOOR", "REWEIGHT_PASSES",
+__all__ = ["COMPILE_FLAGS", "CORRELATION_FLAG", "DEFAULT_SUBSTEPS", "DELAY_PREFIX",
+           "PREROLL_GROWTH", "PREROLL_MIN_S", "PREROLL_TAUS", "RECHECK_STEPS",
+           "REWEIGHT_FLOOR", "REWEIGHT_PASSES",
            "SEARCH_ROUNDS", "STATE_WEIGHT_FLOOR", "TAU_BOUNDS", "TAU_GRID", "TAU_NAMES",
            "TAU_SCALE", "Estimate", "IdentificationResult", "control_names", "identify",
            "measurement_noise"]
@@ -72,6 +78,7 @@ STATE_WEIGHT_FLOOR = 1e-6
 CORRELATION_FLAG = 0.9
 PREROLL_TAUS = 8.0       # the lag pre-roll covers this many time constants (exp(-8) = 3e-4) ...
 PREROLL_MIN_S = 1.0      # ... and at least this long
+PREROLL_GROWTH = 4.0     # the first pre-roll covers lags up to this many times their start
 REWEIGHT_PASSES = 1      # refits with each state weighted by its residual after the fit ...
 REWEIGHT_FLOOR = 1e-3    # ... down to this fraction of the nominal model's residual
 
@@ -88,7 +95,8 @@ def measurement_noise(sorties: list[Sortie]) -> np.ndarray:
 
 def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
              names: list[str], window_s: float = 1.0, dt: float | None = None,
-             relative_bound: float = 0.9, max_iterations: int = 60,
+             relative_bound: float | None = None,
+             bounds: dict[str, tuple[float, float]] | None = None, max_iterations: int = 60,
              estimate_x0: bool = True, max_windows: int | None = 120, max_delay: int = 5,
              substeps: int | None = None, progress: bool = True) -> IdentificationResult:
     """Fit the parameters ``names`` of ``airframe`` to ``train`` sorties by output error.
@@ -108,12 +116,16 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     dt : float, optional
         RK step; must divide the log interval when the model has lags or delays (default:
         ``substeps``).
-    relative_bound : float
-        Each parameter with a nonzero nominal value stays within ``(1 +- relative_bound) x``
-        it (sign kept); every one inside the schema's physical bounds (table values: the
-        table's value limit; time constants: :data:`TAU_BOUNDS`).
+    relative_bound : float, optional
+        Keep each parameter with a nonzero nominal value within ``(1 +- relative_bound) x``
+        it (sign kept). Default: no such bound; every parameter stays inside its physical
+        range only (the schema's bound by its meaning and sign convention: a coefficient may
+        change sign, a time constant is >= 0 (:data:`TAU_BOUNDS`), a share lies in [0, 1];
+        table values: the table's value limit).
+    bounds : dict, optional
+        ``name -> (low, high)`` narrowing a parameter's range (the nominal value inside it).
     max_iterations : int
-        IPOPT iteration limit (per solve).
+        Iteration limit of the bounded Levenberg-Marquardt solver (per solve).
     estimate_x0 : bool
         Estimate each window's initial body state too (recorded state as its measurement);
         without it, sensor noise in the start states biases the estimates.
@@ -140,12 +152,13 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     t_start = time.perf_counter()
     continuous, searched = _check_request(airframe, names, train, max_delay)
     fit = _prepare(airframe, train, continuous, searched, window_s, dt, substeps,
-                   max_windows, relative_bound, estimate_x0)
+                   max_windows, relative_bound, bounds, estimate_x0)
     try:
         outcome = _solve(fit, max_delay, max_iterations, progress)
     finally:
         fit.problem.close()
-    fitted, estimates, corr, flagged, sigma_w = _estimates(fit, outcome, names, max_delay)
+    fitted, estimates, corr, flagged, sigma_w, diagnostics = _estimates(fit, outcome, names,
+                                                                        max_delay)
     summary = {"train": _fit_summary(airframe, fitted, train, fit.interval, fit.substeps,
                                      fit.L, fit.stride),
                "validation": _fit_summary(airframe, fitted, validation, fit.interval,
@@ -161,7 +174,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         cost_final=0.5 * float(r @ r), iterations=outcome.iterations,
         seconds=time.perf_counter() - t_start, window_s=fit.L * fit.interval,
         dt=fit.interval / fit.substeps, fit=summary, substeps=fit.substeps,
-        search=outcome.log)
+        search=outcome.log, diagnostics=diagnostics)
 
 
 @dataclass
@@ -271,7 +284,8 @@ def _nominal_weights(airframe: Airframe, windows: Windows, interval: float, subs
 
 def _prepare(airframe: Airframe, train: list[Sortie], continuous: list[str],
              searched: list[str], window_s: float, dt: float | None, substeps: int | None,
-             max_windows: int | None, relative_bound: float, estimate_x0: bool) -> _Fit:
+             max_windows: int | None, relative_bound: float | None,
+             bounds: dict[str, tuple[float, float]] | None, estimate_x0: bool) -> _Fit:
     """Everything the fit needs before its first solve, ending with the compiled problem."""
     sample_dt, S, stride = _time_grid(train, dt, substeps)
     interval = stride * sample_dt
@@ -287,12 +301,14 @@ def _prepare(airframe: Airframe, train: list[Sortie], continuous: list[str],
     L = max(1, int(round(window_s / interval)))
     w_train = _training_windows(train, L, stride, max_windows)
     weights = _nominal_weights(airframe, w_train, interval, S)
-    unknowns = scaled_unknowns(airframe, continuous, relative_bound)
+    unknowns = scaled_unknowns(airframe, continuous, relative_bound, bounds)
     rho_index = airframe.param_names.index("rho") if airframe.atmosphere == "isa" else None
     fit = _Fit(airframe, continuous, searched, structure, w_train, L, interval, S, stride,
                unknowns, rho_index, window_density_ratios(w_train, airframe),
                measurement_noise(train)[:N_BODY], weights, weights, estimate_x0)
-    tau_top = max([0.0, *fit.taus_of(unknowns.theta0)])  # extended after the fit if longer
+    # room for a fitted lag PREROLL_GROWTH times the start (extended after the fit if longer:
+    # a recompile)
+    tau_top = PREROLL_GROWTH * max([0.0, *fit.taus_of(unknowns.theta0)])
     fit.new_problem(_preroll_samples(tau_top, interval) if structure.n_actuator else 0)
     return fit
 
@@ -374,56 +390,83 @@ def _residual_weights(fit: _Fit, z: np.ndarray, delays: list[int]
 
 def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int
                ) -> tuple[Airframe, list[Estimate], np.ndarray, list[tuple[str, str, float]],
-                          np.ndarray]:
-    """The fitted airframe, the estimates in the order of ``names``, the correlation of the
-    continuous ones, the strongly correlated pairs and the residual sigma per state."""
+                          np.ndarray, dict]:
+    """The fitted airframe, the estimates in the order of ``names`` (each projected onto its
+    bounds), the correlation of the continuous ones, the strongly correlated pairs, the
+    residual sigma per state and the diagnostics (:mod:`uavdyn.identify.uncertainty`)."""
     u, continuous, controls = fit.unknowns, fit.continuous, fit.controls
-    theta = outcome.z[:fit.problem.n_theta]
-    sigma_w, cov_theta = _covariance(outcome.r, outcome.J, fit.problem.n_theta,
-                                     fit.problem.n_dx, continuous)
-    std = np.sqrt(np.maximum(np.diag(cov_theta), 0.0)) * u.scale
-    d = np.sqrt(np.maximum(np.diag(cov_theta), 1e-300))
-    corr = cov_theta / np.outer(d, d)
+    theta = np.clip(outcome.z[:fit.problem.n_theta], u.lo, u.hi)  # round-off may overshoot
+    if continuous:
+        unc = estimate_uncertainty(outcome.J, outcome.r, fit.problem.n_theta, fit.windows.count,
+                                   fit.L, fit.estimate_x0, fit.interval,
+                                   np.array([i for i, _ in fit.windows.starts]))
+        cov_cr, cov_c, sigma_w = unc.cramer_rao, unc.corrected, unc.residual_sigma
+    else:
+        unc = None
+        cov_cr = cov_c = np.zeros((0, 0))
+        sigma_w = np.sqrt(np.mean(outcome.r.reshape(-1, N_BODY) ** 2, axis=0))
+    std = np.sqrt(np.maximum(np.diag(cov_cr), 0.0)) * u.scale
+    std_c = np.sqrt(np.maximum(np.diag(cov_c), 0.0)) * u.scale
+    d = np.sqrt(np.maximum(np.diag(cov_c), 1e-300))
+    corr = cov_c / np.outer(d, d)
     flagged = [(continuous[i], continuous[j], float(corr[i, j]))
                for i, j in combinations(range(len(continuous)), 2)
                if abs(corr[i, j]) >= CORRELATION_FLAG]
-    p_fit = u.p_of(theta)
+    p_fit = fit.unknowns.p_of(theta)
+    p_fit[u.index] = [_inside(fit.airframe, n, v) for n, v in zip(continuous, p_fit[u.index])]
     fitted = fit.airframe.replace(**{n: float(p_fit[i]) for n, i in zip(continuous, u.index)})
     delays = outcome.delays
     if fit.searched:
         fitted = fitted.with_delays(**{c: int(delays[controls.index(c)]) for c in fit.searched})
-    by_name = {n: Estimate(n, float(u.p_nom[i]), float(p_fit[i]), float(s),
-                           at_bound=_at_bound(theta[j], u.lo[j], u.hi[j]))
-               for j, (n, i, s) in enumerate(zip(continuous, u.index, std))}
+    groups = [[continuous[j] for j in g] for g in (unc.collinear_groups if unc else [])]
+    by_name = {}
+    for j, (n, i) in enumerate(zip(continuous, u.index)):
+        why, group = _undetermined(n, float(p_fit[i]), float(std_c[j]), groups)
+        by_name[n] = Estimate(n, float(u.p_nom[i]), float(p_fit[i]), float(std[j]),
+                              at_bound=_at_bound(theta[j], u.lo[j], u.hi[j]),
+                              std_error_corrected=float(std_c[j]), undetermined=why,
+                              excitation=excitation_for(n, group) if why else "")
     nominal_delays = fit.airframe.delay_samples()
     for c in fit.searched:
         k = controls.index(c)
         by_name[DELAY_PREFIX + c] = Estimate(DELAY_PREFIX + c, float(nominal_delays[k]),
                                              float(delays[k]), 0.0, searched=True,
                                              at_bound="upper" if delays[k] == max_delay
-                                             else "")
-    return fitted, [by_name[n] for n in names], corr, flagged, sigma_w
+                                             else "", std_error_corrected=0.0)
+    diagnostics = {} if unc is None else {
+        "condition_indices": unc.condition_indices.tolist(),
+        "variance_proportions": unc.variance_proportions.tolist(),
+        "collinear_groups": groups,
+        "residual_correlation_time_s": dict(zip(("u", "w", "q", "theta"),
+                                                unc.correlation_time_s.tolist())),
+        "corrected_over_cramer_rao": dict(zip(continuous, (std_c / np.maximum(std, 1e-300))
+                                              .tolist()))}
+    return fitted, [by_name[n] for n in names], corr, flagged, sigma_w, diagnostics
 
 
-def _covariance(r: np.ndarray, J, n_theta: int, n_dx: int, names: list[str]
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-state residual sigma (weighted units) after the fit and the Cramer-Rao covariance
-    of the scaled unknowns ``theta`` (from the Gauss-Newton Hessian of all of ``z``, so the
-    start states' uncertainty is accounted for)."""
-    per_state = r[:r.size - n_dx].reshape(-1, N_BODY)
-    dof = max(1.0, per_state.shape[0] - (n_theta + n_dx) / N_BODY)
-    sigma_w = np.sqrt(np.sum(per_state**2, axis=0) / dof)
-    if not n_theta:
-        return sigma_w, np.zeros((0, 0))
-    row_scale = np.concatenate([np.tile(1.0 / np.maximum(sigma_w, 1e-300), per_state.shape[0]),
-                                np.ones(n_dx)])
-    Jw = J.multiply(row_scale[:, None]).tocsc()
-    try:
-        cov = np.linalg.inv((Jw.T @ Jw).toarray())
-    except np.linalg.LinAlgError:
-        raise IdentifyError(f"the data cannot tell parameters {names} apart (singular "
-                            "Gauss-Newton Hessian): fit fewer of them") from None
-    return sigma_w, cov[:n_theta, :n_theta]
+def _undetermined(name: str, value: float, std_c: float, groups: list[list[str]]
+                  ) -> tuple[tuple[str, ...], list[str]]:
+    """Why the data do not determine a parameter (its corrected interval spans zero; it is in
+    a collinear group), and the group."""
+    why = []
+    if abs(value) < SPANS_ZERO * std_c:
+        why.append(f"its +-{SPANS_ZERO:g} corrected standard-error interval spans zero")
+    group = next((g for g in groups if name in g), [])
+    if group:
+        why.append(f"collinear with {', '.join(g for g in group if g != name)} (these data "
+                   "cannot separate them)")
+    return tuple(why), group
+
+
+def _inside(airframe: Airframe, name: str, value: float) -> float:
+    """``value`` projected into the parameter's physical range (an open bound: just inside),
+    so a fit overshooting a bound by round-off still writes its file."""
+    low, high, low_open, high_open = _bound_of(airframe, name)
+    if value <= low:
+        value = np.nextafter(low, math.inf) if low_open else low
+    if value >= high:
+        value = np.nextafter(high, -math.inf) if high_open else high
+    return float(value)
 
 
 def _preroll_samples(tau: float, interval: float) -> int:

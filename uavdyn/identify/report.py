@@ -13,6 +13,7 @@ import numpy as np
 
 from uavdyn.airframes import OPTIONAL_PARAMS, Airframe, param_names
 from uavdyn.identify.output_error import IdentificationResult
+from uavdyn.identify.result import Estimate
 from uavdyn.outputs import atomic_file, write_text_atomic
 
 
@@ -82,7 +83,7 @@ def provenance(result: IdentificationResult, nominal: Airframe, dataset: str, co
              f"dataset: {dataset}", f"command: {command}",
              f"output-error fit over {result.fit['windows']} windows of {result.window_s:g} s "
              f"restarted from recorded states, RK4 {result.substeps} x {result.dt:g} s per "
-             f"{interval:g} s sample, {result.iterations} IPOPT iterations "
+             f"{interval:g} s sample, {result.iterations} Levenberg-Marquardt iterations "
              f"({result.fit['solver_status']})"]
     if nominal.atmosphere == "isa":
         lines.append("  atmosphere isa: rho is the sea-level density, scaled per sortie by the "
@@ -94,14 +95,27 @@ def provenance(result: IdentificationResult, nominal: Airframe, dataset: str, co
             lines.append(f"  {e.name} = {int(e.value)} samples ({ms:g} ms; searched integer"
                          f"{edge}, nominal {int(e.nominal)})")
             continue
-        change = ("" if not math.isfinite(e.relative_change)
-                  else f", {100 * e.relative_change:+.2f} %")
-        bound = f"; on its {e.at_bound} bound" if e.at_bound else ""
-        lines.append(f"  {e.name} = {e.value:.6g} +- {e.std_error:.2g} (1 s.e., Cramer-Rao; "
-                     f"nominal {e.nominal:.6g}{change}{bound})")
+        lines.append("  " + estimate_line(e))
     for a, b, c in result.flagged_pairs:
         lines.append(f"  highly correlated: {a} and {b} (r = {c:+.3f})")
     return lines
+
+
+def estimate_line(e: Estimate) -> str:
+    """One estimate as a person reads it: value, corrected and Cramer-Rao standard errors,
+    nominal, and what makes it unreliable (the data cannot determine it, the bound)."""
+    change = ("" if not math.isfinite(e.relative_change)
+              else f", {100 * e.relative_change:+.2f} %")
+    text = (f"{e.name} = {e.value:.6g} +- {e.std_error_corrected:.2g} (1 s.e. corrected for "
+            f"correlated residuals; Cramer-Rao {e.std_error:.2g}; nominal {e.nominal:.6g}"
+            f"{change})")
+    flags = e.flags()
+    if e.undetermined:
+        text += " NOT DETERMINED by these data: " + "; ".join(flags)
+        text += f". Would need: {e.excitation}"
+    elif flags:
+        text += " FLAGGED: " + "; ".join(flags)
+    return text
 
 
 def identified_airframe(result: IdentificationResult, nominal: Airframe, dataset: str,
@@ -111,8 +125,10 @@ def identified_airframe(result: IdentificationResult, nominal: Airframe, dataset
     for e in result.estimates:
         if e.searched or e.name not in param_names(nominal.kind):
             continue  # delays and table values have no source entry
-        sources[e.name] = (f"identified from {dataset}: {e.value:.6g} +- {e.std_error:.2g} "
-                           f"(nominal {e.nominal:.6g}; was: {nominal.sources.get(e.name, '')})")
+        flags = f"; {'; '.join(e.flags())}" if e.flags() else ""
+        sources[e.name] = (f"identified from {dataset}: {e.value:.6g} +- "
+                           f"{e.std_error_corrected:.2g} (corrected s.e.{flags}; nominal "
+                           f"{e.nominal:.6g}; was: {nominal.sources.get(e.name, '')})")
     return replace(result.airframe, name=f"{nominal.name}_identified", sources=sources,
                    description=f"{nominal.description} (parameters identified from flight "
                                f"data)".strip())
@@ -142,14 +158,15 @@ def _plot(result: IdentificationResult, path: Path) -> Path:
     est = result.estimates
     ax = axes[0]
     rel = [100 * e.relative_change if math.isfinite(e.relative_change) else 0.0 for e in est]
-    err = [100 * e.std_error / abs(e.nominal) if e.nominal else 0.0 for e in est]
+    err = [100 * e.std_error_corrected / abs(e.nominal) if e.nominal and not e.searched
+           else 0.0 for e in est]
     ax.barh([e.name for e in est], rel, xerr=[2 * v for v in err], color="C0", capsize=4)
     for i, e in enumerate(est):  # no relative change from a nominal 0: the value is written
         if not math.isfinite(e.relative_change):
             text = f"{int(e.value)} samples" if e.searched else f"{e.value:.4g} (from 0)"
             ax.text(0, i, " " + text, va="center", fontsize=8)
     ax.axvline(0, color="k", lw=0.8)
-    ax.set_xlabel("change from nominal (%), bars: +-2 standard errors")
+    ax.set_xlabel("change from nominal (%), bars: +-2 corrected standard errors")
     ax.set_title("estimates")
     ax = axes[1]
     names = [e.name for e in est if not e.searched]

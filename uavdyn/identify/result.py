@@ -15,7 +15,12 @@ DEFAULT_SUBSTEPS = 2     # RK steps per log sample (dt = half the log interval)
 @dataclass(frozen=True)
 class Estimate:
     """One identified parameter (``searched``: an integer delay found by search, in samples,
-    whose standard error is 0 by convention)."""
+    whose standard errors are 0 by convention).
+
+    ``std_error`` is the Cramer-Rao bound (white residuals), ``std_error_corrected`` the one
+    corrected for the residuals' autocorrelation (:mod:`uavdyn.identify.uncertainty`): the one
+    to use. ``undetermined`` says why the data do not determine the value (empty: they do) and
+    ``excitation`` what flight data would."""
 
     name: str
     nominal: float
@@ -23,7 +28,20 @@ class Estimate:
     std_error: float
     searched: bool = False
     at_bound: str = ""  # "lower"/"upper" where the estimate ended on a bound of the fit
+    std_error_corrected: float = math.nan
+    undetermined: tuple[str, ...] = ()
+    excitation: str = ""
 
+    @property
+    def determined(self) -> bool:
+        return not self.undetermined and not self.at_bound
+
+    def flags(self) -> list[str]:
+        """Everything that makes the value unreliable, as phrases for the headline."""
+        out = list(self.undetermined)
+        if self.at_bound:
+            out.append(f"the fit ended on its {self.at_bound} bound")
+        return out
 
     @property
     def relative_change(self) -> float:
@@ -48,6 +66,7 @@ class IdentificationResult:
     fit: dict = field(default_factory=dict)
     substeps: int = DEFAULT_SUBSTEPS
     search: list[dict] = field(default_factory=list)
+    diagnostics: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         def number(v: float):
@@ -58,7 +77,10 @@ class IdentificationResult:
             "airframe": self.airframe.name,
             "estimates": [{"name": e.name, "nominal": e.nominal, "value": e.value,
                            "std_error": e.std_error,
+                           "std_error_corrected": number(e.std_error_corrected),
                            "relative_change": number(e.relative_change),
+                           "determined": e.determined, "flags": e.flags(),
+                           **({"excitation": e.excitation} if e.excitation else {}),
                            **({"searched": True} if e.searched else {}),
                            **({"at_bound": e.at_bound} if e.at_bound else {})}
                           for e in self.estimates],
@@ -69,8 +91,11 @@ class IdentificationResult:
             "cost_final": self.cost_final, "iterations": self.iterations,
             "seconds": self.seconds, "window_s": self.window_s, "dt": self.dt,
             "substeps": self.substeps, "search": self.search, "fit": self.fit,
-            "note": "standard errors are Cramer-Rao bounds from the Gauss-Newton Hessian with "
-                    "white residuals assumed; correlated residuals make them optimistic; "
-                    "delays are searched integers (standard error 0 by convention)",
+            "diagnostics": self.diagnostics,
+            "note": "std_error is the Cramer-Rao bound (white residuals assumed; optimistic "
+                    "when the residuals are correlated); std_error_corrected accounts for the "
+                    "residuals' autocorrelation within each window (Morelli and Klein) and is "
+                    "the one to use; delays are searched integers (standard error 0 by "
+                    "convention)",
         }
 

@@ -78,8 +78,8 @@ class Unknowns:
         return p
 
 
-def scaled_unknowns(airframe: Airframe, continuous: list[str], relative_bound: float
-                    ) -> Unknowns:
+def scaled_unknowns(airframe: Airframe, continuous: list[str], relative_bound: float | None,
+                    bounds: dict[str, tuple[float, float]] | None = None) -> Unknowns:
     """The unknowns of the parameters ``continuous``, each scaled by its nominal magnitude (a
     time constant at 0: :data:`TAU_SCALE`; another parameter at 0: 1)."""
     index = [airframe.param_names.index(n) for n in continuous]
@@ -91,7 +91,10 @@ def scaled_unknowns(airframe: Airframe, continuous: list[str], relative_bound: f
     theta = np.zeros(len(continuous))
     guess = TAU_GRID[len(TAU_GRID) // 2]
     theta[from_zero] = guess / TAU_SCALE
-    lo, hi = _theta_bounds(airframe, continuous, p_nom, scale, relative_bound)
+    unknown = sorted(set(bounds or {}) - set(continuous))
+    if unknown:
+        raise IdentifyError(f"bounds given for {unknown}, which are not fitted ({continuous})")
+    lo, hi = _theta_bounds(airframe, continuous, p_nom, scale, relative_bound, bounds or {})
     return Unknowns(index, p_nom, scale, theta, from_zero, lo, hi)
 
 
@@ -105,33 +108,41 @@ def _at_bound(value: float, low: float, high: float) -> str:
 
 
 
-def _bound(airframe: Airframe, name: str) -> tuple[float, float]:
-    """The physical range of a parameter: the schema's bound, a table's value limit, or
+def _bound_of(airframe: Airframe, name: str) -> tuple[float, float, bool, bool]:
+    """The physical range of a parameter ``(low, high, low_open, high_open)``: the schema's
+    bound (its physical meaning and sign convention: a coefficient may take either sign, a
+    time constant is >= 0, a share lies in [0, 1]), a table's value limit, or
     :data:`TAU_BOUNDS` for a time constant."""
     if name in TAU_NAMES:
-        return TAU_BOUNDS
+        return (*TAU_BOUNDS, False, False)
     if name in BOUNDS[airframe.kind]:
         bound = BOUNDS[airframe.kind][name]
-        return bound.low, bound.high
+        return bound.low, bound.high, bound.low_open, bound.high_open
     table = name.split("_table_")[0]
     if table in VALUE_LIMITS:
-        return -VALUE_LIMITS[table], VALUE_LIMITS[table]
-    return -math.inf, math.inf
+        return -VALUE_LIMITS[table], VALUE_LIMITS[table], False, False
+    return -math.inf, math.inf, True, True
 
 
 def _theta_bounds(airframe: Airframe, names: list[str], p_nom: np.ndarray, scale: np.ndarray,
-                  relative_bound: float) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds of the scaled unknowns: within ``(1 +- relative_bound)`` of a nonzero nominal
-    value (sign kept), and always inside the physical range (:func:`_bound`; the only bound for
-    a parameter whose nominal value is 0, such as an unset alpha-dot derivative or lag)."""
+                  relative_bound: float | None, bounds: dict[str, tuple[float, float]]
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of the scaled unknowns: the physical range (:func:`_bound_of`), narrowed by a
+    user's ``bounds[name] = (low, high)`` and, where ``relative_bound`` is given, to
+    ``(1 +- relative_bound)`` of a nonzero nominal value (sign kept)."""
     lo = np.empty(len(names))
     hi = np.empty(len(names))
     for j, name in enumerate(names):
         p0 = p_nom[airframe.param_names.index(name)]
-        low, high = _bound(airframe, name)
-        if p0 != 0:
+        low, high, _, _ = _bound_of(airframe, name)
+        if name in bounds:
+            low, high = max(low, bounds[name][0]), min(high, bounds[name][1])
+            if not low <= p0 <= high:
+                raise IdentifyError(f"the fit of '{name}' starts from its value {p0:g} in the "
+                                    f"airframe file, outside the bounds [{low:g}, {high:g}] "
+                                    "given for it")
+        if relative_bound is not None and p0 != 0:
             low = max(low, p0 - relative_bound * abs(p0))
             high = min(high, p0 + relative_bound * abs(p0))
         lo[j], hi[j] = (low - p0) / scale[j], (high - p0) / scale[j]
     return lo, hi
-
