@@ -81,6 +81,10 @@ def cmd_identify(args: argparse.Namespace) -> int:
     paths = write_outputs(result, nominal, str(args.dataset), command, out, report)
     print(f"identified {len(names)} parameter(s) of '{nominal.name}' on {len(ds.train)} train "
           f"sorties in {result.seconds:.1f} s ({result.iterations} iterations)")
+    left = result.fit.get("left_out")
+    if left:
+        print(f"  left out of the fit: {left['windows']} of {left['of']} windows "
+              f"({', '.join(left['sorties'])}): {left['why']}")
     for e in result.estimates:
         if e.searched:
             print(f"  {e.name:>14} = {int(e.value):12d} samples (searched 0..{max_delay}; "

@@ -166,6 +166,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
                if validation else None,
                "solver_status": outcome.stats.get("return_status", "no continuous parameter"),
                "windows": fit.windows.count, "window_samples": fit.L,
+               **fit.envelope,
                "preroll_samples": fit.problem.M}
     r = outcome.r
     return IdentificationResult(
@@ -199,6 +200,7 @@ class _Fit:
     weights: np.ndarray
     weights_nominal: np.ndarray
     estimate_x0: bool
+    envelope: dict = field(default_factory=dict)
     problem: _Problem | None = None
     data_cache: dict[tuple, np.ndarray] = field(default_factory=dict)
 
@@ -261,14 +263,42 @@ def _time_grid(train: list[Sortie], dt: float | None, substeps: int | None
     return sample_dt, S, stride
 
 
-def _training_windows(train: list[Sortie], L: int, stride: int, max_windows: int | None
-                      ) -> Windows:
-    """The training windows, at most ``max_windows`` evenly spread over the data."""
+def _training_windows(airframe: Airframe, train: list[Sortie], L: int, stride: int,
+                      max_windows: int | None, log: dict) -> Windows:
+    """The training windows inside the model's envelope (:func:`_inside_envelope`), at most
+    ``max_windows`` evenly spread over the data; ``log`` records what was left out."""
     w_train = make_windows(train, L, stride)
+    inside = _inside_envelope(airframe, w_train)
+    if not inside.all():
+        if not inside.any():
+            raise IdentifyError("every training window passes the stall angle (alpha0 = "
+                                f"{math.degrees(airframe.params.alpha0):.1f} deg): the model's "
+                                "quasi-steady aerodynamics cannot be fitted to these data")
+        log["left_out"] = {
+            "windows": int((~inside).sum()), "of": int(w_train.count),
+            "sorties": sorted({w_train.sorties[i].name for i, _ in
+                               np.asarray(w_train.starts)[~inside]}),
+            "why": f"angle of attack past the stall angle alpha0 = "
+                   f"{math.degrees(airframe.params.alpha0):.1f} deg: dynamic stall (lag and "
+                   "hysteresis of the separation) is not in the model and would bias every "
+                   "aerodynamic estimate"}
+        w_train = w_train.subset(np.flatnonzero(inside))
     if max_windows is not None and w_train.count > max_windows:
         keep = np.unique(np.linspace(0, w_train.count - 1, max_windows).round().astype(int))
         w_train = w_train.subset(keep)
     return w_train
+
+
+def _inside_envelope(airframe: Airframe, windows: Windows) -> np.ndarray:
+    """Which windows the model's structure can explain: for a fixed wing, those whose angle of
+    attack stays below its stall angle ``alpha0`` (the quasi-steady model holds; past it, the
+    flow separates with a lag and hysteresis the model does not have). Every multirotor window
+    is inside."""
+    if airframe.kind != "fixed_wing":
+        return np.ones(windows.count, bool)
+    x = np.concatenate([windows.x0[:, None, :], windows.y], axis=1)
+    alpha = np.arctan2(x[..., 1], x[..., 0])
+    return np.max(np.abs(alpha), axis=1) < airframe.params.alpha0
 
 
 def _nominal_weights(airframe: Airframe, windows: Windows, interval: float, substeps: int
@@ -299,13 +329,14 @@ def _prepare(airframe: Airframe, train: list[Sortie], continuous: list[str],
                             f"{sample_dt:g} s, but lags and delays act per log sample: give a "
                             "step that divides the log interval")
     L = max(1, int(round(window_s / interval)))
-    w_train = _training_windows(train, L, stride, max_windows)
+    envelope: dict = {}
+    w_train = _training_windows(airframe, train, L, stride, max_windows, envelope)
     weights = _nominal_weights(airframe, w_train, interval, S)
     unknowns = scaled_unknowns(airframe, continuous, relative_bound, bounds)
     rho_index = airframe.param_names.index("rho") if airframe.atmosphere == "isa" else None
     fit = _Fit(airframe, continuous, searched, structure, w_train, L, interval, S, stride,
                unknowns, rho_index, window_density_ratios(w_train, airframe),
-               measurement_noise(train)[:N_BODY], weights, weights, estimate_x0)
+               measurement_noise(train)[:N_BODY], weights, weights, estimate_x0, envelope)
     # room for a fitted lag PREROLL_GROWTH times the start (extended after the fit if longer:
     # a recompile)
     tau_top = PREROLL_GROWTH * max([0.0, *fit.taus_of(unknowns.theta0)])

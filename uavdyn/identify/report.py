@@ -85,6 +85,10 @@ def provenance(result: IdentificationResult, nominal: Airframe, dataset: str, co
              f"restarted from recorded states, RK4 {result.substeps} x {result.dt:g} s per "
              f"{interval:g} s sample, {result.iterations} Levenberg-Marquardt iterations "
              f"({result.fit['solver_status']})"]
+    left = result.fit.get("left_out")
+    if left:
+        lines.append(f"  left out of the fit: {left['windows']} of {left['of']} windows "
+                     f"({', '.join(left['sorties'])}): {left['why']}")
     if nominal.atmosphere == "isa":
         lines.append("  atmosphere isa: rho is the sea-level density, scaled per sortie by the "
                      "standard atmosphere at its manifest altitude_m")

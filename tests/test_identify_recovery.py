@@ -1,0 +1,44 @@
+"""Recovery with the truth known on a non-preset airframe (examples/trainer.toml) flown closed
+loop by the emulator's autopilot, sensor noise and turbulence on: every parameter is within 3
+corrected standard errors of the value the emulator flew, or flagged as not determined by the
+data. Never a confident wrong value."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from uavdyn.airframes import load_airframe
+from uavdyn.emulation import Recipe, generate_dataset
+from uavdyn.flightdata import load_dataset
+from uavdyn.identify import identify
+
+TRAINER = Path(__file__).resolve().parents[1] / "examples" / "trainer.toml"
+# The pipeline's fixed-wing list without tau_throttle: the emulator's throttle is also rate
+# limited (2/s, its default), which no lag reproduces, so the model structure has no true lag
+# to recover (analysis/identify_recovery.py reports it: 3.6 corrected s.e. from the truth
+# model's 0.1 s on 30 sorties).
+NAMES = ["C_m_alpha", "C_m_q", "C_m_0", "C_m_delta_e", "C_L_alpha", "C_D_0", "tau_elevator",
+         "C_m_alpha_dot"]
+TRUTH_KEYS = {"C_m_alpha_dot": "C_m_alphadot", "tau_elevator": "tau_elevator"}
+
+
+@pytest.mark.slow
+def test_every_parameter_is_recovered_or_flagged(tmp_path):
+    airframe = load_airframe(TRAINER)
+    generate_dataset(Recipe(airframe=str(TRAINER), sorties=14, duration_s=20.0, seed=3,
+                            turbulent_fraction=0.3), tmp_path / "data", progress=False)
+    ds = load_dataset(tmp_path / "data")
+    truth = json.loads((tmp_path / "data" / "manifest.json").read_text())["truth"]
+    result = identify(airframe, ds.train, ds.validation, NAMES, progress=False)
+    wrong = []
+    for e in result.estimates:
+        true = (truth[TRUTH_KEYS[e.name]] if e.name in TRUTH_KEYS
+                else getattr(airframe.params, e.name))
+        distance = abs(e.value - true) / e.std_error_corrected
+        print(f"{e.name}: {e.value:.4g} +- {e.std_error_corrected:.2g} (CR {e.std_error:.2g})"
+              f", truth {true:.4g}, {distance:.2f} s.e., flags {e.flags()}")
+        assert e.std_error_corrected >= e.std_error > 0
+        if e.determined and distance > 3.0:
+            wrong.append((e.name, e.value, true, distance))
+    assert not wrong, wrong
