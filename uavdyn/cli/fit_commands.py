@@ -29,7 +29,8 @@ from uavdyn.cli.common import (
 )
 from uavdyn.flightdata import Sortie, load_dataset
 from uavdyn.identify import identify, write_outputs
-from uavdyn.identify.report import estimate_line
+from uavdyn.identify.report import estimate_line, structure_lines
+from uavdyn.identify.selection import select_structure
 from uavdyn.identify.unknowns import DELAY_PREFIX, control_names
 from uavdyn.integrate import EvalGrid, GridError
 from uavdyn.learned.weights import MAX_MEMORY_FILTERS
@@ -71,14 +72,23 @@ def cmd_identify(args: argparse.Namespace) -> int:
         print("warning: no validation split; the fit is scored on the training sorties only",
               file=sys.stderr)
     max_delay = 5 if args.max_delay is None else args.max_delay
-    result = identify(nominal, ds.train, ds.validation, names, window_s=args.window,
-                      dt=args.dt, max_delay=max_delay, bounds=args.bounds,
-                      progress=not args.quiet)
+    options = {"window_s": args.window, "dt": args.dt, "max_delay": max_delay,
+               "bounds": args.bounds, "progress": not args.quiet}
+    log = None
+    if args.structure == "auto":
+        if not ds.validation:
+            raise CliError(f"--structure auto: {args.dataset} has no validation split (terms "
+                           "are kept only if they predict sorties they were not fitted on)")
+        result, _, log = select_structure(
+            nominal, ds.train, ds.validation, names,
+            say=None if args.quiet else lambda m: print(m, file=sys.stderr), **options)
+    else:
+        result = identify(nominal, ds.train, ds.validation, names, **options)
     report = Path(args.report) if args.report else out.with_name(out.stem + "_report")
     command = "uavdyn " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["identify"] else \
         f"uavdyn identify --airframe {args.airframe} --dataset {args.dataset} --params " \
         f"{args.params} --out {args.out}"
-    paths = write_outputs(result, nominal, str(args.dataset), command, out, report)
+    paths = write_outputs(result, nominal, str(args.dataset), command, out, report, log)
     print(f"identified {len(names)} parameter(s) of '{nominal.name}' on {len(ds.train)} train "
           f"sorties in {result.seconds:.1f} s ({result.iterations} iterations)")
     left = result.fit.get("left_out")
@@ -97,6 +107,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
     print(f"  {len(result.estimates) - len(undetermined)} of {len(result.estimates)} "
           "parameters determined by these data"
           + (f"; flagged: {', '.join(undetermined)}" if undetermined else ""))
+    for line in structure_lines(log) if log else []:
+        print("  " + line)
     for split in ("train", "validation"):
         fit = result.fit.get(split)
         if fit:
@@ -200,6 +212,10 @@ def add_identify(sub) -> None:
                    help="NAME=LOW:HIGH[,...]: narrow a fitted parameter's range (default: its "
                         "physical range by meaning and sign convention, e.g. a coefficient "
                         "of either sign, a time constant >= 0, a share in [0, 1])")
+    p.add_argument("--structure", choices=("given", "auto"), default="given",
+                   help="given (default): fit --params; auto: also try the model's optional "
+                        "terms and a C_m(alpha) table, keeping those that lower the validation "
+                        "1 s pitch error by >= 2 %% (needs a validation split)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_identify)
 

@@ -40,8 +40,9 @@ class _Problem:
     bias the estimates) and its lag states from the pre-roll.
 
     Everything data-dependent (windows, delayed commands, density ratios, weights, noise,
-    ``p_ref``, ``scale``) is an input, so the compiled code depends only on the shape of one
-    window and is reused across delay candidates, window counts and runs (the disk cache)."""
+    ``p_ref``, ``scale``, which parameters are fitted) is an input, so the compiled code
+    depends only on the model structure, the number of unknowns and the shape of the windows,
+    and is reused across delay candidates, parameter choices and runs (the disk cache)."""
 
     def __init__(self, structure: ModelStructure, index: list[int], n_windows: int, L: int,
                  preroll: int, sample_dt: float, substeps: int, rho_index: int | None,
@@ -60,17 +61,14 @@ class _Problem:
         noise, ratio, x0 = ca.MX.sym("noise", N_BODY), ca.MX.sym("ratio"), ca.MX.sym("x0", N_BODY)
         u = ca.MX.sym("u", structure.nu, L)
         v = ca.MX.sym("v", n_lag, preroll)
-        p = p_ref
-        if self.n_theta:
-            delta = ca.MX(n_p, 1)
-            delta[index] = scale * theta
-            p = p + delta
+        select = ca.MX.sym("select", n_p, self.n_theta)  # which entries of p theta moves
+        p = p_ref + ca.mtimes(select, scale * theta) if self.n_theta else p_ref
         start = x0 + dx * noise if estimate_x0 else x0
         args = [p, ratio, start, *([v] if n_lag else []), u]
         y = window(*args)
         unknowns = ca.vertcat(theta, dx) if estimate_x0 else theta
-        inputs = [theta, dx, p_ref, scale, noise, ratio, x0, v, u]
-        names = ["theta", "dx", "p_ref", "scale", "noise", "ratio", "x0", "v", "u"]
+        inputs = [theta, dx, p_ref, scale, select, noise, ratio, x0, v, u]
+        names = ["theta", "dx", "p_ref", "scale", "select", "noise", "ratio", "x0", "v", "u"]
         self._inputs = names
         one = ca.Function("oe_window", inputs, [y], names, ["y"])
         with_jac = ca.Function("oe_window_jac", inputs,
@@ -90,8 +88,11 @@ class _Problem:
         W, L, M = self.W, self.L, self.M
         v = (window_preroll(windows, M, delays, structure.lag_indices).reshape(W * M, -1).T
              if self.n_lag else np.zeros((0, W * M)))
+        select = np.zeros((self.n_p, self.n_theta))
+        select[self.index, np.arange(self.n_theta)] = 1.0
         return {
             "p_ref": np.tile(p_ref[:, None], (1, W)), "scale": np.tile(scale[:, None], (1, W)),
+            "select": np.tile(select, (1, W)),
             "noise": np.tile(noise[:, None], (1, W)), "ratio": ratios[None, :],
             "x0": windows.x0.T, "v": v,
             "u": window_commands(windows, delays).reshape(W * L, -1).T,

@@ -138,15 +138,35 @@ def identified_airframe(result: IdentificationResult, nominal: Airframe, dataset
                                f"data)".strip())
 
 
+def structure_lines(log: list[dict]) -> list[str]:
+    """What ``--structure auto`` tried, its effect and what it kept."""
+    lines = ["structure chosen from the data (uavdyn identify --structure auto): criterion "
+             "validation 1 s pitch RMSE, a term kept when it lowers it by >= 2 %"]
+    for e in log:
+        if "refused" in e:
+            lines.append(f"  {e['step']}: not fitted ({e['refused']})")
+        elif e["step"] == "base":
+            lines.append(f"  base ({', '.join(e['terms'])}): "
+                         f"{e['validation_theta_rmse']:.4g} rad")
+        else:
+            lines.append(f"  {'KEPT' if e['kept'] else 'tried'} {e['step']} ({e['what']}): "
+                         f"{e['validation_theta_rmse']:.4g} rad against {e['against']:.4g}")
+    return lines
+
+
 def write_outputs(result: IdentificationResult, nominal: Airframe, dataset: str, command: str,
-                  out: Path, report_dir: Path) -> dict[str, Path]:
+                  out: Path, report_dir: Path, structure_log: list[dict] | None = None
+                  ) -> dict[str, Path]:
     """Write the airframe file and the report (JSON, PNG) atomically; return their paths."""
     fitted = identified_airframe(result, nominal, dataset, command)
-    write_text_atomic(out, airframe_toml(fitted, provenance(result, nominal, dataset,
-                                                             command)))
+    header = provenance(result, nominal, dataset, command)
+    if structure_log:
+        header += structure_lines(structure_log)
+    write_text_atomic(out, airframe_toml(fitted, header))
     report_dir.mkdir(parents=True, exist_ok=True)
     doc = {"command": "identify", "dataset": dataset, "invocation": command,
-           "airframe_file": str(out), **result.to_dict()}
+           "airframe_file": str(out), **result.to_dict(),
+           **({"structure": structure_log} if structure_log else {})}
     json_path = write_text_atomic(report_dir / "identify.json", json.dumps(doc, indent=2) + "\n")
     png = _plot(result, report_dir / "identify.png")
     return {"airframe": out, "json": json_path, "png": png}
