@@ -102,13 +102,49 @@ def test_collinearity_names_the_pair_the_data_cannot_separate():
 
 @pytest.mark.parametrize("value, expected", [(1.0000000089, 1.0), (-1e-12, 0.0), (0.4, 0.4)])
 def test_an_estimate_is_projected_onto_its_physical_bounds(f450, value, expected):
-    from uavdyn.identify.output_error import _inside
+    from uavdyn.identify.unknowns import project_inside as _inside
 
     assert _inside(f450, "pitch_mix", value) == expected  # a share: [0, 1], both closed
 
 
 def test_an_open_bound_is_projected_just_inside(f450):
-    from uavdyn.identify.output_error import _inside
+    from uavdyn.identify.unknowns import project_inside as _inside
 
     inside = _inside(f450, "c_T", 0.0)  # a thrust coefficient: > 0
     assert 0.0 < inside < 1e-300
+
+
+def _result_with(estimates):
+    from uavdyn.identify.result import IdentificationResult
+
+    return IdentificationResult(airframe=None, estimates=list(estimates),
+                                correlation=np.eye(len(estimates)), flagged_pairs=[],
+                                state_sigma=np.ones(4), cost_initial=1.0, cost_final=1.0,
+                                iterations=1, seconds=0.0, window_s=1.0, dt=0.005)
+
+
+def test_halves_that_disagree_flag_the_parameter_and_widen_its_error():
+    """Two halves whose estimates differ by more than twice their combined errors: flagged
+    as a structure error, the corrected error at least half the difference; halves that
+    agree only floor the error at their inverse-variance combination."""
+    from uavdyn.identify.consistency import compare_halves
+    from uavdyn.identify.result import Estimate
+
+    full = [Estimate("a", 1.0, 2.0, 0.01, std_error_corrected=0.02),
+            Estimate("b", 1.0, 3.0, 0.01, std_error_corrected=0.02)]
+    halves = iter([[Estimate("a", 0, 1.0, 0.01, std_error_corrected=0.1),
+                    Estimate("b", 0, 3.0, 0.01, std_error_corrected=0.3)],
+                   [Estimate("a", 0, 3.0, 0.01, std_error_corrected=0.1),
+                    Estimate("b", 0, 3.1, 0.01, std_error_corrected=0.4)]])
+
+    def fake_identify(airframe, sorties, validation, names, **options):
+        return _result_with(next(halves))
+
+    result = _result_with(full)
+    compare_halves(fake_identify, result, list(range(6)), ["a", "b"], 10, {})
+    a, b = result.estimates
+    assert not a.determined and "disagree" in a.flags()[0]
+    assert a.std_error_corrected == pytest.approx(1.0)  # half of |1 - 3|
+    assert b.determined
+    assert b.std_error_corrected == pytest.approx(1 / math.sqrt(1 / 0.3**2 + 1 / 0.4**2))
+    assert result.diagnostics["halves"]["b"] == {"first": [3.0, 0.3], "second": [3.1, 0.4]}

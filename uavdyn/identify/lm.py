@@ -19,7 +19,7 @@ import numpy as np
 
 GRADIENT_TOL = 1e-9      # projected gradient, relative to the cost's scale (1 + cost)
 STEP_TOL = 1e-10         # step, relative to 1 + |z|
-COST_TOL = 1e-14         # relative cost decrease of an accepted step
+COST_TOL = 1e-10         # relative cost decrease of an accepted step
 MU_START = 1e-4
 MU_MIN, MU_MAX = 1e-12, 1e12
 

@@ -38,12 +38,13 @@ import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
+from uavdyn.identify.consistency import compare_halves
 from uavdyn.identify.errors import IdentifyError
 from uavdyn.identify.excitation import excitation_for
 from uavdyn.identify.problem import COMPILE_FLAGS, _Problem
 from uavdyn.identify.result import DEFAULT_SUBSTEPS, Estimate, IdentificationResult
 from uavdyn.identify.search import RECHECK_STEPS, SEARCH_ROUNDS, _recheck_delays, _search
-from uavdyn.identify.uncertainty import SPANS_ZERO, estimate_uncertainty
+from uavdyn.identify.uncertainty import estimate_uncertainty, undetermined
 from uavdyn.identify.unknowns import (
     DELAY_PREFIX,
     TAU_BOUNDS,
@@ -52,14 +53,16 @@ from uavdyn.identify.unknowns import (
     TAU_SCALE,
     Unknowns,
     _at_bound,
-    _bound_of,
     _check_request,
     control_names,
+    project_inside,
     scaled_unknowns,
 )
 from uavdyn.identify.windows import (
     N_BODY,
     Windows,
+    fit_summary,
+    inside_envelope,
     make_windows,
     physics_windows,
     window_density_ratios,
@@ -79,6 +82,7 @@ CORRELATION_FLAG = 0.9
 PREROLL_TAUS = 8.0       # the lag pre-roll covers this many time constants (exp(-8) = 3e-4) ...
 PREROLL_MIN_S = 1.0      # ... and at least this long
 PREROLL_GROWTH = 4.0     # the first pre-roll covers lags up to this many times their start
+HALF_ITERATIONS = 30     # the halves start from the whole fit: a few steps move them
 REWEIGHT_PASSES = 1      # refits with each state weighted by its residual after the fit ...
 REWEIGHT_FLOOR = 1e-3    # ... down to this fraction of the nominal model's residual
 
@@ -98,7 +102,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
              relative_bound: float | None = None,
              bounds: dict[str, tuple[float, float]] | None = None, max_iterations: int = 60,
              estimate_x0: bool = True, max_windows: int | None = 120, max_delay: int = 5,
-             substeps: int | None = None, progress: bool = True) -> IdentificationResult:
+             substeps: int | None = None, progress: bool = True,
+             check_halves: bool = True) -> IdentificationResult:
     """Fit the parameters ``names`` of ``airframe`` to ``train`` sorties by output error.
 
     Parameters
@@ -138,6 +143,11 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         RK steps per log sample (default 2; ``dt`` overrides it).
     progress : bool
         Show a progress bar over the solver iterations.
+    check_halves : bool
+        With four or more training sorties, also fit each half of them (alternate sorties,
+        :func:`uavdyn.identify.consistency.compare_halves`): a parameter the halves disagree on
+        beyond their standard errors is flagged, and its corrected standard error is at least
+        half the difference.
 
     Returns
     -------
@@ -159,9 +169,9 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         fit.problem.close()
     fitted, estimates, corr, flagged, sigma_w, diagnostics = _estimates(fit, outcome, names,
                                                                         max_delay)
-    summary = {"train": _fit_summary(airframe, fitted, train, fit.interval, fit.substeps,
+    summary = {"train": fit_summary(airframe, fitted, train, fit.interval, fit.substeps,
                                      fit.L, fit.stride),
-               "validation": _fit_summary(airframe, fitted, validation, fit.interval,
+               "validation": fit_summary(airframe, fitted, validation, fit.interval,
                                           fit.substeps, fit.L, fit.stride)
                if validation else None,
                "solver_status": outcome.stats.get("return_status", "no continuous parameter"),
@@ -169,13 +179,21 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
                **fit.envelope,
                "preroll_samples": fit.problem.M}
     r = outcome.r
-    return IdentificationResult(
+    result = IdentificationResult(
         airframe=fitted, estimates=estimates, correlation=corr, flagged_pairs=flagged,
         state_sigma=1.0 / fit.weights * sigma_w, cost_initial=outcome.cost_initial,
         cost_final=0.5 * float(r @ r), iterations=outcome.iterations,
         seconds=time.perf_counter() - t_start, window_s=fit.L * fit.interval,
         dt=fit.interval / fit.substeps, fit=summary, substeps=fit.substeps,
         search=outcome.log, diagnostics=diagnostics)
+    if check_halves and continuous and len(train) >= 4:
+        compare_halves(identify, result, train, continuous, max(1, fit.windows.count // 2),
+                      {"window_s": window_s, "dt": dt, "bounds": bounds,
+                       "max_iterations": min(max_iterations, HALF_ITERATIONS),
+                       "estimate_x0": estimate_x0,
+                       "substeps": substeps, "progress": False, "check_halves": False})
+        result.seconds = time.perf_counter() - t_start
+    return result
 
 
 @dataclass
@@ -265,10 +283,10 @@ def _time_grid(train: list[Sortie], dt: float | None, substeps: int | None
 
 def _training_windows(airframe: Airframe, train: list[Sortie], L: int, stride: int,
                       max_windows: int | None, log: dict) -> Windows:
-    """The training windows inside the model's envelope (:func:`_inside_envelope`), at most
+    """The training windows inside the model's envelope (:func:`inside_envelope`), at most
     ``max_windows`` evenly spread over the data; ``log`` records what was left out."""
     w_train = make_windows(train, L, stride)
-    inside = _inside_envelope(airframe, w_train)
+    inside = inside_envelope(airframe, w_train)
     if not inside.all():
         if not inside.any():
             raise IdentifyError("every training window passes the stall angle (alpha0 = "
@@ -287,18 +305,6 @@ def _training_windows(airframe: Airframe, train: list[Sortie], L: int, stride: i
         keep = np.unique(np.linspace(0, w_train.count - 1, max_windows).round().astype(int))
         w_train = w_train.subset(keep)
     return w_train
-
-
-def _inside_envelope(airframe: Airframe, windows: Windows) -> np.ndarray:
-    """Which windows the model's structure can explain: for a fixed wing, those whose angle of
-    attack stays below its stall angle ``alpha0`` (the quasi-steady model holds; past it, the
-    flow separates with a lag and hysteresis the model does not have). Every multirotor window
-    is inside."""
-    if airframe.kind != "fixed_wing":
-        return np.ones(windows.count, bool)
-    x = np.concatenate([windows.x0[:, None, :], windows.y], axis=1)
-    alpha = np.arctan2(x[..., 1], x[..., 0])
-    return np.max(np.abs(alpha), axis=1) < airframe.params.alpha0
 
 
 def _nominal_weights(airframe: Airframe, windows: Windows, interval: float, substeps: int
@@ -444,7 +450,8 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int
                for i, j in combinations(range(len(continuous)), 2)
                if abs(corr[i, j]) >= CORRELATION_FLAG]
     p_fit = fit.unknowns.p_of(theta)
-    p_fit[u.index] = [_inside(fit.airframe, n, v) for n, v in zip(continuous, p_fit[u.index])]
+    p_fit[u.index] = [project_inside(fit.airframe, n, v)
+                      for n, v in zip(continuous, p_fit[u.index])]
     fitted = fit.airframe.replace(**{n: float(p_fit[i]) for n, i in zip(continuous, u.index)})
     delays = outcome.delays
     if fit.searched:
@@ -452,7 +459,7 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int
     groups = [[continuous[j] for j in g] for g in (unc.collinear_groups if unc else [])]
     by_name = {}
     for j, (n, i) in enumerate(zip(continuous, u.index)):
-        why, group = _undetermined(n, float(p_fit[i]), float(std_c[j]), groups)
+        why, group = undetermined(n, float(p_fit[i]), float(std_c[j]), groups)
         by_name[n] = Estimate(n, float(u.p_nom[i]), float(p_fit[i]), float(std[j]),
                               at_bound=_at_bound(theta[j], u.lo[j], u.hi[j]),
                               std_error_corrected=float(std_c[j]), undetermined=why,
@@ -475,33 +482,11 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int
     return fitted, [by_name[n] for n in names], corr, flagged, sigma_w, diagnostics
 
 
-def _undetermined(name: str, value: float, std_c: float, groups: list[list[str]]
-                  ) -> tuple[tuple[str, ...], list[str]]:
-    """Why the data do not determine a parameter (its corrected interval spans zero; it is in
-    a collinear group), and the group."""
-    why = []
-    if abs(value) < SPANS_ZERO * std_c:
-        why.append(f"its +-{SPANS_ZERO:g} corrected standard-error interval spans zero")
-    group = next((g for g in groups if name in g), [])
-    if group:
-        why.append(f"collinear with {', '.join(g for g in group if g != name)} (these data "
-                   "cannot separate them)")
-    return tuple(why), group
-
-
-def _inside(airframe: Airframe, name: str, value: float) -> float:
-    """``value`` projected into the parameter's physical range (an open bound: just inside),
-    so a fit overshooting a bound by round-off still writes its file."""
-    low, high, low_open, high_open = _bound_of(airframe, name)
-    if value <= low:
-        value = np.nextafter(low, math.inf) if low_open else low
-    if value >= high:
-        value = np.nextafter(high, -math.inf) if high_open else high
-    return float(value)
-
-
 def _preroll_samples(tau: float, interval: float) -> int:
-    return int(math.ceil(max(PREROLL_MIN_S, PREROLL_TAUS * tau) / interval))
+    """Samples of lag pre-roll for a time constant ``tau``, rounded up to a power of two (a
+    few lengths only: each is a compiled library)."""
+    need = math.ceil(max(PREROLL_MIN_S, PREROLL_TAUS * tau) / interval)
+    return 1 << (int(need) - 1).bit_length()
 
 
 def _check_excitation(problem: _Problem, names: list[str], z: np.ndarray, data: np.ndarray
@@ -518,23 +503,3 @@ def _check_excitation(problem: _Problem, names: list[str], z: np.ndarray, data: 
                             "effect on the predicted states is zero")
 
 
-def _fit_summary(nominal: Airframe, fitted: Airframe, sorties: list[Sortie], interval: float,
-                 substeps: int, L: int, stride: int) -> dict:
-    """Pitch RMSE over the windows of each sortie, nominal vs fitted airframe (each with its
-    own discrete step: lags, delays and sortie densities included)."""
-    per = []
-    for s in sorties:
-        try:
-            w = make_windows([s], L, stride)
-        except IdentifyError:
-            continue  # a sortie shorter than one window
-        row = {"sortie": s.name, "condition": s.meta.get("condition", "")}
-        for label, af in (("nominal", nominal), ("identified", fitted)):
-            err = physics_windows(af, w, interval, substeps)[..., 3] - w.y[..., 3]
-            with np.errstate(all="ignore"):
-                value = float(np.sqrt(np.mean(err**2)))
-            row[f"theta_rmse_{label}"] = value if math.isfinite(value) else math.inf
-        per.append(row)
-    pooled = {label: float(np.sqrt(np.mean([r[f"theta_rmse_{label}"] ** 2 for r in per])))
-              if per else math.nan for label in ("nominal", "identified")}
-    return {"per_sortie": per, "theta_rmse": pooled}

@@ -30,6 +30,8 @@ from uavdyn.model import ModelStructure
 
 COMPILE_FLAGS = ("-O1", "-fPIC", "-shared")  # -O1: as fast as -O3 here, compiles faster
 MAP_THREADS = 2
+CHUNK = 32  # windows per call of the mapped Function (the last chunk padded): one library
+            # serves any number of windows
 
 
 class _Problem:
@@ -73,9 +75,11 @@ class _Problem:
         one = ca.Function("oe_window", inputs, [y], names, ["y"])
         with_jac = ca.Function("oe_window_jac", inputs,
                                [y, ca.jacobian(ca.vec(y), unknowns)], names, ["y", "dy"])
-        self.predict = compile_function(one.map(n_windows, "thread", MAP_THREADS),
+        self.n_chunks = -(-n_windows // CHUNK)
+        self._widths = {n: one.size2_in(i) for i, n in enumerate(names)}
+        self.predict = compile_function(one.map(CHUNK, "thread", MAP_THREADS),
                                         flags=COMPILE_FLAGS, warn=False)
-        self.sensitivities = compile_function(with_jac.map(n_windows, "thread", MAP_THREADS),
+        self.sensitivities = compile_function(with_jac.map(CHUNK, "thread", MAP_THREADS),
                                               flags=COMPILE_FLAGS, warn=False)
         self._prior = sp.hstack([sp.csr_matrix((self.n_dx, self.n_theta)),
                                  sp.identity(self.n_dx, format="csr")]).tocsr()
@@ -90,25 +94,47 @@ class _Problem:
              if self.n_lag else np.zeros((0, W * M)))
         select = np.zeros((self.n_p, self.n_theta))
         select[self.index, np.arange(self.n_theta)] = 1.0
-        return {
+        per_window = {
             "p_ref": np.tile(p_ref[:, None], (1, W)), "scale": np.tile(scale[:, None], (1, W)),
             "select": np.tile(select, (1, W)),
             "noise": np.tile(noise[:, None], (1, W)), "ratio": ratios[None, :],
             "x0": windows.x0.T, "v": v,
-            "u": window_commands(windows, delays).reshape(W * L, -1).T,
-            "y": windows.y.reshape(W * L, -1).T, "weights": np.asarray(weights, float)}
+            "u": window_commands(windows, delays).reshape(W * L, -1).T}
+        padded = {k: self._pad(a, self._widths[k]) for k, a in per_window.items()}
+        return {**padded, "y": windows.y.reshape(W * L, -1).T,
+                "weights": np.asarray(weights, float)}
 
-    def _args(self, z: np.ndarray, data: dict) -> dict:
-        W = self.W
-        theta = np.tile(z[:self.n_theta, None], (1, W))
-        dx = (z[self.n_theta:].reshape(W, N_BODY).T if self.estimate_x0
-              else np.zeros((N_BODY, W)))
-        return {"theta": theta, "dx": dx, **{k: data[k] for k in self._inputs[2:]}}
+    def _pad(self, a: np.ndarray, width: int) -> np.ndarray:
+        """Column blocks of ``width`` per window, the last window repeated up to whole
+        chunks."""
+        extra = self.n_chunks * CHUNK - self.W
+        if not extra or not a.size:
+            return a if a.size else np.zeros((a.shape[0], self.n_chunks * CHUNK * width))
+        return np.hstack([a, np.tile(a[:, -width:], (1, extra))])
+
+    def _call(self, func: ca.Function, z: np.ndarray, data: dict) -> dict[str, np.ndarray]:
+        """``func`` (mapped over a chunk) over every chunk; outputs of the real windows."""
+        theta = np.tile(z[:self.n_theta, None], (1, self.W))
+        dx = (z[self.n_theta:].reshape(self.W, N_BODY).T if self.estimate_x0
+              else np.zeros((N_BODY, self.W)))
+        args = {"theta": self._pad(theta, 1), "dx": self._pad(dx, 1),
+                **{k: data[k] for k in self._inputs[2:]}}
+        outs: dict[str, list] = {}
+        for c in range(self.n_chunks):
+            part = {k: a[:, c * CHUNK * self._widths[k]:(c + 1) * CHUNK * self._widths[k]]
+                    for k, a in args.items()}
+            for name, value in func(**part).items():
+                outs.setdefault(name, []).append(value.full())
+        result = {}
+        for name, blocks in outs.items():
+            full = np.hstack(blocks)
+            result[name] = full[:, :full.shape[1] // (self.n_chunks * CHUNK) * self.W]
+        return result
 
     def residual(self, z: np.ndarray, data: dict) -> np.ndarray:
         """The weighted residual: ``(predicted - recorded) * weights`` (sample-major, the body
         states per sample, window after window), then the start-state prior ``dx``."""
-        pred = self.predict(**self._args(z, data))["y"].full()
+        pred = self._call(self.predict, z, data)["y"]
         r = ((pred - data["y"]) * data["weights"][:, None]).ravel(order="F")
         return np.concatenate([r, z[self.n_theta:]])
 
@@ -120,8 +146,8 @@ class _Problem:
 
     def evaluate(self, z: np.ndarray, data: dict):
         """Residual (dense) and Jacobian (SciPy sparse, CSR) at ``z``."""
-        out = self.sensitivities(**self._args(z, data))
-        pred, dy = out["y"].full(), out["dy"].full()
+        out = self._call(self.sensitivities, z, data)
+        pred, dy = out["y"], out["dy"]
         w = data["weights"]
         r = np.concatenate([((pred - data["y"]) * w[:, None]).ravel(order="F"),
                             z[self.n_theta:]])

@@ -80,11 +80,10 @@ def candidates_for(airframe: Airframe, names: list[str], sorties: list[Sortie]
     if airframe.kind == "fixed_wing" and "C_m" not in airframe.tables:
         alpha = np.concatenate([np.arctan2(s.states[:, 1], s.states[:, 0]) for s in sorties])
         alpha = alpha[np.abs(alpha) < airframe.params.alpha0]
-        if alpha.size:
-            lo, hi = np.percentile(alpha, [1, 99])
-            points = tuple(float(a) for a in np.linspace(lo, hi, TABLE_POINTS))
-            if hi - lo > 1e-3:
-                out.append(_moment_table(airframe, points))
+        if alpha.size and np.ptp(alpha) > 1e-3:  # the whole range flown: held beyond it
+            points = tuple(float(a) for a in np.linspace(alpha.min(), alpha.max(),
+                                                         TABLE_POINTS))
+            out.append(_moment_table(airframe, points))
     return out
 
 

@@ -229,3 +229,22 @@ def collinearity(M: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[list[int]]
         if index[k] > CONDITION_FLAG and len(members) >= 2:
             groups.append(members)
     return index, proportions, groups
+
+
+def zero_spanned(value: float, std_c: float) -> str:
+    """Why an estimate is not distinguishable from zero (empty when it is)."""
+    if abs(value) < SPANS_ZERO * std_c:
+        return f"its +-{SPANS_ZERO:g} corrected standard-error interval spans zero"
+    return ""
+
+
+def undetermined(name: str, value: float, std_c: float, groups: list[list[str]]
+                  ) -> tuple[tuple[str, ...], list[str]]:
+    """Why the data do not determine a parameter (its corrected interval spans zero; it is in
+    a collinear group), and the group."""
+    why = [zero_spanned(value, std_c)] if zero_spanned(value, std_c) else []
+    group = next((g for g in groups if name in g), [])
+    if group:
+        why.append(f"collinear with {', '.join(g for g in group if g != name)} (these data "
+                   "cannot separate them)")
+    return tuple(why), group

@@ -146,3 +146,14 @@ def _theta_bounds(airframe: Airframe, names: list[str], p_nom: np.ndarray, scale
             high = min(high, p0 + relative_bound * abs(p0))
         lo[j], hi[j] = (low - p0) / scale[j], (high - p0) / scale[j]
     return lo, hi
+
+
+def project_inside(airframe: Airframe, name: str, value: float) -> float:
+    """``value`` projected into the parameter's physical range (an open bound: just inside),
+    so a fit overshooting a bound by round-off still writes its file."""
+    low, high, low_open, high_open = _bound_of(airframe, name)
+    if value <= low:
+        value = np.nextafter(low, math.inf) if low_open else low
+    if value >= high:
+        value = np.nextafter(high, -math.inf) if high_open else high
+    return float(value)

@@ -11,6 +11,8 @@ the window (:func:`window_preroll`), symbolically where the time constant is bei
 
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 import numpy as np
 
@@ -168,3 +170,37 @@ def window_function(step: ca.Function, n_p: int, tau_indices, rho_index: int | N
                          "structure must not reach the fitting graph: delays are data here)")
     y = rollout(step, length)(z0, u, pw, sample_dt)[:N_BODY, :]
     return ca.Function("window", [*inputs, u], [y], [*names, "u"], ["y"])
+
+
+def inside_envelope(airframe: Airframe, windows: Windows) -> np.ndarray:
+    """Which windows the model's structure can explain: for a fixed wing, those whose angle of
+    attack stays below its stall angle ``alpha0`` (the quasi-steady model holds; past it, the
+    flow separates with a lag and hysteresis the model does not have). Every multirotor window
+    is inside."""
+    if airframe.kind != "fixed_wing":
+        return np.ones(windows.count, bool)
+    x = np.concatenate([windows.x0[:, None, :], windows.y], axis=1)
+    alpha = np.arctan2(x[..., 1], x[..., 0])
+    return np.max(np.abs(alpha), axis=1) < airframe.params.alpha0
+
+
+def fit_summary(nominal: Airframe, fitted: Airframe, sorties: list[Sortie], interval: float,
+                 substeps: int, L: int, stride: int) -> dict:
+    """Pitch RMSE over the windows of each sortie, nominal vs fitted airframe (each with its
+    own discrete step: lags, delays and sortie densities included)."""
+    per = []
+    for s in sorties:
+        try:
+            w = make_windows([s], L, stride)
+        except IdentifyError:
+            continue  # a sortie shorter than one window
+        row = {"sortie": s.name, "condition": s.meta.get("condition", "")}
+        for label, af in (("nominal", nominal), ("identified", fitted)):
+            err = physics_windows(af, w, interval, substeps)[..., 3] - w.y[..., 3]
+            with np.errstate(all="ignore"):
+                value = float(np.sqrt(np.mean(err**2)))
+            row[f"theta_rmse_{label}"] = value if math.isfinite(value) else math.inf
+        per.append(row)
+    pooled = {label: float(np.sqrt(np.mean([r[f"theta_rmse_{label}"] ** 2 for r in per])))
+              if per else math.nan for label in ("nominal", "identified")}
+    return {"per_sortie": per, "theta_rmse": pooled}
