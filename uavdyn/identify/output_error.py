@@ -41,7 +41,7 @@ from uavdyn.flightdata import Sortie
 from uavdyn.identify.consistency import compare_halves
 from uavdyn.identify.errors import IdentifyError
 from uavdyn.identify.excitation import excitation_for
-from uavdyn.identify.problem import COMPILE_FLAGS, _Problem
+from uavdyn.identify.problem import COMPILE_FLAGS, _check_excitation, _Problem
 from uavdyn.identify.result import DEFAULT_SUBSTEPS, Estimate, IdentificationResult
 from uavdyn.identify.search import RECHECK_STEPS, SEARCH_ROUNDS, _recheck_delays, _search
 from uavdyn.identify.uncertainty import estimate_uncertainty, undetermined
@@ -103,7 +103,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
              bounds: dict[str, tuple[float, float]] | None = None, max_iterations: int = 60,
              estimate_x0: bool = True, max_windows: int | None = 120, max_delay: int = 5,
              substeps: int | None = None, progress: bool = True,
-             check_halves: bool = True) -> IdentificationResult:
+             check_halves: bool = True, preroll: int | None = None) -> IdentificationResult:
     """Fit the parameters ``names`` of ``airframe`` to ``train`` sorties by output error.
 
     Parameters
@@ -148,6 +148,9 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         :func:`uavdyn.identify.consistency.compare_halves`): a parameter the halves disagree on
         beyond their standard errors is flagged, and its corrected standard error is at least
         half the difference.
+    preroll : int, optional
+        Samples of lag pre-roll before each window (default: enough for the time constants,
+        with room to grow); never shorter than the lags need.
 
     Returns
     -------
@@ -162,7 +165,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     t_start = time.perf_counter()
     continuous, searched = _check_request(airframe, names, train, max_delay)
     fit = _prepare(airframe, train, continuous, searched, window_s, dt, substeps,
-                   max_windows, relative_bound, bounds, estimate_x0)
+                   max_windows, relative_bound, bounds, estimate_x0, preroll)
     try:
         outcome = _solve(fit, max_delay, max_iterations, progress)
     finally:
@@ -191,7 +194,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
                       {"window_s": window_s, "dt": dt, "bounds": bounds,
                        "max_iterations": min(max_iterations, HALF_ITERATIONS),
                        "estimate_x0": estimate_x0,
-                       "substeps": substeps, "progress": False, "check_halves": False})
+                       "substeps": substeps, "progress": False, "check_halves": False,
+                       "preroll": fit.problem.M or None})
         result.seconds = time.perf_counter() - t_start
     return result
 
@@ -321,7 +325,8 @@ def _nominal_weights(airframe: Airframe, windows: Windows, interval: float, subs
 def _prepare(airframe: Airframe, train: list[Sortie], continuous: list[str],
              searched: list[str], window_s: float, dt: float | None, substeps: int | None,
              max_windows: int | None, relative_bound: float | None,
-             bounds: dict[str, tuple[float, float]] | None, estimate_x0: bool) -> _Fit:
+             bounds: dict[str, tuple[float, float]] | None, estimate_x0: bool,
+             preroll: int | None = None) -> _Fit:
     """Everything the fit needs before its first solve, ending with the compiled problem."""
     sample_dt, S, stride = _time_grid(train, dt, substeps)
     interval = stride * sample_dt
@@ -346,7 +351,10 @@ def _prepare(airframe: Airframe, train: list[Sortie], continuous: list[str],
     # room for a fitted lag PREROLL_GROWTH times the start (extended after the fit if longer:
     # a recompile)
     tau_top = PREROLL_GROWTH * max([0.0, *fit.taus_of(unknowns.theta0)])
-    fit.new_problem(_preroll_samples(tau_top, interval) if structure.n_actuator else 0)
+    if preroll is not None:  # the caller's length, where it covers the starting lags
+        tau_top /= PREROLL_GROWTH
+    need = _preroll_samples(tau_top, interval)
+    fit.new_problem(max(need, preroll or 0) if structure.n_actuator else 0)
     return fit
 
 
@@ -487,19 +495,5 @@ def _preroll_samples(tau: float, interval: float) -> int:
     few lengths only: each is a compiled library)."""
     need = math.ceil(max(PREROLL_MIN_S, PREROLL_TAUS * tau) / interval)
     return 1 << (int(need) - 1).bit_length()
-
-
-def _check_excitation(problem: _Problem, names: list[str], z: np.ndarray, data: np.ndarray
-                      ) -> None:
-    """Refuse parameters whose column of the Jacobian is (numerically) zero at the start."""
-    r0, J0 = problem.evaluate(z, data)
-    Jt = J0[:, :problem.n_theta]
-    col = np.sqrt(np.asarray(Jt.multiply(Jt).sum(axis=0))).ravel()
-    # a 100 % change moving the weighted residuals by < 1e-6 (RMS, in units of the nominal
-    # model's error) is no excitation at all
-    dead = [n for n, c in zip(names, col) if not c / math.sqrt(J0.shape[0]) > 1e-6]
-    if dead:
-        raise IdentifyError(f"the training data do not excite parameter(s) {dead}: their "
-                            "effect on the predicted states is zero")
 
 

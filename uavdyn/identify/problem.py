@@ -16,6 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 from tqdm import tqdm
 
+from uavdyn.identify.errors import IdentifyError
 from uavdyn.identify.lm import solve_bounded
 from uavdyn.identify.windows import (
     N_BODY,
@@ -182,3 +183,15 @@ class _Problem:
         """Nothing to release (kept for the callers' symmetry)."""
 
 
+def _check_excitation(problem: _Problem, names: list[str], z: np.ndarray, data: np.ndarray
+                      ) -> None:
+    """Refuse parameters whose column of the Jacobian is (numerically) zero at the start."""
+    r0, J0 = problem.evaluate(z, data)
+    Jt = J0[:, :problem.n_theta]
+    col = np.sqrt(np.asarray(Jt.multiply(Jt).sum(axis=0))).ravel()
+    # a 100 % change moving the weighted residuals by < 1e-6 (RMS, in units of the nominal
+    # model's error) is no excitation at all
+    dead = [n for n, c in zip(names, col) if not c / math.sqrt(J0.shape[0]) > 1e-6]
+    if dead:
+        raise IdentifyError(f"the training data do not excite parameter(s) {dead}: their "
+                            "effect on the predicted states is zero")

@@ -132,6 +132,8 @@ def select_structure(airframe: Airframe, train: list[Sortie], validation: list[S
                             "'validation'): terms are kept only if they predict data they "
                             "were not fitted on")
     say = say or (lambda _msg: None)
+    halves = options.pop("check_halves", True)
+    options["check_halves"] = False  # the candidates are compared on validation data
     say(f"structure: fitting the base ({', '.join(names)})")
     best = identify(airframe, train, validation, names, **options)
     start, current, score = airframe, list(names), validation_error(best)
@@ -162,4 +164,7 @@ def select_structure(airframe: Airframe, train: list[Sortie], validation: list[S
         start, current, score, best = af, trial_names, value, res
         remaining = [c for c in remaining if c is not cand]
         say(f"structure: kept {cand.name} (validation 1 s pitch RMSE {value:.4g} rad)")
+    if halves:  # the chosen structure's final fit, with the consistency check
+        say("structure: final fit of the chosen structure")
+        best = identify(start, train, validation, current, **{**options, "check_halves": True})
     return best, start, log
