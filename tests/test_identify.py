@@ -174,7 +174,8 @@ def test_structure_selection_keeps_the_term_the_truth_has(aerosonde):
     from uavdyn.identify.selection import select_structure
 
     truth = aerosonde.replace(C_m_alpha_dot=-8.0)
-    train, validation = _sorties(truth, 3, 11, noise=0.2), _sorties(truth, 2, 12, noise=0.2)
+    train = _sorties(truth, 3, 11, duration=8.0, noise=0.2)
+    validation = _sorties(truth, 1, 12, duration=8.0, noise=0.2)
     result, start, log = select_structure(aerosonde, train, validation,
                                           ["C_m_alpha", "C_m_q"], progress=False)
     kept = [e["step"] for e in log if e["kept"] and e["step"] != "base"]

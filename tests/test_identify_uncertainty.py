@@ -51,13 +51,13 @@ def test_white_residuals_give_the_cramer_rao_bound():
 
 def test_coloured_residuals_corrected_error_matches_the_monte_carlo_spread():
     """Least squares on data with AR(1) noise (phi 0.9, correlation time ~10 samples):
-    the spread of the estimates over 300 noise draws against both standard errors."""
+    the spread of the estimates over 200 noise draws against both standard errors."""
     rng = np.random.default_rng(2)
     W, L, phi = 20, 100, 0.9
     A = _regressors(W, L)
     pinv = np.linalg.pinv(A)
     estimates, cr, corrected = [], [], []
-    for _ in range(300):
+    for _ in range(200):
         noise = 0.1 * _ar1(rng, W, L, phi)
         theta = pinv @ noise  # the LS estimate's deviation from the truth
         r = noise - A @ theta
