@@ -166,10 +166,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     continuous, searched = _check_request(airframe, names, train, max_delay)
     fit = _prepare(airframe, train, continuous, searched, window_s, dt, substeps,
                    max_windows, relative_bound, bounds, estimate_x0, preroll)
-    try:
-        outcome = _solve(fit, max_delay, max_iterations, progress)
-    finally:
-        fit.problem.close()
+    outcome = _solve(fit, max_delay, max_iterations, progress)
     fitted, estimates, corr, flagged, sigma_w, diagnostics = _estimates(fit, outcome, names,
                                                                         max_delay)
     summary = {"train": fit_summary(airframe, fitted, train, fit.interval, fit.substeps,
@@ -410,7 +407,6 @@ def _fit_and_recheck(fit: _Fit, z: np.ndarray, delays: list[int], lower: np.ndar
         if fit.structure.n_actuator:  # the pre-roll must cover the fitted lags
             need = _preroll_samples(max(fit.taus_of(z[:fit.problem.n_theta])), fit.interval)
             if need > fit.problem.M:
-                fit.problem.close()
                 fit.new_problem(need)
                 log.append({"step": "pre-roll extended", "samples": need})
                 continue

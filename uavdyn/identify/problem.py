@@ -179,9 +179,6 @@ class _Problem:
                 bar.close()
         return out.z, {"iter_count": out.iterations, "return_status": out.status}
 
-    def close(self) -> None:
-        """Nothing to release (kept for the callers' symmetry)."""
-
 
 def _check_excitation(problem: _Problem, names: list[str], z: np.ndarray, data: np.ndarray
                       ) -> None:

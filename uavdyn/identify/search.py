@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from uavdyn.identify.errors import IdentifyError
+from uavdyn.identify.lm import solve_bounded
 from uavdyn.identify.problem import _Problem
 from uavdyn.identify.unknowns import DELAY_PREFIX, TAU_GRID
 
@@ -81,7 +82,7 @@ def _recheck_delays(problem: _Problem, data_for, z: np.ndarray, cost: float, del
                 for j, unit in lag_shift.get(c, ()):
                     start[j] = min(max(start[j] - direction * unit, lower[j]), upper[j])
                 data = data_for(trial)
-                z_try, value = _gauss_newton(problem, start, data, lower, upper, RECHECK_STEPS)
+                z_try, value = _a_few_steps(problem, start, data, lower, upper)
                 at_fit = problem.cost(here_z, data)
                 if at_fit < value:
                     z_try, value = here_z, at_fit
@@ -96,37 +97,10 @@ def _recheck_delays(problem: _Problem, data_for, z: np.ndarray, cost: float, del
     return None if best == list(delays) else (best, best_z)
 
 
-def _gauss_newton(problem: _Problem, z: np.ndarray, data: np.ndarray, lower: np.ndarray,
-                  upper: np.ndarray, iterations: int = 6) -> tuple[np.ndarray, float]:
-    """A few bounded Levenberg-Marquardt steps on the cost (for comparing delay candidates at
+def _a_few_steps(problem: _Problem, z: np.ndarray, data, lower: np.ndarray, upper: np.ndarray
+                 ) -> tuple[np.ndarray, float]:
+    """:data:`RECHECK_STEPS` steps of the fit's own solver (for comparing delay candidates at
     their own best continuous values without a full solve)."""
-    z = np.clip(z, lower, upper)
-    r, J = problem.evaluate(z, data)
-    cost = 0.5 * float(r @ r)
-    if not math.isfinite(cost):
-        return z, math.inf
-    mu = 1e-6
-    for _ in range(iterations):
-        H = (J.T @ J).toarray()
-        g = J.T @ r
-        diag = np.maximum(np.diag(H), 1e-12 * max(float(np.max(np.diag(H))), 1e-300))
-        for _ in range(10):
-            try:
-                step = np.linalg.solve(H + mu * np.diag(diag), -g)
-            except np.linalg.LinAlgError:
-                step = None
-            if step is not None:
-                z_new = np.clip(z + step, lower, upper)
-                value = problem.cost(z_new, data)
-                if value < cost:
-                    break
-            mu *= 10.0
-        else:
-            break
-        converged = cost - value <= 1e-12 * cost
-        z, cost, mu = z_new, value, max(mu / 10.0, 1e-9)
-        if converged:
-            break
-        r, J = problem.evaluate(z, data)
-    return z, cost
-
+    out = solve_bounded(lambda x: problem.evaluate(x, data), lambda x: problem.cost(x, data),
+                        z, lower, upper, RECHECK_STEPS)
+    return out.z, out.cost
