@@ -88,3 +88,23 @@ def _quaternions_on_grid(t_grid: np.ndarray, t: np.ndarray, q: np.ndarray) -> np
     signs = np.cumprod(np.concatenate([[1.0], np.where(dots < 0, -1.0, 1.0)]))
     qi = _interp(t_grid, t, q * signs[:, None])
     return qi / np.linalg.norm(qi, axis=1, keepdims=True)
+
+
+GAP_FACTOR = 5.0      # a topic's interval longer than this many median intervals is a gap
+MIN_GAP_S = 0.5       # ... and never shorter than this
+
+
+def in_gap(t_grid: np.ndarray, t: np.ndarray, gap_factor: float = GAP_FACTOR,
+           min_gap_s: float = MIN_GAP_S) -> np.ndarray:
+    """Which grid times fall inside a gap of the topic sampled at ``t`` (or outside its span):
+    there the interpolated value is invented, so the segmenter must cut. A gap is an interval
+    longer than ``max(min_gap_s, gap_factor x median interval)``."""
+    t = np.asarray(t, float)
+    out = (t_grid < t[0]) | (t_grid > t[-1])
+    if len(t) < 2:
+        return out | True
+    steps = np.diff(t)
+    limit = max(min_gap_s, gap_factor * float(np.median(steps)))
+    for k in np.flatnonzero(steps > limit):
+        out |= (t_grid > t[k]) & (t_grid < t[k + 1])
+    return out

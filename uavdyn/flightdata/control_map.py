@@ -1,0 +1,110 @@
+"""How a logged command becomes the airframe's control: a stated, overridable linear map.
+
+A log records what the autopilot sent (a servo PWM in microseconds, a normalised command in
+[-1, 1], a throttle in [0, 1]); the model wants the airframe's own convention (elevator in
+radians, positive trailing edge down; throttle or collective in [0, 1]; pitch command in
+[-1, 1]). Which PWM is full up elevator is a fact of the user's aircraft, not of the log, so
+every importer states the map it used (recorded in the manifest) and the user can override it:
+``--control-map elevator=RCOU.C2:1100:1900:0.35:-0.35``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from uavdyn.flightdata.errors import FlightDataError
+
+
+@dataclass(frozen=True)
+class ChannelMap:
+    """``control = value_low + (raw - raw_low) * (value_high - value_low) / (raw_high -
+    raw_low)``: the raw reading ``raw_low`` gives ``value_low``, ``raw_high`` gives
+    ``value_high`` (so a reversed servo is a map with the values swapped).
+
+    Attributes
+    ----------
+    control : str
+        The airframe control it feeds (``elevator``, ``throttle``, ``collective``,
+        ``pitch_cmd``).
+    source : str
+        The logged field read, in the format's own naming (``RCOU.C2``, ``field.channels1``,
+        a CSV column).
+    raw_low, raw_high, value_low, value_high : float
+        Two points of the line; ``raw_low != raw_high``.
+    """
+
+    control: str
+    source: str
+    raw_low: float
+    raw_high: float
+    value_low: float
+    value_high: float
+
+    def __post_init__(self) -> None:
+        numbers = (self.raw_low, self.raw_high, self.value_low, self.value_high)
+        if not all(math.isfinite(v) for v in numbers):
+            raise FlightDataError(f"control map of {self.control}: every number must be "
+                                  f"finite, got {numbers}")
+        if self.raw_low == self.raw_high:
+            raise FlightDataError(f"control map of {self.control}: the two raw readings are "
+                                  f"both {self.raw_low:g}")
+
+    def apply(self, raw: np.ndarray) -> np.ndarray:
+        """The control for each raw reading."""
+        slope = (self.value_high - self.value_low) / (self.raw_high - self.raw_low)
+        return self.value_low + (np.asarray(raw, dtype=float) - self.raw_low) * slope
+
+    def describe(self) -> str:
+        """One line for the manifest and the import summary."""
+        return (f"{self.control} = {self.source} mapped linearly, {self.raw_low:g} -> "
+                f"{self.value_low:g}, {self.raw_high:g} -> {self.value_high:g}")
+
+    def as_dict(self) -> dict:
+        """The map as JSON-ready values."""
+        return {"source": self.source, "raw": [self.raw_low, self.raw_high],
+                "value": [self.value_low, self.value_high]}
+
+
+def parse_channel_map(text: str) -> ChannelMap:
+    """``CONTROL=SOURCE:RAW_LOW:RAW_HIGH:VALUE_LOW:VALUE_HIGH`` as a :class:`ChannelMap`.
+
+    Raises
+    ------
+    FlightDataError
+        One line saying which part of ``text`` is wrong.
+    """
+    control, sep, rest = text.partition("=")
+    if not sep or not control:
+        raise FlightDataError(f"control map {text!r}: expected CONTROL=SOURCE:RAW_LOW:RAW_HIGH:"
+                              "VALUE_LOW:VALUE_HIGH")
+    parts = rest.rsplit(":", 4)
+    if len(parts) != 5 or not parts[0]:
+        raise FlightDataError(f"control map {text!r}: expected CONTROL=SOURCE:RAW_LOW:RAW_HIGH:"
+                              "VALUE_LOW:VALUE_HIGH (five fields after '=')")
+    try:
+        numbers = [float(v) for v in parts[1:]]
+    except ValueError:
+        raise FlightDataError(f"control map {text!r}: RAW_LOW, RAW_HIGH, VALUE_LOW, VALUE_HIGH "
+                              "must be numbers") from None
+    return ChannelMap(control.strip(), parts[0].strip(), *numbers)
+
+
+def override(defaults: dict[str, ChannelMap], given: list[ChannelMap] | None
+             ) -> dict[str, ChannelMap]:
+    """The format's default maps with the user's replacing those of the same control.
+
+    Raises
+    ------
+    FlightDataError
+        A given map for a control the airframe kind does not have.
+    """
+    maps = dict(defaults)
+    for m in given or []:
+        if m.control not in maps:
+            raise FlightDataError(f"control map for {m.control!r}: this log's controls are "
+                                  f"{', '.join(maps)}")
+        maps[m.control] = m
+    return maps
