@@ -17,13 +17,14 @@ from uavdyn.cli import data_commands, fit_commands, model_commands, pipeline_com
 from uavdyn.cli.common import CliError, OneLineParser
 from uavdyn.cli.montecarlo import add_parser as add_montecarlo_parser
 from uavdyn.cli.mpc import add_parser as add_mpc_parser
+from uavdyn.cli.split_command import add_split
 from uavdyn.integrate import CompileError, DivergenceError
 from uavdyn.linear import TrimError
 
 # the subcommands in the order ``uavdyn --help`` lists them
 REGISTER = (model_commands.add_airframes, model_commands.add_trim, model_commands.add_modes,
             model_commands.add_simulate, data_commands.add_generate_data,
-            model_commands.add_export_c, data_commands.add_import_log,
+            model_commands.add_export_c, data_commands.add_import_log, add_split,
             fit_commands.add_identify, pipeline_commands.add_reproduce,
             pipeline_commands.add_evaluate, fit_commands.add_train, add_montecarlo_parser,
             add_mpc_parser)

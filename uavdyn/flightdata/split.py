@@ -1,0 +1,255 @@
+"""Assigning a dataset's sorties to train, validation and test, whole sorties at a time.
+
+Samples of one flight are correlated: a split by sample would let the model see, in training,
+the seconds either side of every test sample. So each sortie (an imported segment) goes whole
+to one part. Two rules:
+
+* ``by="sortie"``: a seeded random permutation of the sorties, cut into counts rounded from
+  ``fractions x n`` by the largest remainder (every part with a nonzero fraction gets at least
+  one sortie);
+* ``by="time-block"``: the sorties in flight order (``source_start_s``, else manifest order),
+  cut into consecutive blocks at the cumulative-duration fractions: train first, then
+  validation, then test, so the later flight is held out (no look-ahead).
+
+:func:`split_dataset` records the parts in ``manifest.json`` (``split`` per sortie and the
+``split_rule`` used), rewritten atomically; nothing else in the folder changes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from uavdyn.flightdata.errors import FlightDataError
+from uavdyn.flightdata.manifest import read_manifest
+from uavdyn.flightdata.sortie import SPLIT_NAMES
+from uavdyn.outputs import write_text_atomic
+
+SPLIT_RULES = ("sortie", "time-block")
+DEFAULT_FRACTIONS = (0.7, 0.15, 0.15)
+FRACTION_TOLERANCE = 1e-6
+
+
+class SplitError(FlightDataError):
+    """A split that cannot be made as asked; the one-line message says why and what to do."""
+
+
+def check_fractions(fractions: object) -> tuple[float, float, float]:
+    """The train, validation and test fractions as three floats, or a one-line refusal.
+
+    Parameters
+    ----------
+    fractions : sequence of three numbers
+        Each finite and >= 0, summing to 1 (within :data:`FRACTION_TOLERANCE`).
+
+    Returns
+    -------
+    tuple of float
+
+    Raises
+    ------
+    SplitError
+        If they are not three such numbers.
+    """
+    try:
+        values = tuple(fractions)  # type: ignore[arg-type]
+    except TypeError:
+        raise SplitError(f"fractions must be three numbers (train, validation, test), got "
+                         f"{type(fractions).__name__}") from None
+    if len(values) != 3 or any(isinstance(v, bool) or not isinstance(v, (int, float))
+                               for v in values):
+        raise SplitError(f"fractions must be three numbers (train, validation, test), got "
+                         f"{values!r}"[:200])
+    out = tuple(float(v) for v in values)
+    if not all(math.isfinite(v) and v >= 0 for v in out):
+        raise SplitError(f"fractions must be finite and >= 0, got {_parts_text(out)}")
+    if abs(sum(out) - 1.0) > FRACTION_TOLERANCE:
+        raise SplitError(f"fractions must sum to 1, got {_parts_text(out)} "
+                         f"(sum {sum(out):.6g})")
+    return out  # type: ignore[return-value]
+
+
+def _parts_text(fractions: tuple[float, ...]) -> str:
+    return ", ".join(f"{name} {f:g}" for name, f in zip(SPLIT_NAMES, fractions))
+
+
+def _check_enough(n: int, fractions: tuple[float, float, float]) -> None:
+    """Refuse, naming them, the parts with a nonzero fraction that ``n`` sorties leave empty
+    (the smallest fractions go without first)."""
+    wanted = [i for i in sorted(range(3), key=lambda i: (-fractions[i], i)) if fractions[i] > 0]
+    if n >= len(wanted):
+        return
+    empty = [SPLIT_NAMES[i] for i in sorted(wanted[n:])]
+    names = " and ".join(f"'{name}'" for name in empty)
+    zeros = " and ".join(empty)
+    noun = "sortie" if n == 1 else "sorties"
+    raise SplitError(f"{n} {noun} cannot fill {_parts_text(fractions)}: {names} would be "
+                     f"empty; import more segments or give --fractions with 0 for {zeros}")
+
+
+def _counts(n: int, fractions: tuple[float, float, float]) -> list[int]:
+    """Sorties per part: largest-remainder rounding of ``fractions x n``, then one sortie for
+    every part with a nonzero fraction that got none (taken from the largest part)."""
+    _check_enough(n, fractions)
+    total = sum(fractions)
+    raw = [f / total * n for f in fractions]
+    counts = [min(math.floor(r + 1e-9), n) for r in raw]
+    while sum(counts) > n:  # only if rounding pushed a floor up
+        counts[max(range(3), key=lambda i: counts[i] - raw[i])] -= 1
+    order = sorted(range(3), key=lambda i: (-(raw[i] - counts[i]), i))
+    for i in order[: n - sum(counts)]:
+        counts[i] += 1
+    for i in range(3):
+        if fractions[i] > 0 and counts[i] == 0:
+            donor = max(range(3), key=lambda j: (counts[j], -j))
+            counts[donor] -= 1
+            counts[i] += 1
+    return counts
+
+
+def _flight_order(entries: list[dict]) -> list[int]:
+    """Entry indices in flight order: by ``source_start_s`` if every entry has one, manifest
+    order if none has (a mix is ambiguous and refused)."""
+    has = [i for i, e in enumerate(entries) if e.get("source_start_s") is not None]
+    if not has:
+        return list(range(len(entries)))
+    if len(has) != len(entries):
+        missing = next(i for i, e in enumerate(entries) if e.get("source_start_s") is None)
+        raise SplitError(f"sorties[{missing}] has no source_start_s but others have: the "
+                         "flight order is ambiguous for --by time-block")
+    starts = [_finite(e["source_start_s"], f"sorties[{i}].source_start_s")
+              for i, e in enumerate(entries)]
+    return sorted(range(len(entries)), key=lambda i: (starts[i], i))
+
+
+def _finite(value: object, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not math.isfinite(float(value)):
+        raise SplitError(f"{key}: expected a finite number, got {value!r}"[:200])
+    return float(value)
+
+
+def _nearest_cut(cumulative: np.ndarray, target: float, low: int, high: int) -> int:
+    """The number of leading sorties, in ``low .. high``, whose total duration is nearest
+    ``target`` (a tie goes to the earlier part, as the largest-remainder rule does)."""
+    ks = np.arange(low, high + 1)
+    errors = np.abs(cumulative[ks] - target)
+    best = np.flatnonzero(errors <= errors.min() + 1e-9 * max(1.0, abs(target)))
+    return int(ks[best[-1]])
+
+
+def _time_block_counts(durations: list[float], fractions: tuple[float, float, float]
+                       ) -> list[int]:
+    """Sorties per consecutive block, cut where the cumulative duration is nearest the
+    fractions' boundaries; a zero fraction's block is empty, a nonzero one's never."""
+    n = len(durations)
+    need = [1 if f > 0 else 0 for f in fractions]
+    _check_enough(n, fractions)
+    cumulative = np.concatenate([[0.0], np.cumsum(durations)])
+    total = cumulative[-1]
+    if fractions[0] == 0:
+        k1 = 0
+    else:
+        k1 = _nearest_cut(cumulative, fractions[0] * total, 1, n - need[1] - need[2])
+    if fractions[2] == 0:
+        k2 = n
+    elif fractions[1] == 0:
+        k2 = k1
+    else:
+        k2 = _nearest_cut(cumulative, (fractions[0] + fractions[1]) * total, k1 + 1, n - 1)
+    return [k1, k2 - k1, n - k2]
+
+
+def assign_split(entries: list[dict], by: str = "sortie",
+                 fractions: tuple[float, float, float] = DEFAULT_FRACTIONS,
+                 seed: int = 0) -> list[str]:
+    """One split name per manifest entry, whole sorties only (never by sample).
+
+    Parameters
+    ----------
+    entries : list of dict
+        Manifest ``sorties`` entries; ``by="time-block"`` reads ``duration_s`` and, if every
+        entry has one, ``source_start_s``.
+    by : {"sortie", "time-block"}
+        Seeded random sorties, or consecutive blocks in flight order (the later flight held
+        out as test).
+    fractions : tuple of float
+        Train, validation and test shares (counts for ``sortie``, duration for
+        ``time-block``); each >= 0, summing to 1. A zero share leaves its part empty.
+    seed : int
+        Seed of the ``sortie`` permutation (>= 0); the same seed gives the same split.
+
+    Returns
+    -------
+    list of str
+        ``train``/``validation``/``test`` for each entry, in the entries' order.
+
+    Raises
+    ------
+    SplitError
+        On one line: a bad rule, fractions or seed, or too few sorties to give every part
+        with a nonzero fraction at least one (naming the part that would be empty).
+    """
+    fractions = check_fractions(fractions)
+    if by not in SPLIT_RULES:
+        raise SplitError(f"split rule {by!r} is not one of {SPLIT_RULES}"[:200])
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SplitError(f"seed must be a whole number >= 0, got {seed!r}"[:200])
+    n = len(entries)
+    if by == "sortie":
+        order = [int(i) for i in np.random.default_rng(int(seed)).permutation(n)]
+        counts = _counts(n, fractions)
+    else:
+        order = _flight_order(entries)
+        durations = [_finite(entries[i].get("duration_s"), f"sorties[{i}].duration_s")
+                     for i in order]
+        counts = _time_block_counts(durations, fractions)
+    names = [name for name, c in zip(SPLIT_NAMES, counts) for _ in range(c)]
+    out = [""] * n
+    for i, name in zip(order, names):
+        out[i] = name
+    return out
+
+
+def split_dataset(folder: str | Path, by: str = "sortie",
+                  fractions: tuple[float, float, float] = DEFAULT_FRACTIONS,
+                  seed: int = 0) -> dict[str, list[str]]:
+    """Assign every sortie of a dataset folder to a split and record it in its manifest.
+
+    ``manifest.json`` is validated, then rewritten through a temporary sibling renamed into
+    place (an interrupted or failed write leaves the old manifest intact); it records each
+    entry's ``split`` and the rule as ``split_rule``. No other file is touched.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The dataset folder.
+    by, fractions, seed
+        As for :func:`assign_split`.
+
+    Returns
+    -------
+    dict of str to list of str
+        ``train``, ``validation`` and ``test`` (always all three) to the sortie file names
+        (the manifest's ``file``), in manifest order.
+
+    Raises
+    ------
+    FlightDataError
+        If the manifest is invalid, or (:class:`SplitError`) the split cannot be made.
+    """
+    path = Path(folder) / "manifest.json"
+    manifest = read_manifest(path)
+    fractions = check_fractions(fractions)
+    names = assign_split(manifest["sorties"], by, fractions, seed)
+    sorties = [dict(entry, split=name) for entry, name in zip(manifest["sorties"], names)]
+    updated = dict(manifest, sorties=sorties,
+                   split_rule={"by": by, "fractions": list(fractions), "seed": int(seed)})
+    write_text_atomic(path, json.dumps(updated, indent=2) + "\n")
+    out: dict[str, list[str]] = {name: [] for name in SPLIT_NAMES}
+    for entry in sorties:
+        out[entry["split"]].append(entry["file"])
+    return out
