@@ -6,8 +6,6 @@ import argparse
 from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
-
 from uavdyn.airframes import list_presets, load_airframe
 from uavdyn.cli.common import (
     FRACTION,
@@ -30,6 +28,7 @@ from uavdyn.cli.common import (
     refuse_unused,
     seconds,
 )
+from uavdyn.cli.split_command import add_split_options, split_options_from
 from uavdyn.emulation.datagen import Recipe, generate_dataset
 from uavdyn.emulation.fingerprint import (
     DEFAULT_TOLERANCE,
@@ -40,17 +39,28 @@ from uavdyn.emulation.fingerprint import (
     write_fingerprint,
 )
 from uavdyn.emulation.missions import missions_for
-from uavdyn.flightdata import (
-    import_alfa,
-    import_ulog,
-    write_csv,
-    write_manifest,
-)
+from uavdyn.flightdata.alfa import read_alfa_flight
+from uavdyn.flightdata.control_map import parse_channel_map
+from uavdyn.flightdata.errors import FlightDataError
+from uavdyn.flightdata.flightlog import FlightLog
+from uavdyn.flightdata.log_dataset import SUMMARY_FILE as LOG_SUMMARY
+from uavdyn.flightdata.log_dataset import TIMELINE_FILE as LOG_TIMELINE
+from uavdyn.flightdata.log_dataset import write_log_dataset
 from uavdyn.flightdata.manifest import MANIFEST_MAX_SORTIES
+from uavdyn.flightdata.segments import SegmentRules
+from uavdyn.flightdata.ulog_flight import read_ulog_flight
 from uavdyn.outputs import check_output_folder, output_folder
 
 MAX_RATE_HZ = 1000.0         # a log grid rate: no logged topic is faster
 MISSIONS = tuple(dict.fromkeys(missions_for("fixed_wing") + missions_for("multirotor")))
+
+
+def control_map(text: str):
+    """``--control-map`` value, refused at parse time with the reason."""
+    try:
+        return parse_channel_map(text)
+    except FlightDataError as exc:
+        raise argparse.ArgumentTypeError(exc.reason) from None
 
 
 def cmd_generate_data(args: argparse.Namespace) -> int:
@@ -105,30 +115,60 @@ def _check_recipe(recipe: Recipe) -> None:
 
 
 def cmd_import_log(args: argparse.Namespace) -> int:
-    """Import a PX4 ULog file or an ALFA folder into a one-sortie interchange dataset."""
+    """Import a real log, cut it into longitudinal segments and write them as a dataset with a
+    split, a summary and a timeline figure."""
     source = Path(args.log)
-    fmt = args.format
+    fmt = _log_format(source, args.format)
+    check_output_folder(args.out, "import-log", args.force)
+    flight = _read_flight(source, fmt, args)
+    rules = SegmentRules(max_roll_deg=args.max_roll, max_yaw_rate_deg_s=args.max_yaw_rate,
+                         max_sideslip_deg=args.max_sideslip, min_duration_s=args.min_duration,
+                         min_speed_m_s=args.min_speed, kinematic=not args.no_kinematic_check)
+    with output_folder(args.out, "import-log", args.force) as tmp:
+        written = write_log_dataset(flight, tmp, rules, split_options_from(args))
+    for line in written.lines:
+        print(line)
+    print(f"wrote {args.out}/ ({len(written.splits)} segment sorties at {1 / flight.dt:.6g} Hz, "
+          f"{LOG_SUMMARY} and {LOG_TIMELINE})")
+    return 0
+
+
+def _log_format(source: Path, fmt: str) -> str:
+    """The format to read ``source`` as: ``auto`` goes by a folder (ALFA) or the suffix."""
     if fmt == "auto":
-        fmt = "alfa" if source.is_dir() else "ulog"
+        if source.is_dir():
+            return "alfa"
+        by_suffix = {".ulg": "ulog", ".bin": "ardupilot", ".csv": "csv"}
+        fmt = by_suffix.get(source.suffix.lower())
+        if fmt is None:
+            raise CliError(f"cannot tell the format of {source} from its name (.ulg, .bin, "
+                           ".csv or an ALFA folder): give --format")
     if (fmt == "alfa") != source.is_dir():
         raise CliError(f"--format {fmt} reads {'a folder' if fmt == 'alfa' else 'a file'}, but "
                        f"the log {source} is {'a folder' if source.is_dir() else 'a file'}")
-    check_output_folder(args.out, "import-log", args.force)
+    return fmt
+
+
+def _read_flight(source: Path, fmt: str, args: argparse.Namespace) -> FlightLog:
+    """The log as a six-degree-of-freedom flight, by its format."""
+    maps = args.control_map or None
+    rate = {"rate_hz": args.rate} if args.rate else {}
+    if fmt == "alfa":
+        if args.kind not in (None, "fixed_wing"):
+            raise CliError("--kind multirotor: an ALFA folder is a fixed-wing flight")
+        return read_alfa_flight(source, control_maps=maps, **rate)
     if fmt == "ulog":
-        sortie = import_ulog(source, **({"rate_hz": args.rate} if args.rate else {}))
-    else:
-        sortie = import_alfa(source, **({"rate_hz": args.rate} if args.rate else {}))
-    name = "".join(c if c.isalnum() or c in "_-" else "_" for c in sortie.name)[:64] or "log"
-    with output_folder(args.out, "import-log", args.force) as tmp:
-        write_csv(sortie, tmp / f"{name}.csv")
-        write_manifest(tmp, airframe="", kind=sortie.kind,
-                       sample_rate_hz=round(1.0 / float(np.median(np.diff(sortie.time))), 9),
-                       source=f"uavdyn import-log ({fmt}) of {source.name}",
-                       sorties=[{"file": f"{name}.csv", "mission": sortie.mission,
-                                 "duration_s": sortie.duration}])
-    print(f"wrote {args.out}/ ({sortie.kind}, {len(sortie.time)} rows, "
-          f"{sortie.duration:.1f} s from {source.name})")
-    return 0
+        return read_ulog_flight(source, kind=args.kind, control_maps=maps, **rate)
+    if fmt == "ardupilot":
+        from uavdyn.flightdata.ardupilot import read_dataflash
+
+        return read_dataflash(source, kind=args.kind, control_maps=maps, **rate)
+    if args.kind is None:
+        raise CliError("--format csv needs --kind fixed_wing or multirotor (the columns of the "
+                       "controls differ)")
+    from uavdyn.flightdata.sixdof_csv import read_sixdof_csv
+
+    return read_sixdof_csv(source, kind=args.kind, control_maps=maps, **rate)
 
 
 def add_generate_data(sub) -> None:
@@ -176,14 +216,38 @@ def add_generate_data(sub) -> None:
 
 def add_import_log(sub) -> None:
     """Register ``import-log``."""
-    p = sub.add_parser("import-log", help="import a PX4 ULog file or an ALFA folder as a "
-                       "one-sortie interchange dataset")
+    p = sub.add_parser("import-log", help="cut a real flight log (PX4 ULog, ALFA folder, "
+                       "ArduPilot .bin, six-degree-of-freedom CSV) into wings-level "
+                       "longitudinal segments and write them as a dataset with a split")
     add_force(p)
-    p.add_argument("log", type=existing_path, help="the .ulg file or ALFA sequence folder")
-    p.add_argument("--format", choices=["auto", "ulog", "alfa"], default="auto",
-                   help="auto: a folder is ALFA, a file is ULog")
+    p.add_argument("log", type=existing_path, help="the .ulg/.bin/.csv file or ALFA folder")
+    p.add_argument("--format", choices=["auto", "ulog", "alfa", "ardupilot", "csv"],
+                   default="auto", help="auto: a folder is ALFA, else by the suffix "
+                   "(.ulg, .bin, .csv)")
+    p.add_argument("--kind", choices=["fixed_wing", "multirotor"], default=None,
+                   help="the airframe kind (default: from the log; required for csv)")
     p.add_argument("--rate", type=positive(MAX_RATE_HZ, "rate", "Hz"), default=None,
-                   help=f"grid rate in Hz, up to {MAX_RATE_HZ:g} (default: the attitude "
-                        "topic's rate for ULog, 10 Hz for ALFA)")
+                   help=f"grid rate in Hz, up to {MAX_RATE_HZ:g} (default: the log's own "
+                        "attitude rate; 10 Hz for ALFA)")
+    p.add_argument("--max-roll", type=positive(90.0, "angle", "deg"), default=10.0,
+                   help="wings level: |roll| at most this, deg (default 10)")
+    p.add_argument("--max-yaw-rate", type=positive(360.0, "rate", "deg/s"), default=10.0,
+                   help="|yaw rate| at most this, deg/s (default 10)")
+    p.add_argument("--max-sideslip", type=positive(90.0, "angle", "deg"), default=10.0,
+                   help="|sideslip| at most this, deg; checked only with air-relative "
+                        "velocities (default 10)")
+    p.add_argument("--min-duration", type=positive(3600.0, "duration", "s"), default=5.0,
+                   help="shortest segment kept, s (default 5)")
+    p.add_argument("--min-speed", type=number(0.0, 200.0, name="speed"), default=None,
+                   help="not flying below this body speed, m/s (default 5 for a fixed wing, "
+                        "none for a multirotor; the log's in-air flag also applies)")
+    p.add_argument("--no-kinematic-check", action="store_true",
+                   help="keep segments whose pitch and pitch rate disagree (not advised)")
+    p.add_argument("--control-map", action="append", type=control_map, default=None,
+                   metavar="CONTROL=SOURCE:RAW_LOW:RAW_HIGH:VALUE_LOW:VALUE_HIGH",
+                   help="map a logged field linearly to a control, e.g. "
+                        "elevator=RCOU.C2:1100:1900:0.35:-0.35 (repeatable; see "
+                        "docs/flightlog_formats.md)")
+    add_split_options(p)
     p.add_argument("--out", required=True, type=folder_to_write, help="output dataset folder")
     p.set_defaults(func=cmd_import_log)

@@ -18,9 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
-from uavdyn.flightdata.attitude import _first_non_unit, pitch_from_quaternion
+from uavdyn.flightdata.attitude import (
+    _first_non_unit,
+    pitch_from_quaternion,
+    roll_from_quaternion,
+)
+from uavdyn.flightdata.control_map import ChannelMap, override
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.files import _read_regular, _utf8_text
+from uavdyn.flightdata.flightlog import FlightLog
 from uavdyn.flightdata.import_checks import (
     _as_path,
     _check_bool,
@@ -28,7 +34,7 @@ from uavdyn.flightdata.import_checks import (
     _check_rate,
     _checked,
 )
-from uavdyn.flightdata.resample import _grid, _hold, _interp, _quaternions_on_grid
+from uavdyn.flightdata.resample import _grid, _hold, _interp, _quaternions_on_grid, in_gap
 from uavdyn.flightdata.sortie import Sortie
 from uavdyn.model import CONTROL_BOUNDS
 
@@ -277,3 +283,115 @@ def import_alfa(folder: str | Path, rate_hz: float = 10.0, name: str | None = No
                         "throttle": "vfr_hud.throttle"}}
     return Sortie(name=name or root.name, kind="fixed_wing", time=time, states=states,
                   controls=controls, mission="alfa", meta=meta)
+
+
+ALFA_FLIGHT_TOPICS: dict[str, tuple[str, list[str]]] = {  # six-degree-of-freedom channels
+    "imu": ("mavros-imu-data", [f"field.orientation.{c}" for c in "wxyz"]),
+    "gyro": ("mavros-imu-data_raw", [f"field.angular_velocity.{c}" for c in "xyz"]),
+    "odom": ("mavros-local_position-odom", [f"field.twist.twist.linear.{c}" for c in "xyz"]),
+    "servo": ("mavros-rc-out", ["field.channels1"]),
+    "hud": ("mavros-vfr_hud", ["field.throttle", "field.altitude"]),
+    "airspeed": ("mavros-nav_info-airspeed", ["field.measured"]),
+}
+
+
+ALFA_SERVO_MAP = (1100.0, 1900.0, -0.35, 0.35)  # ArduPlane's default servo range, +-20 deg
+
+
+def default_alfa_maps() -> dict[str, ChannelMap]:
+    """The default maps of :func:`read_alfa_flight`. The elevator's is an inference, stated:
+    servo 2 over ArduPlane's default range (SERVO2_MIN/MAX 1100/1900 us, trim 1500 us = 0) to
+    +-0.35 rad (a usual model elevator throw; the log records neither), PWM above trim taken
+    as trailing edge down (the command correlates negatively with pitch rate)."""
+    return {"elevator": ChannelMap("elevator", "mavros-rc-out/field.channels1",
+                                   *ALFA_SERVO_MAP),
+            "throttle": ChannelMap("throttle", "mavros-vfr_hud/field.throttle", 0.0, 1.0,
+                                   0.0, 1.0)}
+
+
+def read_alfa_flight(folder: str | Path, rate_hz: float = 10.0, name: str | None = None,
+                     control_maps: list[ChannelMap] | None = None) -> FlightLog:
+    """Read an ALFA sequence folder as a six-degree-of-freedom flight on a uniform grid.
+
+    MAVROS frames converted to aircraft ones (FLU body, ENU world -> FRD, NED): roll as
+    logged, nose-up pitch = -pitch of the ENU/FLU quaternion, ``p, q, r = x, -y, -z`` of the
+    raw gyro, ``u, v, w = x, -y, -z`` of the odometry twist (ground relative); ``u`` from the
+    airspeed sensor (``nav_info-airspeed.measured``) as ``sqrt(Va^2 - w^2)``; altitude from
+    ``vfr_hud.altitude`` (MSL). The log has no in-air flag: the segmenter's speed floor stands
+    in for it. Samples in a topic's gap are NaN.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The sequence folder.
+    rate_hz : float
+        Grid rate (default 10 Hz, the raw gyro's rate; attitude is logged at 2.5 Hz).
+    name : str, optional
+        Flight name (default the folder name).
+    control_maps : list of ChannelMap, optional
+        Replace a default map; ``source`` is ``<topic suffix>/<field>``, e.g.
+        ``mavros-rc-out/field.channels1``.
+
+    Returns
+    -------
+    FlightLog
+    """
+    folder = _as_path(folder, "folder")
+    _check_rate(rate_hz, folder, allow_none=False)
+    _check_name(name, folder)
+    if not folder.is_dir():
+        raise FlightDataError("not an ALFA sequence folder (not a folder)", folder)
+    root = Path(os.path.realpath(folder))
+    maps = override(default_alfa_maps(), control_maps)
+    wanted = dict(ALFA_FLIGHT_TOPICS)
+    for control, m in maps.items():
+        suffix, _, field_name = m.source.partition("/")
+        if not field_name:
+            raise FlightDataError(f"control map for {control}: source {m.source!r} must be "
+                                  "<topic suffix>/<field>, e.g. mavros-rc-out/field.channels1",
+                                  folder)
+        wanted[f"control:{control}"] = (suffix, [field_name])
+    topics = {key: _alfa_topic(folder, root, suffix, fields)
+              for key, (suffix, fields) in wanted.items()}
+    first = _first_non_unit(topics["imu"].vals)
+    if first is not None:
+        raise FlightDataError(f"orientation (w, x, y, z) has norm {first[1]:.6g}, not a unit "
+                              "quaternion", topics["imu"].path, first[0] + 1, "field.orientation")
+    origin = min(int(tp.t_ns[0]) for tp in topics.values())
+    rel = {key: (tp.t_ns - origin) * 1e-9 for key, tp in topics.items()}
+    t0 = max(float(rel[k][0]) for k in ("imu", "gyro", "odom"))
+    t1 = min(float(rel[k][-1]) for k in ("imu", "gyro", "odom"))
+    grid = _grid(t0, t1, float(rate_hz), folder)
+
+    def on_grid(key: str, hold: bool = False) -> np.ndarray:
+        vals = (_hold if hold else _interp)(grid, rel[key], topics[key].vals)
+        vals[in_gap(grid, rel[key])] = np.nan
+        return vals
+
+    quat = _quaternions_on_grid(grid, rel["imu"], topics["imu"].vals)
+    gyro, vel = on_grid("gyro"), on_grid("odom")
+    att_gap = in_gap(grid, rel["imu"])
+    roll, pitch = roll_from_quaternion(quat), -pitch_from_quaternion(quat)
+    roll[att_gap] = pitch[att_gap] = np.nan
+    va = on_grid("airspeed")[:, 0]
+    w = -vel[:, 2]
+    with np.errstate(invalid="ignore"):
+        u = np.sqrt(np.maximum(va**2 - w**2, 0.0))
+    controls = np.column_stack([maps[c].apply(on_grid(f"control:{c}", hold=True)[:, 0])
+                                for c in ("elevator", "throttle")])
+    channels = {"roll": roll, "pitch": pitch, "p": gyro[:, 0], "q": -gyro[:, 1],
+                "r": -gyro[:, 2], "u": u, "v": -vel[:, 1], "w": w}
+    meta = {"file": str(folder), "start_time_s": origin * 1e-9 + t0, "rate_hz": float(rate_hz),
+            "files": {key: str(tp.path) for key, tp in topics.items()},
+            "sources": {"roll,pitch": "mavros-imu-data orientation (pitch negated: ENU/FLU)",
+                        "p,q,r": "mavros-imu-data_raw angular_velocity x, -y, -z",
+                        "v,w": "mavros-local_position-odom twist -y, -z (ground relative)",
+                        "u": "sqrt(Va^2 - w^2), Va = mavros-nav_info-airspeed measured",
+                        "altitude_m": "mavros-vfr_hud altitude (MSL)"},
+            "control_map": {k: m.describe() for k, m in maps.items()},
+            "resampling": f"topics (2.5-19 Hz) on a uniform {float(rate_hz):g} Hz grid: states "
+                          "linear, quaternions normalised, controls held; NaN in topic gaps"}
+    return FlightLog(name=name or root.name, kind="fixed_wing", time=grid - grid[0],
+                     channels=channels, controls=controls, velocity_reference="airspeed",
+                     source="ALFA (MAVROS CSV)", altitude_m=on_grid("hud")[:, 1], airspeed=va,
+                     meta=meta)

@@ -31,7 +31,9 @@ ULOG_MAGIC = b"ULog\x01\x12\x35"
 ULOG_VERSIONS = (0, 1)
 ULOG_TOPICS = ("vehicle_attitude", "vehicle_angular_velocity", "sensor_combined",
                "vehicle_local_position", "actuator_controls_0", "actuator_controls_1",
-               "vehicle_thrust_setpoint", "vehicle_torque_setpoint", "actuator_motors")
+               "vehicle_thrust_setpoint", "vehicle_torque_setpoint", "actuator_motors",
+               "vehicle_global_position", "vehicle_land_detected", "airspeed",
+               "airspeed_validated", "wind", "wind_estimate", "vehicle_status")
 _ULOG_BASIC_TYPES = {"int8_t", "uint8_t", "int16_t", "uint16_t", "int32_t", "uint32_t",
                      "int64_t", "uint64_t", "float", "double", "bool", "char"}
 _MAX_STAMP_US = 2**62               # larger timestamps (146,000 years) are corrupt data
