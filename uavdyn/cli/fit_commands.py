@@ -199,8 +199,8 @@ def add_identify(sub) -> None:
                    help="prediction window in s, restarted from recorded states, no longer "
                         "than the train sorties (default 1)")
     p.add_argument("--dt", type=STEP, default=None,
-                   help="RK4 step in s, fitting the log interval (default half the log "
-                        "interval)")
+                   help="RK4 step in s, fitting the log interval (default: the log interval "
+                        "in whole sub-steps of at most 0.005 s, at least 2)")
     p.add_argument("--lowpass-hz", type=positive(name="cut-off", unit="Hz"), default=None,
                    help="zero-phase low-pass filter of the data before fitting (Hz, below half "
                         "the log rate)")

@@ -23,14 +23,15 @@ from uavdyn.experiments.ladder import headline, horizon_curves, per_sortie_rows
 from uavdyn.experiments.predictions import Candidate, PredictionStore
 from uavdyn.experiments.tables import accuracy_tables, per_sortie_safety, robustness_rows
 from uavdyn.flightdata import Sortie, load_dataset
-from uavdyn.integrate import DiscreteModel, physics_step
+from uavdyn.integrate import DiscreteModel, fitting_steps, physics_step, substeps_for
 from uavdyn.learned import WeightFileError, hybrid_step, load_weights
 
-TABLE4_DT = 0.005  # Table 4's step size (the paper's)
+TABLE1_DTS = (0.005, 0.01, 0.02)  # Table 1's step sizes (the paper's)
+LADDER_MAX_DT = 0.01  # the ladder's step: the log interval, in whole sub-steps of at most this
 
 
 def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str | Path],
-                     dts=(0.005, 0.01, 0.02), split: str = "test",
+                     dts: tuple[float, ...] | None = None, split: str = "test",
                      identified: Airframe | None = None, all_sorties: bool = False) -> dict:
     """Table 1 and Table 4 figures on any dataset folder in the interchange format (its
     ``split`` sorties, or all if it has no split): the ladder of nominal physics, identified
@@ -38,7 +39,10 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
     file, run on the airframe its weights were trained on (checked by hash).
 
     A dataset without ``split`` sorties is an error (its sorties may be the ones a model was
-    fitted on) unless ``all_sorties``: then every sortie is scored and the result says so."""
+    fitted on) unless ``all_sorties``: then every sortie is scored and the result says so.
+    The solver steps are Table 1's (``dts``) where they fit the log interval, else the nearest
+    whole fraction of it (:func:`~uavdyn.integrate.fitting_steps`): the data are never
+    resampled."""
 
     ds = load_dataset(dataset)
     if ds.kind != airframe.kind:
@@ -50,6 +54,7 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
             raise ValueError(f"{dataset}: no '{split}' sorties (manifest split column); give "
                              "--all-sorties to score every sortie (the result then says so)")
         sorties = ds.sorties
+    dts = fitting_steps(sorties[0].dt, dts or TABLE1_DTS)
     physics = physics_rungs(airframe, identified)
     nets = [load_weights(w) for w in weights]
     hybrids = [_hybrid(w, net, physics) for w, net in zip(weights, nets)]
@@ -62,7 +67,7 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
     safety = per_sortie_safety(candidates, sorties, nets, store)
     ladder = _evaluation_ladder(airframe, identified, hybrids, sorties, store)
     table4 = robustness_rows(_robustness_scenarios(airframe, sorties),
-                             [c for c in candidates if c.solver.dt == TABLE4_DT], store)
+                             [c for c in candidates if c.solver.dt == dts[0]], store)
     return {"airframe": airframe.name, "kind": airframe.kind, "dataset": str(dataset),
             "sorties": [s.name for s in sorties],
             "split": split if ds.split(split) else f"all sorties (the dataset has no '{split}' "
@@ -138,7 +143,8 @@ def _evaluation_ladder(airframe: Airframe, identified: Airframe | None, hybrids:
     """The report's ladder on a user's dataset, at the log interval: nominal physics,
     identified physics and the first weight file ("corrected", on the airframe it was
     trained on), per sortie, against horizon, and the headline with bootstrap intervals."""
-    dt = float(np.median(np.diff(sorties[0].time)))
+    sample_dt = float(np.median(np.diff(sorties[0].time)))
+    dt = sample_dt / substeps_for(sample_dt, LADDER_MAX_DT)
     rungs = [Candidate(Solver(NOMINAL_PHYSICS, physics_step(airframe), dt), airframe)]
     missing = {}
     if identified is not None:
@@ -147,9 +153,9 @@ def _evaluation_ladder(airframe: Airframe, identified: Airframe | None, hybrids:
     else:
         missing[IDENTIFIED_PHYSICS] = "no --identified airframe given"
     if hybrids:
-        why = refusal(hybrids[0].step, dt)
+        why = refusal(hybrids[0].step, sample_dt)  # it was trained one step per sample
         if why is None:
-            rungs.append(hybrids[0].at(dt, "corrected"))
+            rungs.append(hybrids[0].at(sample_dt, "corrected"))
         else:
             missing["corrected"] = why
         if len(hybrids) > 1:

@@ -46,3 +46,81 @@ def excitation_for(name: str, group: list[str]) -> str:
         hint = "inputs that move its term independently of the other parameters"
     others = [g for g in group if g != name]
     return hint + (f" (to separate it from {', '.join(others)})" if others else "")
+
+
+# --- screening before the fit -------------------------------------------------------------
+# A parameter is only identifiable if the signal its term multiplies moves in the data well
+# above that signal's own noise: a pitch derivative on a hover-only log fits the autopilot's
+# closed-loop wobble, not the aircraft. The rule is stated, not tuned: the signal's spread
+# (standard deviation over the train sorties) must be at least EXCITATION_SNR times its
+# white-noise level (uavdyn.flightdata.white_noise_std) and at least the floor below.
+EXCITATION_SNR = 3.0
+
+# signal name -> (description, unit, absolute floor of its standard deviation)
+SIGNALS: dict[str, tuple[str, str, float]] = {  # floors: a quarter of a degree and the like
+    "alpha": ("angle of attack atan2(w, u)", "rad", 0.0044),   # 0.25 deg
+    "q": ("pitch rate q", "rad/s", 0.0087),                     # 0.5 deg/s
+    "u": ("forward speed u", "m/s", 0.05),
+    "w": ("vertical speed w", "m/s", 0.05),
+    "elevator": ("elevator", "rad", 0.0035),                    # 0.5 % of +-0.35 rad
+    "throttle": ("throttle", "", 0.005),
+    "collective": ("collective", "", 0.005),
+    "pitch_cmd": ("pitch command", "", 0.01),                   # 0.5 % of [-1, 1]
+}
+
+# parameter -> the signal its term multiplies (parameters not listed are not screened: a
+# constant term such as C_m_0 is excited by any data)
+EXCITED_BY: dict[str, str] = {
+    "C_m_alpha": "alpha", "C_L_alpha": "alpha", "C_L_alpha2": "alpha",
+    "C_m_q": "q", "C_L_q": "q", "C_D_q": "q", "C_m_alpha_dot": "q", "C_L_alpha_dot": "q",
+    "C_m_delta_e": "elevator", "C_L_delta_e": "elevator", "C_D_delta_e": "elevator",
+    "C_D_0": "u", "tau_elevator": "elevator", "tau_throttle": "throttle",
+    "pitch_damping": "q", "pitch_mix": "pitch_cmd", "M_u": "u", "drag_linear": "u",
+    "CdA_x": "u", "CdA_z": "w", "k_inflow": "w", "c_T": "collective",
+    "tau_rotor": "collective",
+}
+
+
+def _signal(sortie, name: str):
+    """One signal of a sortie (states u, w, q, theta; controls by name; alpha derived)."""
+    import numpy as np
+
+    from uavdyn.model import CONTROL_NAMES
+
+    columns = {"u": 0, "w": 1, "q": 2}
+    if name == "alpha":
+        return np.arctan2(sortie.states[:, 1], sortie.states[:, 0])
+    if name in columns:
+        return sortie.states[:, columns[name]]
+    return sortie.controls[:, CONTROL_NAMES[sortie.kind].index(name)]
+
+
+def unexcited(names: list[str], sorties: list) -> list[str]:
+    """One sentence for each of ``names`` whose signal the ``sorties`` do not move above its
+    noise (empty when all are excited): what moved how much, and what would excite it."""
+    import numpy as np
+
+    from uavdyn.flightdata.noise import white_noise_std
+    from uavdyn.model import CONTROL_NAMES
+
+    out = []
+    for name in names:
+        signal = EXCITED_BY.get(name)
+        if signal is None or not sorties:
+            continue
+        kind = sorties[0].kind
+        if signal in CONTROL_NAMES["fixed_wing"] + CONTROL_NAMES["multirotor"] \
+                and signal not in CONTROL_NAMES[kind]:
+            continue
+        what, unit, floor = SIGNALS[signal]
+        values = np.concatenate([_signal(s, signal) for s in sorties])
+        spread = float(np.std(values))
+        noise = float(np.median([white_noise_std(_signal(s, signal)) for s in sorties]))
+        if spread >= max(EXCITATION_SNR * noise, floor):
+            continue
+        against = (f"{spread / noise:.1f}x its noise of {noise:.2g} {unit}" if noise > 0
+                   else "with no measurable noise")
+        out.append(f"{name}: the {what} varies by {spread:.3g} {unit} (standard deviation), "
+                   f"{against} (needs {EXCITATION_SNR:g}x its noise and at least {floor:g} "
+                   f"{unit}); would need: {excitation_for(name, [])}")
+    return out

@@ -40,7 +40,7 @@ from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
 from uavdyn.identify.consistency import compare_halves
 from uavdyn.identify.errors import IdentifyError
-from uavdyn.identify.excitation import excitation_for
+from uavdyn.identify.excitation import excitation_for, unexcited
 from uavdyn.identify.problem import COMPILE_FLAGS, _check_excitation, _Problem
 from uavdyn.identify.result import DEFAULT_SUBSTEPS, Estimate, IdentificationResult
 from uavdyn.identify.search import RECHECK_STEPS, SEARCH_ROUNDS, _recheck_delays, _search
@@ -67,7 +67,7 @@ from uavdyn.identify.windows import (
     physics_windows,
     window_density_ratios,
 )
-from uavdyn.integrate import EvalGrid
+from uavdyn.integrate import EvalGrid, substeps_for
 from uavdyn.model import LAG_PARAMS, ModelStructure, structure_of
 
 __all__ = ["COMPILE_FLAGS", "CORRELATION_FLAG", "DEFAULT_SUBSTEPS", "DELAY_PREFIX",
@@ -103,7 +103,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
              bounds: dict[str, tuple[float, float]] | None = None, max_iterations: int = 60,
              estimate_x0: bool = True, max_windows: int | None = 120, max_delay: int = 5,
              substeps: int | None = None, progress: bool = True,
-             check_halves: bool = True, preroll: int | None = None) -> IdentificationResult:
+             check_halves: bool = True, preroll: int | None = None, screen: bool = True
+             ) -> IdentificationResult:
     """Fit the parameters ``names`` of ``airframe`` to ``train`` sorties by output error.
 
     Parameters
@@ -140,9 +141,13 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     max_delay : int
         Largest delay (samples) the search tries.
     substeps : int, optional
-        RK steps per log sample (default 2; ``dt`` overrides it).
+        RK steps per log sample (default: the log interval in whole sub-steps of at most
+        ``MAX_DEFAULT_DT``, at least 2; ``dt`` overrides it).
     progress : bool
         Show a progress bar over the solver iterations.
+    screen : bool
+        Refuse, before fitting, a parameter whose signal the train data do not move above
+        its noise (:func:`~uavdyn.identify.excitation.unexcited`; default True).
     check_halves : bool
         With four or more training sorties, also fit each half of them (alternate sorties,
         :func:`uavdyn.identify.consistency.compare_halves`): a parameter the halves disagree on
@@ -164,6 +169,11 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     """
     t_start = time.perf_counter()
     continuous, searched = _check_request(airframe, names, train, max_delay)
+    if screen:
+        problems = unexcited(continuous, train)
+        if problems:
+            raise IdentifyError("the train data do not excite " + "; ".join(problems)
+                                + " (drop it from the parameters, or fly that manoeuvre)")
     fit = _prepare(airframe, train, continuous, searched, window_s, dt, substeps,
                    max_windows, relative_bound, bounds, estimate_x0, preroll)
     outcome = _solve(fit, max_delay, max_iterations, progress)
@@ -267,6 +277,9 @@ class _Outcome:
     log: list[dict]
 
 
+MAX_DEFAULT_DT = 0.005  # default RK step: the log interval in whole sub-steps of at most this
+
+
 def _time_grid(train: list[Sortie], dt: float | None, substeps: int | None
                ) -> tuple[float, int, int]:
     """The log interval of the data, the RK steps per grid interval and the grid's stride in
@@ -276,7 +289,7 @@ def _time_grid(train: list[Sortie], dt: float | None, substeps: int | None
         grid = EvalGrid(sample_dt, dt)
         S, stride = grid.substeps, grid.stride
     else:
-        S, stride = int(substeps or DEFAULT_SUBSTEPS), 1
+        S, stride = int(substeps or substeps_for(sample_dt, MAX_DEFAULT_DT, DEFAULT_SUBSTEPS)), 1
         if S < 1:
             raise IdentifyError(f"substeps must be >= 1, got {substeps}")
     return sample_dt, S, stride

@@ -53,6 +53,30 @@ def takes_time(step: DiscreteModel | ca.Function) -> bool:
     return "t" in model_function(step).name_in()
 
 
+def substeps_for(sample_dt: float, max_dt: float, at_least: int = 1) -> int:
+    """Solver steps per log interval so that each is at most ``max_dt``: the log's own rate is
+    kept (no resampling) and the step stays small enough for a stiff model at a slow log
+    (a 10 Hz log with one 0.1 s RK4 step per sample would go unstable on a well-damped
+    short period)."""
+    return max(int(at_least), int(math.ceil(sample_dt / max_dt - 1e-9)))
+
+
+def fitting_steps(sample_dt: float, wanted: tuple[float, ...]) -> tuple[float, ...]:
+    """Each of the ``wanted`` solver steps, or where it neither divides the log interval nor is
+    a whole multiple of it, the nearest step that does (a whole fraction of the interval at
+    or below it, or the multiple nearest it); duplicates removed, order kept."""
+    out: list[float] = []
+    for dt in wanted:
+        try:
+            EvalGrid(sample_dt, dt)
+        except GridError:
+            dt = (sample_dt / substeps_for(sample_dt, dt) if dt < sample_dt
+                  else sample_dt * max(1, round(dt / sample_dt)))
+        if not any(abs(dt - d) <= 1e-12 * d for d in out):
+            out.append(dt)
+    return tuple(out)
+
+
 @dataclass(frozen=True)
 class EvalGrid:
     """How a solver step ``dt`` sits on data logged every ``sample_dt``.
