@@ -309,3 +309,35 @@ def test_missing_pymavlink_gives_the_install_hint(tmp_path, monkeypatch):
     with pytest.raises(FlightDataError) as err:
         read_dataflash(tmp_path / "any.bin")
     assert err.value.reason == PYMAVLINK_HINT
+
+
+def test_import_log_cuts_a_bin_log_into_segments_with_the_same_columns(tmp_path, tr, capsys):
+    """``uavdyn import-log`` on a .bin: the wings-level parts of the written flight become
+    sorties whose columns are the interchange format's, values equal to the written truth."""
+    from uavdyn.cli.main import main
+    from uavdyn.flightdata import csv_columns, load_dataset
+
+    log = tmp_path / "plane.bin"
+    write_plane(log, tr)
+    out = tmp_path / "data"
+    assert main(["import-log", str(log), "--fractions", "1,0,0", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "kept" in printed and "banked above 10 deg" in printed
+    ds = load_dataset(out)
+    assert ds.kind == "fixed_wing" and ds.sorties
+    header = (out / f"{ds.sorties[0].name}.csv").read_text().splitlines()[0].split(",")
+    assert tuple(header) == csv_columns("fixed_wing")
+    flight = read_dataflash(log)
+    for s, entry in zip(ds.sorties, s_entries(out)):
+        start = int(round(entry["flight_time_s"][0] * flight.meta["rate_hz"]))
+        np.testing.assert_allclose(s.states[:, 3], flight.channels["pitch"][
+            start:start + len(s.time)], atol=1e-6)
+        assert np.all(np.abs(flight.channels["roll"][start:start + len(s.time)])
+                      <= np.radians(10) + 1e-9)
+
+
+def s_entries(folder):
+    """The manifest's sortie entries."""
+    import json
+
+    return json.loads((folder / "manifest.json").read_text())["sorties"]
