@@ -194,3 +194,24 @@ def test_a_ground_run_has_no_segment_and_says_why(tmp_path, capsys):
     assert code == 2
     assert "no longitudinal segment" in err and "on the ground" in err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "ground").exists()
+
+
+def test_a_lower_rate_is_low_pass_filtered_so_nothing_folds_back():
+    """A 4 Hz tone in a 50 Hz log resampled to 5 Hz (Nyquist 2.5 Hz) would alias to a 1 Hz
+    tone of full amplitude; the anti-alias filter removes it, and a 0.3 Hz motion is kept."""
+    from uavdyn.flightdata.flightlog import resample_flight
+
+    flight, _, _ = _synthetic_flight()
+    t = flight.time
+    flight.channels["u"] = V + 1.0 * np.sin(2 * np.pi * 4.0 * t)
+    flight.channels["w"] = 1.0 + 0.5 * np.sin(2 * np.pi * 0.3 * t)
+    low = resample_flight(flight, 5.0)
+    assert low.dt == pytest.approx(0.2) and "Butterworth" in low.meta["resampling"]
+    inner = slice(10, -10)  # away from the filter's edge transients
+    assert np.max(np.abs(low.channels["u"][inner] - V)) < 0.05       # the 4 Hz tone is gone
+    np.testing.assert_allclose(low.channels["w"][inner],
+                               (1.0 + 0.5 * np.sin(2 * np.pi * 0.3 * low.time))[inner],
+                               atol=0.01)                             # 0.3 Hz kept
+    naive = np.interp(low.time, t, flight.channels["u"])
+    assert np.max(np.abs(naive - V)) > 0.5  # what resampling without the filter would give
+    assert resample_flight(flight, RATE) is flight

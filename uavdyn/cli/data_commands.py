@@ -42,7 +42,7 @@ from uavdyn.emulation.missions import missions_for
 from uavdyn.flightdata.alfa import read_alfa_flight
 from uavdyn.flightdata.control_map import parse_channel_map
 from uavdyn.flightdata.errors import FlightDataError
-from uavdyn.flightdata.flightlog import FlightLog
+from uavdyn.flightdata.flightlog import FlightLog, resample_flight
 from uavdyn.flightdata.log_dataset import SUMMARY_FILE as LOG_SUMMARY
 from uavdyn.flightdata.log_dataset import TIMELINE_FILE as LOG_TIMELINE
 from uavdyn.flightdata.log_dataset import write_log_dataset
@@ -150,25 +150,27 @@ def _log_format(source: Path, fmt: str) -> str:
 
 
 def _read_flight(source: Path, fmt: str, args: argparse.Namespace) -> FlightLog:
-    """The log as a six-degree-of-freedom flight, by its format."""
+    """The log as a six-degree-of-freedom flight at its own rate (or ``--rate``, low-pass
+    filtered first when lower: :func:`resample_flight`)."""
     maps = args.control_map or None
-    rate = {"rate_hz": args.rate} if args.rate else {}
     if fmt == "alfa":
         if args.kind not in (None, "fixed_wing"):
             raise CliError("--kind multirotor: an ALFA folder is a fixed-wing flight")
-        return read_alfa_flight(source, control_maps=maps, **rate)
-    if fmt == "ulog":
-        return read_ulog_flight(source, kind=args.kind, control_maps=maps, **rate)
-    if fmt == "ardupilot":
+        flight = read_alfa_flight(source, control_maps=maps)
+    elif fmt == "ulog":
+        flight = read_ulog_flight(source, kind=args.kind, control_maps=maps)
+    elif fmt == "ardupilot":
         from uavdyn.flightdata.ardupilot import read_dataflash
 
-        return read_dataflash(source, kind=args.kind, control_maps=maps, **rate)
-    if args.kind is None:
-        raise CliError("--format csv needs --kind fixed_wing or multirotor (the columns of the "
-                       "controls differ)")
-    from uavdyn.flightdata.sixdof_csv import read_sixdof_csv
+        flight = read_dataflash(source, kind=args.kind, control_maps=maps)
+    else:
+        if args.kind is None:
+            raise CliError("--format csv needs --kind fixed_wing or multirotor (the columns of "
+                           "the controls differ)")
+        from uavdyn.flightdata.sixdof_csv import read_sixdof_csv
 
-    return read_sixdof_csv(source, kind=args.kind, control_maps=maps, **rate)
+        flight = read_sixdof_csv(source, kind=args.kind, control_maps=maps)
+    return resample_flight(flight, args.rate) if args.rate else flight
 
 
 def add_generate_data(sub) -> None:
@@ -227,8 +229,9 @@ def add_import_log(sub) -> None:
     p.add_argument("--kind", choices=["fixed_wing", "multirotor"], default=None,
                    help="the airframe kind (default: from the log; required for csv)")
     p.add_argument("--rate", type=positive(MAX_RATE_HZ, "rate", "Hz"), default=None,
-                   help=f"grid rate in Hz, up to {MAX_RATE_HZ:g} (default: the log's own "
-                        "attitude rate; 10 Hz for ALFA)")
+                   help=f"resample to this rate in Hz, up to {MAX_RATE_HZ:g}, low-pass "
+                        "filtered first when lower (default: the log's own attitude rate; "
+                        "10 Hz for ALFA)")
     p.add_argument("--max-roll", type=positive(90.0, "angle", "deg"), default=10.0,
                    help="wings level: |roll| at most this, deg (default 10)")
     p.add_argument("--max-yaw-rate", type=positive(360.0, "rate", "deg/s"), default=10.0,

@@ -104,3 +104,61 @@ class FlightLog:
         """``N x 4`` longitudinal states ``u, w, q, theta`` (the interchange format's order)."""
         c = self.channels
         return np.column_stack([c["u"], c["w"], c["q"], c["pitch"]])
+
+
+ANTI_ALIAS_FRACTION = 0.4   # low-pass cut-off as a fraction of the new rate (0.8 x Nyquist)
+ANTI_ALIAS_ORDER = 4
+
+
+def _lowpass_finite_runs(values: np.ndarray, cutoff_hz: float, rate_hz: float) -> np.ndarray:
+    """Zero-phase Butterworth low-pass of each finite run of ``values`` separately (a gap is
+    never bridged; a run too short to filter is kept as it is)."""
+    from scipy.signal import butter, filtfilt
+
+    b, a = butter(ANTI_ALIAS_ORDER, cutoff_hz / (rate_hz / 2))
+    out = values.copy()
+    finite = np.isfinite(values)
+    edges = np.diff(np.concatenate([[0], finite.astype(np.int8), [0]]))
+    for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+        if stop - start > 3 * (max(len(a), len(b)) + 1):
+            out[start:stop] = filtfilt(b, a, values[start:stop])
+    return out
+
+
+def resample_flight(flight: FlightLog, rate_hz: float) -> FlightLog:
+    """``flight`` on a uniform grid at ``rate_hz``: a lower rate is low-pass filtered first
+    (zero-phase Butterworth, order 4, cut-off 0.4 x the new rate, so nothing above the new
+    Nyquist frequency folds back), states interpolated linearly, controls and flags held; a
+    higher rate is interpolated only (it adds no information). Gaps stay gaps. The method is
+    recorded in ``meta['resampling']``."""
+    if not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise FlightDataError(f"resampling rate must be a positive number of Hz, got {rate_hz!r}")
+    old_rate = 1.0 / flight.dt
+    if abs(rate_hz - old_rate) <= 1e-9 * old_rate:
+        return flight
+    grid = np.arange(0.0, flight.duration + 1e-9 / rate_hz, 1.0 / rate_hz)
+    down = rate_hz < old_rate
+    cutoff = ANTI_ALIAS_FRACTION * rate_hz
+
+    def state(values: np.ndarray | None) -> np.ndarray | None:
+        if values is None:
+            return None
+        smooth = _lowpass_finite_runs(values, cutoff, old_rate) if down else values
+        out = np.interp(grid, flight.time, smooth)
+        gap = np.interp(grid, flight.time, (~np.isfinite(values)).astype(float)) > 0
+        out[gap] = np.nan
+        return out
+
+    held = np.clip(np.searchsorted(flight.time, grid + 1e-9, side="right") - 1, 0,
+                   len(flight.time) - 1)
+    channels = {k: state(v) for k, v in flight.channels.items()}
+    method = (f"low-pass filtered (zero-phase Butterworth order {ANTI_ALIAS_ORDER}, cut-off "
+              f"{cutoff:g} Hz) then " if down else "") + \
+        (f"resampled from {old_rate:.6g} Hz to {rate_hz:g} Hz: states linear, controls and "
+         "flags held; gaps kept")
+    meta = {**flight.meta, "rate_hz": float(rate_hz),
+            "resampling": flight.meta.get("resampling", "") + "; then " + method}
+    return FlightLog(flight.name, flight.kind, grid, channels, flight.controls[held],
+                     flight.velocity_reference, flight.source, state(flight.altitude_m),
+                     state(flight.airspeed),
+                     None if flight.airborne is None else flight.airborne[held], meta)
