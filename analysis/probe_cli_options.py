@@ -127,6 +127,12 @@ def count(text: str, hi: int, extra=()) -> Num:
     return Num(text, lambda x: 1 <= x <= hi, integer=True, extra=(str(hi + 1), *extra))
 
 
+FRACTIONS = Values("three numbers >= 0 summing to 1 (train, validation, test)", (
+    ("0.5,0.5", "two numbers"), ("0.7,0.2,0.2", "they sum to 1.1"),
+    ("-0.1,0.6,0.5", "a negative share"), ("a,b,c", "not numbers"),
+    ("1,0,0,0", "four numbers")))
+
+
 # option -> description, per command ("*" for every command that has the option)
 OPTIONS: dict[tuple[str, str], Num | Values] = {
     ("*", "--airframe"): AIRFRAME,
@@ -174,11 +180,30 @@ OPTIONS: dict[tuple[str, str], Num | Values] = {
         ("1abc", "starts with a digit"), ("a-b", "not a C identifier"),
         ("int", "a C keyword"), ("", "empty"))),
     ("export-c", "--out"): OUT_FOLDER,
-    ("import-log", "log"): Values("an existing .ulg file or ALFA folder", (
+    ("import-log", "log"): Values("an existing .ulg/.bin/.csv file or ALFA folder", (
         (MISSING, "does not exist"),)),
-    ("import-log", "--format"): choice("auto, ulog, alfa"),
+    ("import-log", "--format"): choice("auto, ulog, alfa, ardupilot, csv"),
+    ("import-log", "--kind"): choice("fixed_wing, multirotor"),
     ("import-log", "--rate"): positive("0 < rate <= 1000 Hz", 1000),
+    ("import-log", "--max-roll"): positive("0 < angle <= 90 deg", 90),
+    ("import-log", "--max-yaw-rate"): positive("0 < rate <= 360 deg/s", 360),
+    ("import-log", "--max-sideslip"): positive("0 < angle <= 90 deg", 90),
+    ("import-log", "--min-duration"): positive("0 < duration <= 3600 s", 3600),
+    ("import-log", "--min-speed"): Num("0 <= speed <= 200 m/s",
+                                       lambda x: finite(x) and 0 <= x <= 200),
+    ("import-log", "--control-map"): Values(
+        "CONTROL=SOURCE:RAW_LOW:RAW_HIGH:VALUE_LOW:VALUE_HIGH, a control of the log's kind", (
+            ("elevator", "no map after the control"),
+            ("elevator=x:1:1:0:1", "the two raw readings are equal"),
+            ("elevator=x:a:2:0:1", "not numbers"),
+            ("rudder=x:1:2:0:1", "not a longitudinal control"),
+            ("elevator=x:1:2:0:1", "a fixed-wing control for a multirotor log"))),
+    ("import-log", "--split-by"): choice("sortie, time-block"),
+    ("*", "--fractions"): FRACTIONS,
     ("import-log", "--out"): OUT_FOLDER,
+    ("split", "dataset"): Values("a dataset folder holding manifest.json", (
+        (MISSING, "does not exist"), (FOLDER, "a folder without manifest.json"))),
+    ("split", "--by"): choice("sortie, time-block"),
     ("identify", "--dataset"): DATASET,
     ("identify", "--params"): Values("comma-separated parameter names of the model", (
         ("no_such_param", "not a parameter of the model"), (",", "no parameter named"))),
@@ -328,7 +353,8 @@ BASE: dict[str, list[str]] = {
     "generate-data": ["generate-data", "--airframe", "aerosonde", "--sorties", "1",
                       "--duration", "2", "--workers", "1", "--no-progress", "--out", "gd"],
     "export-c": ["export-c", "--model", "rk4", "--out", "cb"],
-    "import-log": ["import-log", "{F}/log.ulg", "--out", "imp"],
+    "import-log": ["import-log", "{F}/log.ulg", "--fractions", "1,0,0", "--out", "imp"],
+    "split": ["split", "{F}/splitds", "--fractions", "0.5,0.5,0"],
     "identify": ["identify", "--dataset", "{DS}", "--params", "C_m_alpha", "--out",
                  "id.toml", "--quiet"],
     # (fixed wing only: at 327d4ea the quick quadrotor pipeline stops with a free-run departure)
@@ -537,9 +563,9 @@ class _suppress:
 # ------------------------------------------------------------------------------- fixtures
 
 def make_fixtures(folder: Path) -> dict[str, str]:
-    """A small fixed-wing dataset (2 sorties x 4 s at 50 Hz, split train/validation), a
-    real PX4 ULog (../shared's sample), a folder, a file, the shipped Aerosonde weights and a
-    dispersion file."""
+    """A small fixed-wing dataset (2 sorties x 4 s at 50 Hz, split train/validation) and a
+    copy of it to split, a real PX4 ULog (the SITL hover shipped in tests/data), a folder, a
+    file, the shipped Aerosonde weights and a dispersion file."""
     from uavdyn.emulation import Recipe, generate_dataset
     from uavdyn.learned import shipped_correction
 
@@ -552,8 +578,9 @@ def make_fixtures(folder: Path) -> dict[str, str]:
                      ds, workers=1, progress=False)
     (folder / "afolder").mkdir()
     (folder / "afile.txt").write_text("not what the option wants\n")
-    real_log = ROOT.parent / "shared" / "data" / "flightlogs" / "pyulog_sample.ulg"
-    if real_log.is_file():  # a real PX4 log beside the checkout (analysis imports no tests)
+    shutil.copytree(ds, folder / "splitds")  # split rewrites its manifest: a copy of its own
+    real_log = ROOT / "tests" / "data" / "reallogs" / "px4_sitl_hover.ulg"
+    if real_log.is_file():  # the real PX4 SITL hover shipped with the tests
         shutil.copyfile(real_log, folder / "log.ulg")
     else:  # import-log's base run then fails, and the report says so
         print(f"(no ULog for import-log: {real_log} is absent)", file=sys.stderr)

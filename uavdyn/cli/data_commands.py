@@ -39,7 +39,7 @@ from uavdyn.emulation.fingerprint import (
     write_fingerprint,
 )
 from uavdyn.emulation.missions import missions_for
-from uavdyn.flightdata.alfa import read_alfa_flight
+from uavdyn.flightdata import read_alfa_flight, read_dataflash, read_sixdof_csv
 from uavdyn.flightdata.control_map import parse_channel_map
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.flightlog import FlightLog, resample_flight
@@ -52,15 +52,20 @@ from uavdyn.flightdata.ulog_flight import read_ulog_flight
 from uavdyn.outputs import check_output_folder, output_folder
 
 MAX_RATE_HZ = 1000.0         # a log grid rate: no logged topic is faster
+LONGITUDINAL_CONTROLS = ("elevator", "throttle", "collective", "pitch_cmd")
 MISSIONS = tuple(dict.fromkeys(missions_for("fixed_wing") + missions_for("multirotor")))
 
 
 def control_map(text: str):
     """``--control-map`` value, refused at parse time with the reason."""
     try:
-        return parse_channel_map(text)
+        m = parse_channel_map(text)
     except FlightDataError as exc:
         raise argparse.ArgumentTypeError(exc.reason) from None
+    if m.control not in LONGITUDINAL_CONTROLS:
+        raise argparse.ArgumentTypeError(f"{m.control!r} is not a control of the longitudinal "
+                                         f"model ({', '.join(LONGITUDINAL_CONTROLS)})")
+    return m
 
 
 def cmd_generate_data(args: argparse.Namespace) -> int:
@@ -153,24 +158,29 @@ def _read_flight(source: Path, fmt: str, args: argparse.Namespace) -> FlightLog:
     """The log as a six-degree-of-freedom flight at its own rate (or ``--rate``, low-pass
     filtered first when lower: :func:`resample_flight`)."""
     maps = args.control_map or None
-    if fmt == "alfa":
-        if args.kind not in (None, "fixed_wing"):
-            raise CliError("--kind multirotor: an ALFA folder is a fixed-wing flight")
-        flight = read_alfa_flight(source, control_maps=maps)
-    elif fmt == "ulog":
-        flight = read_ulog_flight(source, kind=args.kind, control_maps=maps)
-    elif fmt == "ardupilot":
-        from uavdyn.flightdata.ardupilot import read_dataflash
-
-        flight = read_dataflash(source, kind=args.kind, control_maps=maps)
-    else:
-        if args.kind is None:
-            raise CliError("--format csv needs --kind fixed_wing or multirotor (the columns of "
-                           "the controls differ)")
-        from uavdyn.flightdata.sixdof_csv import read_sixdof_csv
-
-        flight = read_sixdof_csv(source, kind=args.kind, control_maps=maps)
+    try:
+        flight = _read_format(source, fmt, args.kind, maps)
+    except FlightDataError as exc:
+        if exc.reason.startswith("control map"):  # the option's value, not the log, is wrong
+            raise CliError(f"--control-map: {exc.reason}") from None
+        raise
     return resample_flight(flight, args.rate) if args.rate else flight
+
+
+def _read_format(source: Path, fmt: str, kind: str | None, maps: list | None) -> FlightLog:
+    """The log read by its format's reader."""
+    if fmt == "alfa":
+        if kind not in (None, "fixed_wing"):
+            raise CliError("--kind multirotor: an ALFA folder is a fixed-wing flight")
+        return read_alfa_flight(source, control_maps=maps)
+    if fmt == "ulog":
+        return read_ulog_flight(source, kind=kind, control_maps=maps)
+    if fmt == "ardupilot":
+        return read_dataflash(source, kind=kind, control_maps=maps)
+    if kind is None:
+        raise CliError("--format csv needs --kind fixed_wing or multirotor (the columns of the "
+                       "controls differ)")
+    return read_sixdof_csv(source, kind=kind, control_maps=maps)
 
 
 def add_generate_data(sub) -> None:
