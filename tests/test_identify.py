@@ -162,6 +162,7 @@ def test_a_fit_ending_on_its_bound_writes_its_file_and_says_so(tmp_path, aeroson
     assert low <= value <= high and value == pytest.approx(edge, rel=1e-6)
     printed = capsys.readouterr().out
     assert "the fit ended on its" in printed and "bound" in printed
+    assert "flagged: C_m_alpha (on its " in printed  # in the headline, not only the table
     assert main(["identify", "--airframe", "aerosonde", "--dataset", str(data), "--params",
                  "C_m_alpha", "--bounds", "C_m_q=-1:0", "--out", str(out), "--force"]) == 2
     assert "--bounds C_m_q: only a continuous parameter named in --params" in \

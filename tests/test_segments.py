@@ -179,6 +179,16 @@ def test_a_px4_hover_at_its_own_rate_imports_and_refuses_an_unexcited_pitch_deri
     assert len(manifest["sorties"]) == 1 and "in-air flag" in manifest["sorties"][0]["cut"][
         "before"]
     airframe = str(Path(__file__).resolve().parents[1] / "examples" / "x500.toml")
+    # evaluate runs at the log's own 20 Hz (the paper's 0.02 s step does not divide 0.05 s:
+    # the nearest whole fraction, 0.05 / 3 s, is used) without resampling the data
+    code, out, err = _run(capsys, "evaluate", "--airframe", airframe, "--dataset", str(data),
+                          "--all-sorties", "--out", str(tmp_path / "e.json"))
+    assert code == 0, err
+    result = json.loads((tmp_path / "e.json").read_text())
+    steps = sorted({row["dt"] for row in result["ladder"]["per_sortie"]})
+    assert steps == [pytest.approx(0.05 / 5)]
+    solvers = json.dumps(result["table1"])
+    assert "0.0166667 s" in solvers and "0.02 s" not in solvers
     code, out, err = _run(capsys, "identify", "--airframe", airframe, "--dataset", str(data),
                           "--params", "pitch_damping", "--out", str(tmp_path / "x.toml"),
                           "--quiet")

@@ -103,10 +103,11 @@ def cmd_identify(args: argparse.Namespace) -> int:
         print("  " + estimate_line(e))
     for a, b, c in result.flagged_pairs:
         print(f"  highly correlated: {a} and {b} (r = {c:+.3f})")
-    undetermined = [e.name for e in result.estimates if e.flags()]
+    undetermined = [e for e in result.estimates if e.flags()]
     print(f"  {len(result.estimates) - len(undetermined)} of {len(result.estimates)} "
           "parameters determined by these data"
-          + (f"; flagged: {', '.join(undetermined)}" if undetermined else ""))
+          + (f"; flagged: {'; '.join(_why_flagged(e) for e in undetermined)}"
+             if undetermined else ""))
     for line in structure_lines(log) if log else []:
         print("  " + line)
     for split in ("train", "validation"):
@@ -117,6 +118,16 @@ def cmd_identify(args: argparse.Namespace) -> int:
                   f"{fit['theta_rmse']['identified']:.3g} rad")
     print(f"wrote {paths['airframe']}, {paths['json']} and {paths['png']}")
     return 0
+
+
+def _why_flagged(estimate) -> str:
+    """``C_L_0 (on its upper bound)``: the name and the short reason for the headline."""
+    reasons = []
+    if estimate.at_bound:
+        reasons.append(f"on its {estimate.at_bound} bound")
+    if estimate.undetermined:
+        reasons.append("not determined")
+    return f"{estimate.name} ({', '.join(reasons)})"
 
 
 def _check_identify_steps(args: argparse.Namespace, train: list[Sortie]) -> None:
