@@ -45,7 +45,7 @@ from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.flightlog import FlightLog, resample_flight
 from uavdyn.flightdata.log_dataset import SUMMARY_FILE as LOG_SUMMARY
 from uavdyn.flightdata.log_dataset import TIMELINE_FILE as LOG_TIMELINE
-from uavdyn.flightdata.log_dataset import write_log_dataset
+from uavdyn.flightdata.log_dataset import plan_log_dataset, write_log_dataset
 from uavdyn.flightdata.manifest import MANIFEST_MAX_SORTIES
 from uavdyn.flightdata.segments import SegmentRules
 from uavdyn.flightdata.ulog_flight import read_ulog_flight
@@ -129,8 +129,9 @@ def cmd_import_log(args: argparse.Namespace) -> int:
     rules = SegmentRules(max_roll_deg=args.max_roll, max_yaw_rate_deg_s=args.max_yaw_rate,
                          max_sideslip_deg=args.max_sideslip, min_duration_s=args.min_duration,
                          min_speed_m_s=args.min_speed, kinematic=not args.no_kinematic_check)
+    planned = plan_log_dataset(flight, rules, split_options_from(args))  # refusals first
     with output_folder(args.out, "import-log", args.force) as tmp:
-        written = write_log_dataset(flight, tmp, rules, split_options_from(args))
+        written = write_log_dataset(planned, tmp)
     for line in written.lines:
         print(line)
     print(f"wrote {args.out}/ ({len(written.splits)} segment sorties at {1 / flight.dt:.6g} Hz, "

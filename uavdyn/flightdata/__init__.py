@@ -17,7 +17,7 @@ from uavdyn.flightdata.csvio import export, read_csv, write_csv
 from uavdyn.flightdata.dataset import Dataset, load_dataset
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.flightlog import FlightLog, resample_flight
-from uavdyn.flightdata.log_dataset import LogDataset, write_log_dataset
+from uavdyn.flightdata.log_dataset import LogDataset, plan_log_dataset, write_log_dataset
 from uavdyn.flightdata.manifest import read_manifest, write_manifest
 from uavdyn.flightdata.noise import excess_rmse, pitch_noise_std, white_noise_std
 from uavdyn.flightdata.preprocess import Normalisation, lowpass, normalisation
@@ -35,6 +35,6 @@ __all__ = ["SPLIT_NAMES", "Dataset", "FlightDataError", "Normalisation", "Sortie
            "read_csv", "read_manifest", "white_noise_std", "write_csv", "write_manifest",
            "import_alfa", "import_ulog", "Windows", "make_windows", "ChannelMap",
            "parse_channel_map", "FlightLog", "resample_flight", "LogDataset",
-           "write_log_dataset", "SegmentReport", "SegmentRules", "find_segments",
+           "write_log_dataset", "plan_log_dataset", "SegmentReport", "SegmentRules", "find_segments",
            "segment_sorties", "SplitError", "assign_split", "split_dataset", "read_alfa_flight",
            "read_dataflash", "read_sixdof_csv", "read_ulog_flight"]

@@ -27,26 +27,28 @@ ENTRY_KEYS = ("source_file", "source_start_s", "source_end_s", "flight_time_s", 
 
 @dataclass(frozen=True)
 class LogDataset:
-    """What :func:`write_log_dataset` wrote: the segmenter's report, each segment's split,
-    and the summary lines it printed to ``import_summary.txt``."""
+    """A log cut into segments with a split, before (:func:`plan_log_dataset`) or after
+    (:func:`write_log_dataset`) it is written: the segmenter's report, the sorties, each one's
+    manifest entry and split, and the summary lines (``import_summary.txt``)."""
 
+    flight: FlightLog
     report: SegmentReport
+    sorties: list
+    entries: list[dict]
     splits: list[str]
     lines: list[str]
+    split_rule: dict
 
 
-def write_log_dataset(flight: FlightLog, folder: str | Path, rules: SegmentRules | None = None,
-                      split: dict | None = None) -> LogDataset:
-    """Cut ``flight`` into segments and write them as a dataset into ``folder`` (which the
-    caller swaps into place atomically).
+def plan_log_dataset(flight: FlightLog, rules: SegmentRules | None = None,
+                     split: dict | None = None) -> LogDataset:
+    """Cut ``flight`` into segments and assign their split, writing nothing (so a log with no
+    usable segment, or a split that cannot be filled, is refused before any output exists).
 
     Parameters
     ----------
     flight : FlightLog
         The imported log.
-    folder : str or Path
-        An empty folder to fill: one CSV per segment, ``manifest.json``,
-        ``import_summary.txt`` and ``import_timeline.png``.
     rules : SegmentRules, optional
         The segment thresholds (defaults stated in :class:`SegmentRules`).
     split : dict, optional
@@ -63,30 +65,57 @@ def write_log_dataset(flight: FlightLog, folder: str | Path, rules: SegmentRules
         No usable segment (one line saying what was missing), or a split that would leave a
         part empty (naming it).
     """
-    folder = Path(folder)
     report = find_segments(flight, rules)
     sorties = segment_sorties(report)
     entries = [{"file": f"{s.name}.csv", "mission": s.mission,
                 "duration_s": round(s.duration, 6),
                 **{k: s.meta[k] for k in ENTRY_KEYS if k in s.meta}} for s in sorties]
     splits = assign_split(entries, **(split or {}))
-    for s, entry, part in zip(sorties, entries, splits):
+    for entry, part in zip(entries, splits):
         entry["split"] = part
-        write_csv(s, folder / entry["file"])
-    write_manifest(folder, airframe="", kind=flight.kind,
-                   sample_rate_hz=round(1.0 / flight.dt, 9),
-                   source=f"uavdyn import-log ({flight.source}) of "
-                          f"{Path(str(flight.meta.get('file', flight.name))).name}",
-                   sorties=entries, velocity_reference=flight.velocity_reference,
-                   control_map=flight.meta.get("control_map", {}),
-                   channel_sources=flight.meta.get("sources", {}),
-                   resampling=flight.meta.get("resampling", ""),
-                   segmentation=report.as_dict(), split_rule=_split_rule(split))
     lines = report.lines() + [f"  split: {_split_counts(splits, sorties)}"]
     lines += [f"  control map: {text}" for text in flight.meta.get("control_map", {}).values()]
-    (folder / SUMMARY_FILE).write_text("\n".join(lines) + "\n")
-    draw_timeline(report, folder / TIMELINE_FILE, splits)
-    return LogDataset(report, splits, lines)
+    return LogDataset(flight, report, sorties, entries, splits, lines, _split_rule(split))
+
+
+def write_log_dataset(flight: FlightLog | LogDataset, folder: str | Path,
+                      rules: SegmentRules | None = None, split: dict | None = None
+                      ) -> LogDataset:
+    """Write a log's segments as a dataset into ``folder`` (which the caller swaps into place
+    atomically): one CSV per segment, ``manifest.json``, ``import_summary.txt`` and
+    ``import_timeline.png``.
+
+    Parameters
+    ----------
+    flight : FlightLog or LogDataset
+        The imported log (cut here with ``rules`` and ``split``), or the result of
+        :func:`plan_log_dataset`.
+    folder : str or Path
+        An empty folder to fill.
+    rules, split
+        As for :func:`plan_log_dataset` (ignored for a planned dataset).
+
+    Returns
+    -------
+    LogDataset
+    """
+    planned = flight if isinstance(flight, LogDataset) else plan_log_dataset(flight, rules,
+                                                                             split)
+    folder = Path(folder)
+    log = planned.flight
+    for s, entry in zip(planned.sorties, planned.entries):
+        write_csv(s, folder / entry["file"])
+    write_manifest(folder, airframe="", kind=log.kind, sample_rate_hz=round(1.0 / log.dt, 9),
+                   source=f"uavdyn import-log ({log.source}) of "
+                          f"{Path(str(log.meta.get('file', log.name))).name}",
+                   sorties=planned.entries, velocity_reference=log.velocity_reference,
+                   control_map=log.meta.get("control_map", {}),
+                   channel_sources=log.meta.get("sources", {}),
+                   resampling=log.meta.get("resampling", ""),
+                   segmentation=planned.report.as_dict(), split_rule=planned.split_rule)
+    (folder / SUMMARY_FILE).write_text("\n".join(planned.lines) + "\n")
+    draw_timeline(planned.report, folder / TIMELINE_FILE, planned.splits)
+    return planned
 
 
 def _split_rule(split: dict | None) -> dict:
