@@ -36,5 +36,5 @@ __all__ = ["SPLIT_NAMES", "Dataset", "FlightDataError", "Normalisation", "Sortie
            "import_alfa", "import_ulog", "Windows", "make_windows", "ChannelMap",
            "parse_channel_map", "FlightLog", "resample_flight", "LogDataset",
            "write_log_dataset", "plan_log_dataset", "SegmentReport", "SegmentRules",
-           "find_segments", "segment_sorties", "SplitError", "assign_split", "split_dataset", "read_alfa_flight",
-           "read_dataflash", "read_sixdof_csv", "read_ulog_flight"]
+           "find_segments", "segment_sorties", "SplitError", "assign_split", "split_dataset",
+           "read_alfa_flight", "read_dataflash", "read_sixdof_csv", "read_ulog_flight"]
