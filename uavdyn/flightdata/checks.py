@@ -117,7 +117,7 @@ def check_values(path: str | Path, kind: str, time: np.ndarray, states: np.ndarr
 def kinematic_residual(time: np.ndarray, states: np.ndarray,
                        window_s: float = KINEMATIC_WINDOW_S) -> tuple[np.ndarray, np.ndarray]:
     """Per window of ``window_s`` seconds (half-overlapping): the pitch change minus the
-    trapezoid integral of q, and the pitch travelled (integral of |q|). Start indices are
+    trapezoid integral of q, and the pitch travelled (integral of ``|q|``). Start indices are
     the first return value's index times the hop; see :func:`check_kinematics`."""
     theta, q = states[:, 3], states[:, 2]
     cum = _running_integral(time, q)
