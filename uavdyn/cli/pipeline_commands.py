@@ -24,10 +24,11 @@ from uavdyn.cli.common import (
     seconds,
 )
 from uavdyn.emulation.datagen import shipped_recipe
-from uavdyn.experiments.report import headline_lines
+from uavdyn.experiments.report import headline_lines, headline_table
 from uavdyn.experiments.reproduce import (
     ReproduceConfig,
     _json,
+    cache_lines,
     evaluate_dataset,
     evaluation_markdown,
     run,
@@ -60,9 +61,17 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
                              identify=not args.no_identify,
                              save_trajectories=args.save_trajectories)
     result = run(config)
-    print(f"report: {Path(args.out) / 'report.md'} ({result['wall_s']:.0f} s, "
-          f"{result['size_bytes'] / 1e6:.1f} MB written)")
+    print(reproduce_summary(result, args.out, args.cache))
     return 0
+
+
+def reproduce_summary(result: dict, out: str | Path, cache: str | Path | None) -> str:
+    """What ``uavdyn reproduce`` prints at the end: the headline table (from ``result``), the
+    report it wrote, and where its caches are and how big."""
+    return "\n".join(["", *headline_table(result), "",
+                      f"report: {Path(out) / 'report.md'} ({result['wall_s']:.0f} s, "
+                      f"{result['size_bytes'] / 1e6:.1f} MB written; free runs, spread, "
+                      "figures and Tables 1-4 there)", *cache_lines(cache)])
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:

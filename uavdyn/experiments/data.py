@@ -42,6 +42,12 @@ def dataset_cache_key(recipe) -> str:
                            generator_code_hash()).encode()).hexdigest()[:12]
 
 
+def dataset_cache_folder(cache: str | Path | None) -> Path:
+    """Where the pipeline keeps its generated datasets: ``cache`` (``uavdyn reproduce
+    --cache``) or ``datasets/`` in the compile cache (:func:`uavdyn.integrate.cache_dir`)."""
+    return Path(cache or cache_dir() / "datasets")
+
+
 def dataset_for(airframe_name: str, config: ReproduceConfig) -> Dataset:
     """The emulated dataset of the shipped recipe (or its quick variant), generated once and
     reused from the cache folder while the recipe, the package version and the generator's
@@ -58,7 +64,7 @@ def dataset_for(airframe_name: str, config: ReproduceConfig) -> Dataset:
     if config.duration_s:
         recipe.duration_s = config.duration_s
     key = dataset_cache_key(recipe)
-    folder = Path(config.cache or cache_dir() / "datasets") / f"{airframe_name}_{key}"
+    folder = dataset_cache_folder(config.cache) / f"{airframe_name}_{key}"
     if not (folder / "manifest.json").exists():
         folder.parent.mkdir(parents=True, exist_ok=True)  # the cache is ours to create
         generate_dataset(recipe, folder, progress=config.progress, force=True)

@@ -98,6 +98,56 @@ def headline_lines(af: dict) -> list[str]:
     return lines
 
 
+HEADLINE_COLUMNS = ("airframe", "condition", "sorties", "nominal", "identified", "corrected",
+                    "identified worse", "corrected worse")
+
+
+def headline_rows(af: dict, mode: str = "horizon_1s") -> list[tuple[str, ...]]:
+    """One row per condition of the ladder's headline at ``mode`` (read from
+    ``af["ladder"]["headline"]``, nothing recomputed): each rung's pooled pitch RMSE and, for
+    the identified and corrected rungs, on how many sorties it is worse than the rung below
+    (``"2/3"``). A missing condition or rung says so."""
+    lad = af.get("ladder")
+    name = af["airframe"]
+    if not lad:
+        return [(name, "all", "-", "not evaluated")]
+    rows = []
+    for entry in lad["headline"]:
+        if "missing" in entry:
+            rows.append((name, entry["condition"], "0", f"missing: {entry['missing']}"))
+            continue
+        if entry["mode"] != mode:
+            continue
+        n = entry["sorties"]
+        rmse = [fmt(entry["models"][m]["rmse"]) if m in entry["models"] else "missing"
+                for m in ("nominal physics", "identified physics", "corrected")]
+        worse = [f"{len(entry[key]['worse'])}/{n}" if entry.get(key) else "-"
+                 for key in PAIRED_WORDS]
+        rows.append((name, entry["condition"], str(n), *rmse, *worse))
+    return rows
+
+
+def headline_table(results: dict) -> list[str]:
+    """The headline of ``uavdyn reproduce`` as a plain-text table for the terminal: 1 s pitch
+    RMSE of nominal -> identified -> corrected per airframe and condition, with the sorties
+    each rung made worse (:func:`headline_rows`)."""
+    rows = [r for af in results["airframes"] for r in headline_rows(af)]
+    full = [r for r in rows if len(r) == len(HEADLINE_COLUMNS)]
+    widths = [max([len(c)] + [len(r[i]) for r in full]) for i, c in enumerate(HEADLINE_COLUMNS)]
+
+    def line(cells) -> str:
+        if len(cells) < len(HEADLINE_COLUMNS):  # a missing group: its reason after the count
+            head = "  ".join(c.ljust(w) for c, w in zip(cells[:3], widths))
+            return f"{head}  {cells[3]}".rstrip()
+        return "  ".join(c.ljust(w) for c, w in zip(cells, widths)).rstrip()
+
+    return (["Does fitting to flight data help? 1 s pitch RMSE (rad), pooled over the held-out "
+             "test sorties:", "nominal physics -> identified physics -> corrected (the learned "
+             "correction on the identified physics).", "'worse': sorties on which that rung "
+             "is worse than the one below it.", "", line(HEADLINE_COLUMNS)]
+            + [line(r) for r in rows])
+
+
 def first_paragraph(results: dict) -> str:
     """The headline: does fitting to flight data help, by how much, at what cost, where does
     it fail: every airframe and condition."""

@@ -34,6 +34,7 @@ from uavdyn.experiments.data import (
     LEGACY,
     RECIPES,
     correction_inputs,
+    dataset_cache_folder,
     dataset_cache_key,
     dataset_for,
     identify_physics,
@@ -57,6 +58,7 @@ from uavdyn.integrate import cache_dir
 from uavdyn.outputs import output_folder
 
 __all__ = ["PAPER", "ReproduceConfig", "run", "run_airframe", "table1_candidates",
+           "cache_lines", "folder_bytes",
            "ladder_name", "robustness_scenarios", "json_default",
            # defined in the modules of each concept, importable from here as before
            "LEGACY", "RECIPES", "Candidate", "accuracy_tables", "convergence_table",
@@ -207,6 +209,34 @@ def run(config: ReproduceConfig) -> dict:
     log(f"wrote {out / 'report.md'} and {out / 'metrics.json'} "
         f"(total {results['wall_s']:.0f} s, {results['size_bytes'] / 1e6:.1f} MB)")
     return results
+
+
+def folder_bytes(folder: str | Path) -> int:
+    """Bytes of the files under ``folder`` (0 if it does not exist)."""
+    folder = Path(folder)
+    return sum(f.stat().st_size for f in folder.rglob("*") if f.is_file()) \
+        if folder.is_dir() else 0
+
+
+def cache_lines(cache: str | Path | None = None) -> list[str]:
+    """Where the pipeline's caches live and their size now: the compile cache
+    (:func:`uavdyn.integrate.cache_dir`, ``$UAVDYN_CACHE``) and the dataset cache
+    (``cache``: ``uavdyn reproduce --cache``, default inside the compile cache). Both are
+    rebuilt when deleted."""
+    compiled, datasets = cache_dir(), dataset_cache_folder(cache)
+
+    def size(folder: Path, minus: int = 0) -> str:
+        if not folder.is_dir():
+            return "not created"
+        return f"{(folder_bytes(folder) - minus) / 1e6:.1f} MB"
+
+    inside = datasets.resolve().is_relative_to(compiled.resolve())
+    return ["caches (deleting them is safe: they are rebuilt, slower, on the next run):",
+            f"  compiled steps: {compiled} ("
+            + size(compiled, folder_bytes(datasets) if inside else 0)
+            + (" without the datasets in it" if inside and datasets.is_dir() else "")
+            + "; $UAVDYN_CACHE moves it)",
+            f"  datasets: {datasets} ({size(datasets)}; --cache moves it)"]
 
 
 def _portable(results: dict, tmp: Path, out: Path, cache: str | None) -> dict:
