@@ -25,7 +25,6 @@ extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
     "sphinx.ext.napoleon",
-    "sphinx.ext.mathjax",
 ]
 
 source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
@@ -47,7 +46,6 @@ exclude_patterns = [
 # MyST: GitHub-style anchors for headings down to level 4, so the pages' in-page links
 # (``[Limits](#limits)``) resolve in the site as they do on GitHub.
 myst_heading_anchors = 4
-myst_enable_extensions = ["dollarmath"]
 
 # autodoc + napoleon: NumPy-style docstrings only; each sub-package page documents its
 # ``__all__`` (imported names included), in source order.
