@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from dataflash_writer import DataFlashWriter
 
-from uavdyn.flightdata.ardupilot import PYMAVLINK_HINT, body_from_euler, read_dataflash
+from uavdyn.flightdata.ardupilot import PYMAVLINK_HINT, read_dataflash
+from uavdyn.flightdata.attitude import body_from_euler
 from uavdyn.flightdata.control_map import ChannelMap
 from uavdyn.flightdata.errors import FlightDataError
 

@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from uavdyn.flightdata.attitude import body_from_euler
 from uavdyn.flightdata.control_map import ChannelMap
 from uavdyn.flightdata.errors import FlightDataError
-from uavdyn.flightdata.sixdof_csv import body_from_euler, read_sixdof_csv
+from uavdyn.flightdata.sixdof_csv import read_sixdof_csv
 
 RATE = 50.0
 

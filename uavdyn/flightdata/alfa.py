@@ -34,7 +34,15 @@ from uavdyn.flightdata.import_checks import (
     _check_rate,
     _checked,
 )
-from uavdyn.flightdata.resample import _grid, _hold, _interp, _quaternions_on_grid, in_gap
+from uavdyn.flightdata.resample import (
+    _grid,
+    _hold,
+    _interp,
+    _quaternions_on_grid,
+    commands_on_grid,
+    in_gap,
+    states_on_grid,
+)
 from uavdyn.flightdata.sortie import Sortie
 from uavdyn.model import CONTROL_BOUNDS
 
@@ -364,9 +372,7 @@ def read_alfa_flight(folder: str | Path, rate_hz: float = 10.0, name: str | None
     grid = _grid(t0, t1, float(rate_hz), folder)
 
     def on_grid(key: str, hold: bool = False) -> np.ndarray:
-        vals = (_hold if hold else _interp)(grid, rel[key], topics[key].vals)
-        vals[in_gap(grid, rel[key])] = np.nan
-        return vals
+        return (commands_on_grid if hold else states_on_grid)(grid, rel[key], topics[key].vals)
 
     quat = _quaternions_on_grid(grid, rel["imu"], topics["imu"].vals)
     gyro, vel = on_grid("gyro"), on_grid("odom")

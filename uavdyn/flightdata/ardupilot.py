@@ -35,18 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
-from uavdyn.flightdata.control_map import ChannelMap
+from uavdyn.flightdata.attitude import body_from_euler, rotate_to_body
+from uavdyn.flightdata.control_map import ChannelMap, override_maps
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.flightlog import FlightLog
-from uavdyn.flightdata.import_checks import MAX_RATE_HZ, _as_path, _check_name, _check_rate
-from uavdyn.flightdata.resample import _grid
-from uavdyn.flightdata.sixdof_csv import (
-    body_from_euler,
-    hold_on_grid,
-    interp_on_grid,
-    override_maps,
-    rotate_to_body,
-)
+from uavdyn.flightdata.import_checks import MAX_RATE_HZ, _as_path, check_reader_options
+from uavdyn.flightdata.resample import _grid, hold_on_grid, interp_on_grid
 from uavdyn.model import CONTROL_NAMES
 from uavdyn.safefiles import UnreadableFile, stat_regular
 
@@ -103,20 +97,6 @@ def _import_dfreader(path: Path):
     except ImportError:
         raise FlightDataError(PYMAVLINK_HINT, path) from None
     return DFReader
-
-
-def _check_options(path: Path, kind: object, rate_hz: object, control_maps: object,
-                   name: object) -> None:
-    """The options of :func:`read_dataflash`, refused before the file is read."""
-    if kind is not None and (not isinstance(kind, str) or kind not in CONTROL_NAMES):
-        raise FlightDataError(f"unknown kind {kind!r} (option kind must be one of "
-                              f"{tuple(CONTROL_NAMES)} or None)", path)
-    _check_rate(rate_hz, path, allow_none=True)
-    _check_name(name, path)
-    if control_maps is not None and (not isinstance(control_maps, (list, tuple)) or not all(
-            isinstance(m, ChannelMap) for m in control_maps)):
-        raise FlightDataError("option control_maps must be a list of ChannelMap or None, got "
-                              f"{type(control_maps).__name__}", path)
 
 
 def _check_file(path: Path) -> None:
@@ -446,7 +426,7 @@ def read_dataflash(path: str | Path, kind: str | None = None, rate_hz: float | N
         when pymavlink is missing.
     """
     path = _as_path(path, "path")
-    _check_options(path, kind, rate_hz, control_maps, name)
+    check_reader_options(path, kind, rate_hz, control_maps, name)
     _import_dfreader(path)
     _check_file(path)
     wanted = dict(MESSAGES)

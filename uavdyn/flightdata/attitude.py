@@ -80,3 +80,34 @@ def _first_non_unit(q: np.ndarray) -> tuple[int, float] | None:
         return None
     k = int(bad[0])
     return k, float(norm[k])
+
+
+def body_from_euler(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Rotation matrices NED -> FRD body for 3-2-1 (yaw, pitch, roll) Euler angles.
+
+    Logs give attitude as Euler angles, velocities in NED; ``matrix @ v_ned`` is the velocity
+    in body axes.
+
+    Parameters
+    ----------
+    roll, pitch, yaw : ndarray, shape (N,)
+        Angles (rad); NaN gives a NaN matrix.
+
+    Returns
+    -------
+    ndarray, shape (N, 3, 3)
+        One matrix per sample (the transpose of the body-to-NED direction cosine matrix).
+    """
+    cr, sr = np.cos(roll), np.sin(roll)
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    return np.stack([
+        np.stack([cp * cy, cp * sy, -sp], -1),
+        np.stack([sr * sp * cy - cr * sy, sr * sp * sy + cr * cy, sr * cp], -1),
+        np.stack([cr * sp * cy + sr * sy, cr * sp * sy - sr * cy, cr * cp], -1),
+    ], axis=1)
+
+
+def rotate_to_body(matrices: np.ndarray, v_ned: np.ndarray) -> np.ndarray:
+    """``N x 3`` NED vectors in body axes (:func:`body_from_euler` matrices)."""
+    return np.einsum("nij,nj->ni", matrices, v_ned)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -108,3 +109,13 @@ def override(defaults: dict[str, ChannelMap], given: list[ChannelMap] | None
                                   f"{', '.join(maps)}")
         maps[m.control] = m
     return maps
+
+
+def override_maps(defaults: dict[str, ChannelMap], given: list[ChannelMap] | None,
+                  path: Path) -> dict[str, ChannelMap]:
+    """:func:`override` with the file named in its refusal (a map for a control the
+    airframe kind does not have)."""
+    try:
+        return override(defaults, given)
+    except FlightDataError as exc:
+        raise FlightDataError(exc.reason, path, column=exc.column) from None

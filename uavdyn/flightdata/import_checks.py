@@ -71,3 +71,24 @@ def _checked(path: Path, kind: str, time: np.ndarray, states: np.ndarray,
         k = min(max(exc.row - 1, 0), len(time) - 1)
         raise FlightDataError(f"imported grid row {exc.row} (t = {time[k]:.3f} s): "
                               f"{exc.reason}", path, column=exc.column) from None
+
+
+def check_reader_options(path: Path, kind: object, rate_hz: object, control_maps: object,
+                         name: object, kind_required: bool = False) -> None:
+    """The options every six-degree-of-freedom reader takes, refused before the file is read:
+    the airframe kind (None allowed unless ``kind_required``), the grid rate, the name and the
+    control maps."""
+    from uavdyn.flightdata.control_map import ChannelMap
+    from uavdyn.model import CONTROL_NAMES
+
+    if (kind is not None or kind_required) and (not isinstance(kind, str)
+                                                or kind not in CONTROL_NAMES):
+        raise FlightDataError(f"unknown kind {kind!r} (option kind must be one of "
+                              f"{tuple(CONTROL_NAMES)}{'' if kind_required else ' or None'})",
+                              path)
+    _check_rate(rate_hz, path, allow_none=True)
+    _check_name(name, path)
+    if control_maps is not None and (not isinstance(control_maps, (list, tuple)) or not all(
+            isinstance(m, ChannelMap) for m in control_maps)):
+        raise FlightDataError("option control_maps must be a list of ChannelMap or None, got "
+                              f"{type(control_maps).__name__}", path)

@@ -108,3 +108,74 @@ def in_gap(t_grid: np.ndarray, t: np.ndarray, gap_factor: float = GAP_FACTOR,
     for k in np.flatnonzero(steps > limit):
         out |= (t_grid > t[k]) & (t_grid < t[k + 1])
     return out
+
+
+def _missing_runs(missing: np.ndarray) -> list[tuple[int, int]]:
+    """``(first, last)`` sample index of each run of True in ``missing``."""
+    edges = np.diff(np.concatenate([[0], missing.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1))
+
+
+def _snapped(grid: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Grid times within HOLD_TOLERANCE_S of a stamp moved onto it: ``t0 + k / rate`` and a
+    stamp of the same instant can differ by an ulp, which must not open a gap."""
+    if not len(t):
+        return grid
+    i = np.clip(np.searchsorted(t, grid), 1, len(t) - 1) if len(t) > 1 else np.zeros(
+        len(grid), int)
+    near = t[i] if len(t) == 1 else np.where(np.abs(grid - t[i - 1]) < np.abs(grid - t[i]),
+                                             t[i - 1], t[i])
+    return np.where(np.abs(grid - near) <= HOLD_TOLERANCE_S, near, grid)
+
+
+def gap_mask(grid: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Grid points whose value would be invented: inside a long pause of the stamps ``t`` or
+    outside them (:func:`in_gap`), or strictly between the valid neighbours of a sample that
+    has no value (NaN: an empty cell, a value the log marked invalid)."""
+    missing = ~np.isfinite(values)
+    grid = _snapped(grid, t)
+    valid_t = t[~missing]
+    out = in_gap(grid, valid_t) if len(valid_t) else np.ones(len(grid), bool)
+    for first, last in _missing_runs(missing):
+        lo = t[first - 1] if first > 0 else -np.inf
+        hi = t[last + 1] if last + 1 < len(t) else np.inf
+        out |= (grid > lo) & (grid < hi)
+    return out
+
+
+def interp_on_grid(grid: np.ndarray, t: np.ndarray, values: np.ndarray,
+                   angle: bool = False) -> np.ndarray:
+    """A state sampled at ``t`` linearly interpolated on the grid, NaN where :func:`gap_mask`
+    says it would be invented. ``angle=True`` unwraps first (a yaw crossing +-pi must not
+    swing through zero) and wraps the result back to [-pi, pi)."""
+    values = np.asarray(values, float)
+    ok = np.isfinite(values)
+    if ok.sum() < 2:
+        return np.full(len(grid), np.nan)
+    v = np.unwrap(values[ok]) if angle else values[ok]
+    out = np.interp(grid, t[ok], v)
+    if angle:
+        out = (out + np.pi) % (2 * np.pi) - np.pi
+    out[gap_mask(grid, t, values)] = np.nan
+    return out
+
+
+def hold_on_grid(grid: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """A command sampled at ``t`` held (zero-order) on the grid: NaN where the held sample is
+    NaN or the stamps pause (:func:`in_gap`)."""
+    values = np.asarray(values, float)
+    out = _hold(grid, t, values[:, None])[:, 0]
+    out[in_gap(_snapped(grid, t), t)] = np.nan
+    return out
+
+
+def states_on_grid(grid: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Each column of ``values`` (``N x k`` sampled at ``t``) by :func:`interp_on_grid`."""
+    return np.column_stack([interp_on_grid(grid, t, values[:, j])
+                            for j in range(values.shape[1])])
+
+
+def commands_on_grid(grid: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Each column of ``values`` (``N x k`` sampled at ``t``) by :func:`hold_on_grid`."""
+    return np.column_stack([hold_on_grid(grid, t, values[:, j])
+                            for j in range(values.shape[1])])

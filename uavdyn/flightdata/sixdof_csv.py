@@ -6,8 +6,8 @@ Stamps may be irregular; every channel is resampled onto one uniform grid (state
 controls held) and an empty cell or a long pause in the stamps becomes NaN on the grid rather
 than an invented value, so the segmenter cuts there.
 
-The helpers shared with the DataFlash importer (Euler rotation, resampling that keeps gaps)
-live here because this module has no optional dependency.
+The resampling that keeps gaps is :mod:`uavdyn.flightdata.resample`'s, shared with the other
+readers.
 """
 
 from __future__ import annotations
@@ -17,13 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from uavdyn.flightdata.control_map import ChannelMap, override
+from uavdyn.flightdata.attitude import body_from_euler, rotate_to_body
+from uavdyn.flightdata.control_map import ChannelMap, override_maps
 from uavdyn.flightdata.csvio import CSV_MAX_BYTES, MAX_CELL_CHARS, MAX_COLUMNS, MAX_LINE_CHARS
 from uavdyn.flightdata.errors import FlightDataError, _short
 from uavdyn.flightdata.files import _read_text
 from uavdyn.flightdata.flightlog import FlightLog
-from uavdyn.flightdata.import_checks import _as_path, _check_name, _check_rate
-from uavdyn.flightdata.resample import HOLD_TOLERANCE_S, _grid, _hold, in_gap
+from uavdyn.flightdata.import_checks import _as_path, check_reader_options
+from uavdyn.flightdata.resample import _grid, hold_on_grid, interp_on_grid
 from uavdyn.model import CONTROL_NAMES
 
 REQUIRED = ("time", "roll", "pitch", "p", "q", "r")
@@ -41,108 +42,6 @@ _NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]
                      r"|nan|inf|infinity)", re.IGNORECASE)
 
 
-# --- helpers shared with the DataFlash importer -------------------------------------------
-
-def body_from_euler(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """Rotation matrices NED -> FRD body for 3-2-1 (yaw, pitch, roll) Euler angles.
-
-    Logs give attitude as Euler angles, velocities in NED; ``matrix @ v_ned`` is the velocity
-    in body axes.
-
-    Parameters
-    ----------
-    roll, pitch, yaw : ndarray, shape (N,)
-        Angles (rad); NaN gives a NaN matrix.
-
-    Returns
-    -------
-    ndarray, shape (N, 3, 3)
-        One matrix per sample (the transpose of the body-to-NED direction cosine matrix).
-    """
-    cr, sr = np.cos(roll), np.sin(roll)
-    cp, sp = np.cos(pitch), np.sin(pitch)
-    cy, sy = np.cos(yaw), np.sin(yaw)
-    return np.stack([
-        np.stack([cp * cy, cp * sy, -sp], -1),
-        np.stack([sr * sp * cy - cr * sy, sr * sp * sy + cr * cy, sr * cp], -1),
-        np.stack([cr * sp * cy + sr * sy, cr * sp * sy - sr * cy, cr * cp], -1),
-    ], axis=1)
-
-
-def rotate_to_body(matrices: np.ndarray, v_ned: np.ndarray) -> np.ndarray:
-    """``N x 3`` NED vectors in body axes (:func:`body_from_euler` matrices)."""
-    return np.einsum("nij,nj->ni", matrices, v_ned)
-
-
-def override_maps(defaults: dict[str, ChannelMap], given: list[ChannelMap] | None,
-                  path: Path) -> dict[str, ChannelMap]:
-    """:func:`override` with the file named in its refusal (a map for a control the
-    airframe kind does not have)."""
-    try:
-        return override(defaults, given)
-    except FlightDataError as exc:
-        raise FlightDataError(exc.reason, path, column=exc.column) from None
-
-
-def _missing_runs(missing: np.ndarray) -> list[tuple[int, int]]:
-    """``(first, last)`` sample index of each run of True in ``missing``."""
-    edges = np.diff(np.concatenate([[0], missing.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1))
-
-
-def _snapped(grid: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Grid times within HOLD_TOLERANCE_S of a stamp moved onto it: ``t0 + k / rate`` and a
-    stamp of the same instant can differ by an ulp, which must not open a gap."""
-    if not len(t):
-        return grid
-    i = np.clip(np.searchsorted(t, grid), 1, len(t) - 1) if len(t) > 1 else np.zeros(
-        len(grid), int)
-    near = t[i] if len(t) == 1 else np.where(np.abs(grid - t[i - 1]) < np.abs(grid - t[i]),
-                                             t[i - 1], t[i])
-    return np.where(np.abs(grid - near) <= HOLD_TOLERANCE_S, near, grid)
-
-
-def gap_mask(grid: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Grid points whose value would be invented: inside a long pause of the stamps ``t`` or
-    outside them (:func:`in_gap`), or strictly between the valid neighbours of a sample that
-    has no value (NaN: an empty cell, a value the log marked invalid)."""
-    missing = ~np.isfinite(values)
-    grid = _snapped(grid, t)
-    valid_t = t[~missing]
-    out = in_gap(grid, valid_t) if len(valid_t) else np.ones(len(grid), bool)
-    for first, last in _missing_runs(missing):
-        lo = t[first - 1] if first > 0 else -np.inf
-        hi = t[last + 1] if last + 1 < len(t) else np.inf
-        out |= (grid > lo) & (grid < hi)
-    return out
-
-
-def interp_on_grid(grid: np.ndarray, t: np.ndarray, values: np.ndarray,
-                   angle: bool = False) -> np.ndarray:
-    """A state sampled at ``t`` linearly interpolated on the grid, NaN where :func:`gap_mask`
-    says it would be invented. ``angle=True`` unwraps first (a yaw crossing +-pi must not
-    swing through zero) and wraps the result back to [-pi, pi)."""
-    values = np.asarray(values, float)
-    ok = np.isfinite(values)
-    if ok.sum() < 2:
-        return np.full(len(grid), np.nan)
-    v = np.unwrap(values[ok]) if angle else values[ok]
-    out = np.interp(grid, t[ok], v)
-    if angle:
-        out = (out + np.pi) % (2 * np.pi) - np.pi
-    out[gap_mask(grid, t, values)] = np.nan
-    return out
-
-
-def hold_on_grid(grid: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """A command sampled at ``t`` held (zero-order) on the grid: NaN where the held sample is
-    NaN or the stamps pause (:func:`in_gap`)."""
-    values = np.asarray(values, float)
-    out = _hold(grid, t, values[:, None])[:, 0]
-    out[in_gap(_snapped(grid, t), t)] = np.nan
-    return out
-
-
 def _grid_rate(t: np.ndarray, rate_hz: float | None) -> tuple[float, str]:
     """The grid rate and how it was chosen: ``rate_hz`` or the median interval's rate (made
     a whole number when it is one to 1 ppm, so a 50 Hz log is gridded at exactly 50 Hz)."""
@@ -156,20 +55,6 @@ def _grid_rate(t: np.ndarray, rate_hz: float | None) -> tuple[float, str]:
 
 
 # --- the CSV ------------------------------------------------------------------------------
-
-def _check_options(path: Path, kind: object, rate_hz: object, control_maps: object,
-                   name: object) -> None:
-    """The options of :func:`read_sixdof_csv`, refused before the file is read."""
-    if not isinstance(kind, str) or kind not in CONTROL_NAMES:
-        raise FlightDataError(f"unknown kind {kind!r} (option kind must be one of "
-                              f"{tuple(CONTROL_NAMES)})", path)
-    _check_rate(rate_hz, path, allow_none=True)
-    _check_name(name, path)
-    if control_maps is not None and (not isinstance(control_maps, (list, tuple)) or not all(
-            isinstance(m, ChannelMap) for m in control_maps)):
-        raise FlightDataError("option control_maps must be a list of ChannelMap or None, got "
-                              f"{type(control_maps).__name__}", path)
-
 
 def _header(line: str, path: Path) -> list[str]:
     """The column names of the first line (not echoed when it is no header)."""
@@ -365,7 +250,7 @@ def read_sixdof_csv(path: str | Path, kind: str, rate_hz: float | None = None,
         a cell that is not a number, times that do not increase.
     """
     path = _as_path(path, "path")
-    _check_options(path, kind, rate_hz, control_maps, name)
+    check_reader_options(path, kind, rate_hz, control_maps, name, kind_required=True)
     data, maps, unused = _read_columns(path, kind, control_maps)
     t = data["time"]
     _check_time(t, path)

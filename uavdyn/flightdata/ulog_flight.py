@@ -25,7 +25,14 @@ from uavdyn.flightdata.control_map import ChannelMap, override
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.flightlog import FlightLog
 from uavdyn.flightdata.import_checks import _as_path, _check_name
-from uavdyn.flightdata.resample import _hold, _interp, _quaternions_on_grid, in_gap
+from uavdyn.flightdata.resample import (
+    _hold,
+    _quaternions_on_grid,
+    commands_on_grid,
+    hold_on_grid,
+    in_gap,
+    states_on_grid,
+)
 from uavdyn.flightdata.ulog import (
     _check_ulog_options,
     _controls,
@@ -78,13 +85,6 @@ def _first(topics: _Topics, options, optional: bool = False) -> tuple[str, tuple
     return None
 
 
-def _nan_in_gaps(grid: np.ndarray, t: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """``values`` on the grid with NaN where the topic had a gap."""
-    values = np.array(values, dtype=float)
-    values[in_gap(grid, t)] = np.nan
-    return values
-
-
 def _user_control(topics: _Topics, grid: np.ndarray, m: ChannelMap, path: Path) -> np.ndarray:
     """A control read from the field the user's map names (``topic.field``), held on the grid."""
     topic, _, name = m.source.partition(".")
@@ -93,7 +93,7 @@ def _user_control(topics: _Topics, grid: np.ndarray, m: ChannelMap, path: Path) 
         raise FlightDataError(f"control map for {m.control}: no field '{m.source}' in this log "
                               "(give TOPIC.FIELD, e.g. actuator_outputs.output[1])", path,
                               column=m.control)
-    return _nan_in_gaps(grid, got[0], m.apply(_hold(grid, *got)[:, 0]))
+    return m.apply(hold_on_grid(grid, got[0], got[1][:, 0]))
 
 
 def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str | None = None,
@@ -142,18 +142,18 @@ def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str |
     controls, control_sources = _controls(topics, kind, float(pitch_mix), path)
     grid, rate_hz = _ulog_grid([att, rates[1], vel, controls], rate_hz, path)
     quat = _quaternions_on_grid(grid, *att)
-    pqr = _nan_in_gaps(grid, rates[1][0], _interp(grid, *rates[1]))
-    v_ned = _nan_in_gaps(grid, vel[0], _interp(grid, *vel))
+    pqr = states_on_grid(grid, *rates[1])
+    v_ned = states_on_grid(grid, *vel)
     wind = _first(topics, WIND_SOURCES, optional=True)
     airspeed = _first(topics, AIRSPEED_SOURCES, optional=True)
     reference = "ground"
     if wind is not None:
-        v_ned[:, :2] -= _nan_in_gaps(grid, wind[1][0], _interp(grid, *wind[1]))
+        v_ned[:, :2] -= states_on_grid(grid, *wind[1])
         reference, sources["wind"] = "air", wind[0]
     v_body = np.einsum("nji,nj->ni", rotation_matrices(quat), v_ned)
     va = None
     if airspeed is not None:
-        va = _nan_in_gaps(grid, airspeed[1][0], _interp(grid, *airspeed[1])[:, 0])
+        va = states_on_grid(grid, *airspeed[1])[:, 0]
         sources["airspeed"] = airspeed[0]
         if reference == "ground":
             with np.errstate(invalid="ignore"):
@@ -166,7 +166,7 @@ def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str |
     for key in ("roll", "pitch"):
         channels[key][att_nan] = np.nan
     maps = override(default_ulog_maps(kind, control_sources), control_maps)
-    ctrl = _nan_in_gaps(grid, controls[0], _hold(grid, *controls))
+    ctrl = commands_on_grid(grid, *controls)
     for j, control in enumerate(CONTROL_NAMES[kind]):
         if control_maps and any(m.control == control for m in control_maps):
             ctrl[:, j] = _user_control(topics, grid, maps[control], path)
@@ -192,9 +192,8 @@ def _altitude(topics: _Topics, grid: np.ndarray, meta: dict) -> np.ndarray | Non
     if found is None:
         return None
     meta["sources"]["altitude_m"] = found[0]
-    vals = _interp(grid, *found[1])
-    alt = vals[:, 0] - vals[:, 1] if vals.shape[1] == 2 else vals[:, 0]
-    return _nan_in_gaps(grid, found[1][0], alt)
+    vals = states_on_grid(grid, *found[1])
+    return vals[:, 0] - vals[:, 1] if vals.shape[1] == 2 else vals[:, 0]
 
 
 ARMED = 2  # vehicle_status.arming_state ARMING_STATE_ARMED
