@@ -27,6 +27,7 @@ from uavdyn.cli.common import (
     number,
     refuse_unused,
 )
+from uavdyn.model import CONTROL_NAMES
 from uavdyn.mpc import SCENARIO_NAMES, MPCConfig, scenario
 from uavdyn.mpc.study import (
     flight_outcome,
@@ -93,6 +94,14 @@ def _check(args: argparse.Namespace) -> None:
                   "with --model hybrid or both")
 
 
+def _control_bounds(setup, config: MPCConfig, models) -> dict:
+    """``{control name: (low, high)}`` the controller clips to (the config's, else the
+    prediction airframe's; :class:`uavdyn.mpc.problem.TrackingProblem`)."""
+    airframe = setup.models[models[0]].airframe if models else setup.plant_airframe
+    bounds = config.control_bounds or airframe.control_bounds()
+    return dict(zip(CONTROL_NAMES[setup.plant_airframe.kind], bounds))
+
+
 def _write_history(path: Path, res) -> None:
     n = len(res.controls)
     with path.open("w", newline="") as fh:
@@ -110,39 +119,53 @@ def _write_history(path: Path, res) -> None:
                           for v in row])
 
 
-def _plot(path: Path, sc, results: dict, title: str) -> None:
+def _plot(path: Path, sc, results: dict, title: str, bounds: dict) -> None:
+    """The closed-loop responses: the tracked signal against its reference, each control with
+    its bounds (``{control name: (low, high)}``), and the solve times."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     idx = {"theta": 3, "h": 4}
-    fig, (ax, bx) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    names = list(bounds)
+    fig, axes = plt.subplots(2 + len(names), 1, figsize=(8, 2.3 * (2 + len(names)) + 0.6),
+                             sharex=True, constrained_layout=True)
+    ax, bx = axes[0], axes[-1]
     styles = {"hybrid": "r-", "physics": "b--"}
-    ref = None
+    scale = math.degrees(1.0) if sc.tracked == "theta" else 1.0
+    ref, ref_time = None, None
     for name, res in results.items():
+        style = styles.get(name, "g-")
         y = res.speed if sc.tracked == "speed" else res.states[:, idx[sc.tracked]]
         ref = {"theta": res.theta_ref, "h": res.h_ref, "speed": res.speed_ref}[sc.tracked]
-        scale = math.degrees(1.0) if sc.tracked == "theta" else 1.0
-        ax.plot(res.time, y * scale, styles.get(name, "g-"), label=f"{name} prediction")
+        ref_time = res.time[1:]
+        ax.plot(res.time, y * scale, style, label=f"closed loop, {name} prediction")
+        for cx, j in zip(axes[1:-1], range(len(names))):
+            cx.step(res.time[:-1], res.controls[:, j], style, where="post", lw=1,
+                    label=f"applied, {name} prediction")
         ok = res.success
-        bx.plot(res.time[:-1][ok], res.solve_times_s[ok] * 1e3, styles.get(name, "g-")[0] + ".",
+        bx.plot(res.time[:-1][ok], res.solve_times_s[ok] * 1e3, style[0] + ".",
                 ms=3, label=f"{name} ({ok.mean():.1%} solved)")
         if (~ok).any():
             bx.plot(res.time[:-1][~ok], res.solve_times_s[~ok] * 1e3, "kx", ms=5,
                     label=f"{name}: failed (fallback applied)")
     if ref is not None:
-        scale = math.degrees(1.0) if sc.tracked == "theta" else 1.0
-        ax.plot(res.time[1:], ref * scale, "k:", label="reference")
-    ax.set_ylabel({"theta": "pitch (deg)", "h": "altitude (m)", "speed": "speed (m/s)"}
+        ax.plot(ref_time, ref * scale, "k:", label="reference")
+    ax.set_ylabel({"theta": "pitch (deg)", "h": "altitude (m)", "speed": "airspeed (m/s)"}
                   [sc.tracked])
-    ax.set_title(title, fontsize=9)
+    ax.set_title(title, fontsize=9, wrap=True)
+    for cx, name in zip(axes[1:-1], names):
+        for k, limit in enumerate(bounds[name]):
+            cx.axhline(limit, color="k", ls="--", lw=0.8,
+                       label="control bounds" if k == 0 else None)
+        cx.set_ylabel(name + (" (rad)" if name in ("elevator", "pitch_cmd") else " (0-1)"
+                              if name in ("throttle", "collective") else ""))
     bx.set_ylabel("solve time (ms)")
     bx.set_xlabel("time (s)")
-    for a in (ax, bx):
+    for a in axes:
         a.grid(alpha=0.3)
-        a.legend(fontsize=8)
-    fig.tight_layout()
+        a.legend(fontsize=7, loc="best")
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -178,13 +201,16 @@ def cmd_mpc(args: argparse.Namespace) -> int:
         if mode == "rti":  # the library is in the cache now: a second start loads it
             stats["models"][name]["startup_s_cached"] = startup_seconds(setup.models[name],
                                                                         config)
-    title = (f"{setup.plant_airframe.name} {args.scenario}, {mode.upper()} horizon "
-             f"{args.horizon}, dt {args.dt:g} s")
+    title = (f"Closed-loop response: {args.scenario} on the calm emulator of "
+             f"{setup.plant_airframe.name}, tracking MPC ({mode.upper()}, horizon "
+             f"{args.horizon} x {args.dt:g} s) with "
+             f"{' and '.join(f'{m} ({setup.models[m].description})' for m in models)} "
+             "prediction")
     with output_folder(args.out, COMMAND, args.force) as tmp:
         for name, res in results.items():
             _write_history(tmp / f"history_{name}.csv", res)
         (tmp / "stats.json").write_text(json.dumps(stats, indent=2) + "\n")
-        _plot(tmp / "mpc.png", sc, results, title)
+        _plot(tmp / "mpc.png", sc, results, title, _control_bounds(setup, config, models))
     for name, s in stats["models"].items():
         rmse = (s["departure"] or "diverged" if s["tracking_rmse"] is None
                 else f"{s['tracking_rmse']:.4g} {sc.unit}")
