@@ -168,17 +168,22 @@ def write_outputs(result: IdentificationResult, nominal: Airframe, dataset: str,
            "airframe_file": str(out), **result.to_dict(),
            **({"structure": structure_log} if structure_log else {})}
     json_path = write_text_atomic(report_dir / "identify.json", json.dumps(doc, indent=2) + "\n")
-    png = _plot(result, report_dir / "identify.png")
+    png = _plot(result, report_dir / "identify.png",
+                f"Output-error identification of {nominal.name} on {dataset} (fitted on the "
+                f"train split, checked on validation; {result.window_s:g} s windows)")
     return {"airframe": out, "json": json_path, "png": png}
 
 
-def _plot(result: IdentificationResult, path: Path) -> Path:
+def _plot(result: IdentificationResult, path: Path, title: str = "") -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.8), constrained_layout=True)
+    if title:
+        fig.suptitle(title, fontsize=10, wrap=True)
     est = result.estimates
     ax = axes[0]
     rel = [100 * e.relative_change if math.isfinite(e.relative_change) else 0.0 for e in est]
@@ -190,8 +195,8 @@ def _plot(result: IdentificationResult, path: Path) -> Path:
             text = f"{int(e.value)} samples" if e.searched else f"{e.value:.4g} (from 0)"
             ax.text(0, i, " " + text, va="center", fontsize=8)
     ax.axvline(0, color="k", lw=0.8)
-    ax.set_xlabel("change from nominal (%), bars: +-2 corrected standard errors")
-    ax.set_title("estimates")
+    ax.set_xlabel("change from nominal (%); bars: +-2 corrected standard errors")
+    ax.set_title("estimates against the nominal airframe", fontsize=10)
     ax = axes[1]
     names = [e.name for e in est if not e.searched]
     im = ax.imshow(result.correlation if names else np.zeros((1, 1)), vmin=-1, vmax=1,
@@ -203,7 +208,7 @@ def _plot(result: IdentificationResult, path: Path) -> Path:
             ax.text(j, i, f"{result.correlation[i, j]:.2f}", ha="center", va="center",
                     fontsize=7)
     fig.colorbar(im, ax=ax, fraction=0.046)
-    ax.set_title("correlation of the estimates")
+    ax.set_title("correlation of the estimates", fontsize=10)
     ax = axes[2]
     for split, marker in (("train", "o"), ("validation", "s")):
         part = result.fit.get(split)
@@ -215,11 +220,14 @@ def _plot(result: IdentificationResult, path: Path) -> Path:
         ax.loglog(nominal, fitted, marker, label=f"{split} sorties", alpha=0.8)
     lim = ax.get_xlim()
     ax.plot(lim, lim, "k:", lw=0.8, label="no change")
+    for axis in (ax.xaxis, ax.yaxis):  # 1-2-5 ticks as plain numbers, minor ones unlabelled
+        axis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.3g}"))
+        axis.set_minor_formatter(NullFormatter())
     ax.set_xlabel(f"pitch RMSE, nominal ({result.window_s:g} s windows, rad)")
     ax.set_ylabel("pitch RMSE, identified (rad)")
-    ax.set_title("fit per sortie (below the line: better)")
+    ax.set_title("pitch RMSE per sortie (below the line: better)", fontsize=10)
     ax.legend(fontsize=8)
-    fig.tight_layout()
     with atomic_file(path) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import textwrap
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -19,6 +20,9 @@ if TYPE_CHECKING:  # pragma: no cover
 
 METRIC_COLUMNS = ("max_abs_pitch_deg", "max_alpha_deg", "min_airspeed_mps", "max_load_factor",
                   "min_load_factor")
+METRIC_LABELS = {"max_abs_pitch_deg": "max |pitch| (deg)", "max_alpha_deg": "max alpha (deg)",
+                 "min_airspeed_mps": "min airspeed (m/s)", "max_load_factor": "max load factor",
+                 "min_load_factor": "min load factor"}
 OUTPUT_FILES = ("summary.csv", "envelopes.csv", "results.json", "summary.md",
                 "figures/envelopes.png", "figures/distributions.png")
 
@@ -53,6 +57,16 @@ def control_description(spec) -> str:
     gain = "; ".join(", ".join(f"{v:.4g}" for v in row) for row in spec.feedback)
     return ("closed loop: u = trim + deviation - K (x - trim) on u, w, q, theta, K of an LQR "
             f"on the model linearised at the nominal trim (Bryson's rule), K = [{gain}]")
+
+
+def study_title(result: MonteCarloResult) -> str:
+    """The data of a study's figures in one line: airframe, model, input, control, runs,
+    duration, dispersions and seed."""
+    spec = result.spec
+    loop = "open loop" if spec.feedback is None else "closed loop (LQR)"
+    return (f"Monte Carlo: {spec.airframe.name}, {spec.model} model, {spec.input_name} input, "
+            f"{loop}, {len(result.table)} runs x {spec.duration:g} s, "
+            f"{spec.dispersions.origin}, seed {spec.seed}")
 
 
 def departure_warning(result: MonteCarloResult) -> str | None:
@@ -166,11 +180,12 @@ def envelope_figure(result: MonteCarloResult, path: Path) -> Path:
         ax.set_ylabel(f"{label}\n({unit})")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right", fontsize=8)
-    axes[0].set_title(f"{result.spec.airframe.name}: {env.n_runs} runs, {result.spec.model}",
-                      fontsize=9)
+    fig.suptitle(textwrap.fill(f"{study_title(result)}; percentile envelopes over the "
+                               f"{env.n_runs} runs that trimmed; dashed red: limits", 95),
+                 fontsize=9)
     axes[-1].set_xlabel("time (s)")
-    _save(fig, path, {"left": 0.11, "right": 0.98, "bottom": 0.05, "top": 0.97,
-                      "hspace": 0.12})
+    _save(fig, path, {"left": 0.11, "right": 0.98, "bottom": 0.05,
+                      "top": 1 - 0.75 / fig.get_figheight(), "hspace": 0.12})
     return path
 
 
@@ -191,18 +206,24 @@ def distribution_figure(result: MonteCarloResult, path: Path) -> Path:
     pitch, alpha, speed, load = result.spec.limits
     limits = {"max_abs_pitch_deg": math.degrees(pitch), "max_alpha_deg": math.degrees(alpha),
               "min_airspeed_mps": speed, "max_load_factor": load}
-    fig, axes = plt.subplots(1, len(METRIC_COLUMNS), figsize=(3.2 * len(METRIC_COLUMNS), 3))
+    fig, axes = plt.subplots(1, len(METRIC_COLUMNS), figsize=(3.2 * len(METRIC_COLUMNS), 3.4))
     for ax, column in zip(axes, METRIC_COLUMNS):
         values = table[column][keep]
         if len(values):
             ax.hist(values, bins=min(50, max(5, len(values) // 20)), color="C0", alpha=0.8,
                     range=_histogram_range(values))
+            # a rug: a narrow spread far from its limit draws bars too thin to see
+            ax.plot(values, np.zeros(len(values)), "|", color="C0", ms=14, mew=1.5)
+            ax.set_title(f"range {_fmt(float(np.min(values)))} to "
+                         f"{_fmt(float(np.max(values)))}", fontsize=8)
         if column in limits and math.isfinite(limits[column]):
             ax.axvline(limits[column], color="C3", ls="--", lw=1)
-        ax.set_xlabel(column)
+        ax.set_xlabel(METRIC_LABELS.get(column, column))
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("runs")
-    _save(fig, path, {"left": 0.045, "right": 0.99, "bottom": 0.17, "top": 0.96,
+    fig.suptitle(f"{study_title(result)}\nper-run extremes of the {int(keep.sum())} runs that "
+                 "trimmed and did not diverge; dashed red: limits", fontsize=9)
+    _save(fig, path, {"left": 0.045, "right": 0.99, "bottom": 0.16, "top": 0.78,
                       "wspace": 0.22})
     return path
 
