@@ -213,6 +213,10 @@ OPTIONS: dict[tuple[str, str], Num | Values] = {
     ("identify", "--lowpass-hz"): positive("0 < cut-off < half the log rate (Hz)"),
     ("identify", "--max-delay"): Num("0 <= samples <= 100", lambda x: 0 <= x <= 100,
                                      integer=True, extra=("101",)),
+    ("identify", "--bounds"): Values("NAME=LOW:HIGH[,...], LOW < HIGH, NAME in --params", (
+        ("C_m_0", "no range"), ("C_m_0=1:0", "LOW above HIGH"),
+        ("C_m_0=a:b", "not numbers"), ("C_m_q=-1:0", "a parameter not in --params"))),
+    ("identify", "--structure"): choice("given, auto"),
     ("reproduce", "--airframes"): choice("quadrotor, fixed_wing"),
     ("reproduce", "--out"): OUT_FOLDER,
     ("reproduce", "--cache"): OUT_FOLDER,
@@ -257,6 +261,7 @@ OPTIONS: dict[tuple[str, str], Num | Values] = {
     ("montecarlo", "--history-dt"): positive("--dt <= history-dt <= --duration"),
     ("montecarlo", "--out"): OUT_FOLDER,
     ("mpc", "--scenario"): choice("pitch-step, climb, speed-step"),
+    ("mpc", "--plant"): AIRFRAME,
     ("mpc", "--horizon"): count("1 <= intervals <= 200", 200),
     ("mpc", "--dt"): Num("0.01 <= dt <= 1 s, a multiple of 0.01 s",
                          lambda x: finite(x) and 0.01 <= x <= 1 and abs(round(x / 0.01) * 0.01
@@ -355,7 +360,8 @@ BASE: dict[str, list[str]] = {
     "export-c": ["export-c", "--model", "rk4", "--out", "cb"],
     "import-log": ["import-log", "{F}/log.ulg", "--fractions", "1,0,0", "--out", "imp"],
     "split": ["split", "{F}/splitds", "--fractions", "0.5,0.5,0"],
-    "identify": ["identify", "--dataset", "{DS}", "--params", "C_m_alpha", "--out",
+    # C_m_0: a constant term, which identify's excitation screen accepts on these 4 s sorties
+    "identify": ["identify", "--dataset", "{DS}", "--params", "C_m_0", "--out",
                  "id.toml", "--quiet"],
     # (fixed wing only: at 327d4ea the quick quadrotor pipeline stops with a free-run departure)
     "reproduce": ["reproduce", "--quick", "--airframes", "fixed_wing", "--out", "rep", "--cache",
