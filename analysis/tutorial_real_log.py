@@ -190,11 +190,11 @@ def render(steps: list[tuple[str, str]], ladder: dict, folds: list[dict], second
         "",
         "1. Write your airframe file (start from `examples/trainer.toml` or "
         "`examples/alfa_t28.toml`).",
-        "2. `uavdyn import-log YOUR_LOG --out data` (PX4 `.ulg`, ArduPilot `.bin`, an ALFA "
+        "2. `uavdyn import-log YOUR_LOG --out mylog` (PX4 `.ulg`, ArduPilot `.bin`, an ALFA "
         "folder, or the generic six-degree-of-freedom CSV of `docs/flightlog_formats.md`); "
-        "read `data/import_summary.txt` and `data/import_timeline.png`; map your servo with "
+        "read `mylog/import_summary.txt` and `mylog/import_timeline.png`; map your servo with "
         "`--control-map` if the default is not your aircraft's.",
-        "3. `uavdyn split data` if you want another split, then `uavdyn identify` and "
+        "3. `uavdyn split mylog` if you want another split, then `uavdyn identify` and "
         "`uavdyn evaluate` as above.",
         "",
     ]

@@ -190,7 +190,8 @@ def add_generate_data(sub) -> None:
                        "format: manifest.json + one CSV per sortie)")
     add_force(p)
     p.add_argument("--recipe", default=None, type=existing_file("recipe file"),
-                   help="JSON recipe (e.g. data/datagen_quadrotor.json); options given here "
+                   help="JSON recipe (e.g. uavdyn/emulation/recipes/datagen_quadrotor.json in "
+                        "the source tree); options given here "
                         "override it")
     p.add_argument("--airframe", default=None, type=airframe_name,
                    help=f"preset ({', '.join(list_presets())}, quadrotor, fixed_wing) or "
