@@ -123,7 +123,8 @@ def run(args: argparse.Namespace, airframe: Airframe | None = None) -> dict:
     png = hist.with_suffix(".png")
     with atomic_files(out, hist, png) as (w_tmp, h_tmp, p_tmp):  # one output: all or none
         save_weights(net, w_tmp)
-        write_history_files(result, h_tmp, p_tmp)
+        write_history_files(result, h_tmp, p_tmp, f"{airframe.name} on {args.dataset} "
+                            f"({len(tr)} train, {len(va)} validation sorties)")
     h0, hb = result.history[0], result.history[result.best_epoch]
     return {"weights": str(out), "history": str(hist), "png": str(png),
             "network": net.describe(), "data_source": source, "n_train": len(tr),
@@ -147,17 +148,19 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
                      memory_tau=(tuple(args.memory_tau) if args.memory_tau is not None
                                  else None), **given)
     result = train_safe(tr, va, airframe, cfg)
+    data = (f"{airframe.name} on {args.dataset} ({len(tr)} train, {len(va)} validation "
+            "sorties)")
     if not result.kept:  # the weights at --out (if any) and their history stay as they are
         record = not_kept_path(hist) if out.exists() else hist
         with atomic_files(record, record.with_suffix(".png")) as (h_tmp, p_tmp):
-            write_safe_history_files(result, h_tmp, p_tmp)
+            write_safe_history_files(result, h_tmp, p_tmp, data)
         raise NotKept(f"no weights written: {result.reason} (history: {record})")
     net = CorrectionNet(**{**result.net.__dict__,
                            "info": {**result.net.info, "data_source": source}})
     png = hist.with_suffix(".png")
     with atomic_files(out, hist, png) as (w_tmp, h_tmp, p_tmp):  # one output: all or none
         save_weights(net, w_tmp)
-        write_safe_history_files(result, h_tmp, p_tmp)
+        write_safe_history_files(result, h_tmp, p_tmp, data)
     return {"weights": str(out), "history": str(hist), "png": str(png),
             "network": net.describe(), "data_source": source, "n_train": len(tr),
             "n_val": len(va), "n_test": len(te), "best_epoch": result.best_epoch,

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+import textwrap
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -345,17 +346,18 @@ def train(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airf
     return result
 
 
-def write_history(result: TrainResult, path: str | Path) -> tuple[Path, Path]:
-    """Loss history as JSON (``path``) and a PNG plot beside it, put in place together
-    (:func:`uavdyn.outputs.atomic_files`)."""
+def write_history(result: TrainResult, path: str | Path, data: str = "") -> tuple[Path, Path]:
+    """Loss history as JSON (``path``) and a PNG plot beside it (``data``: the airframe and
+    dataset, for its title), put in place together (:func:`uavdyn.outputs.atomic_files`)."""
     path = Path(path)
     png = path.with_suffix(".png")
     with atomic_files(path, png) as (json_tmp, png_tmp):
-        write_history_files(result, json_tmp, png_tmp)
+        write_history_files(result, json_tmp, png_tmp, data)
     return path, png
 
 
-def write_history_files(result: TrainResult, json_path: Path, png_path: Path) -> None:
+def write_history_files(result: TrainResult, json_path: Path, png_path: Path,
+                        data: str = "") -> None:
     """Write the loss history JSON and its PNG to exactly these paths (temporary names that
     the caller renames into place with :func:`uavdyn.outputs.atomic_files`, with the weights
     they belong to)."""
@@ -363,13 +365,14 @@ def write_history_files(result: TrainResult, json_path: Path, png_path: Path) ->
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 
     doc = {"config": asdict(result.config), "best_epoch": result.best_epoch,
            "stopped": result.stopped, "seconds": result.seconds, "scales": result.scales,
            "network": result.net.describe(), "history": result.history}
     Path(json_path).write_text(json.dumps(doc, indent=2) + "\n")
     ep = [h["epoch"] for h in result.history]
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig, ax = plt.subplots(figsize=(7.2, 4.6), constrained_layout=True)
     for key, style in (("train_one_step", "C0-"), ("val_one_step", "C0--"),
                        ("train_rollout", "C1-"), ("val_rollout", "C1--"),
                        ("val_total", "k:")):
@@ -379,9 +382,16 @@ def write_history_files(result: TrainResult, json_path: Path, png_path: Path) ->
             ax.semilogy(*zip(*pts), style, label=key.replace("_", " "))
     ax.axvline(result.best_epoch, color="grey", lw=0.8)
     ax.set_xlabel("epoch (0 = untrained: hybrid = physics RK4)")
-    ax.set_ylabel("loss (normalised by physics-only error)")
-    ax.set_title(result.net.describe(), fontsize=8)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    plain = FuncFormatter(lambda v, _: f"{v:.3g}")  # 0.6, not 6x10^-1
+    ax.yaxis.set_major_formatter(plain)
+    low, high = ax.get_ylim()
+    ax.yaxis.set_minor_formatter(plain if high < 10 * low else NullFormatter())
+    ax.set_ylabel("loss / physics-only loss")
+    ax.set_title(textwrap.fill(f"Training history{': ' + data if data else ''}; "
+                               f"{result.net.describe()}; best epoch {result.best_epoch} "
+                               "(grey)", 90), fontsize=8)
+    ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
-    fig.tight_layout()
     fig.savefig(png_path, dpi=120, format="png")
     plt.close(fig)

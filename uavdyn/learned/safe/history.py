@@ -10,28 +10,25 @@ from pathlib import Path
 from uavdyn.learned.safe.config import SafeResult
 
 
-def write_safe_history(result: SafeResult, path) -> tuple[Path, Path]:
+def write_safe_history(result: SafeResult, path, data: str = "") -> tuple[Path, Path]:
     """The run's history, validation figures and stability check as JSON (``path``) and a PNG
-    beside it (validation pitch RMSE per epoch against the physics, training loss, penalty),
-    put in place together (:func:`uavdyn.outputs.atomic_files`)."""
+    beside it (validation pitch RMSE per epoch against the physics, training loss, penalty;
+    ``data``: the airframe and dataset, for its title), put in place together
+    (:func:`uavdyn.outputs.atomic_files`)."""
     from uavdyn.outputs import atomic_files
 
     path = Path(path)
     png = path.with_suffix(".png")
     with atomic_files(path, png) as (json_tmp, png_tmp):
-        write_safe_history_files(result, json_tmp, png_tmp)
+        write_safe_history_files(result, json_tmp, png_tmp, data)
     return path, png
 
 
-def write_safe_history_files(result: SafeResult, json_path: Path, png_path: Path) -> None:
+def write_safe_history_files(result: SafeResult, json_path: Path, png_path: Path,
+                             data: str = "") -> None:
     """Write the record of :func:`write_safe_history` to exactly these paths (temporary names
     that the caller renames into place with :func:`uavdyn.outputs.atomic_files`, with the
     weights they belong to)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     doc = {"kind": "safe correction training", "kept": result.kept, "reason": result.reason,
            "config": asdict(result.config), "best_epoch": result.best_epoch,
            "seconds": result.seconds, "validation": result.validation,
@@ -39,17 +36,31 @@ def write_safe_history_files(result: SafeResult, json_path: Path, png_path: Path
            "network": result.net.describe() if result.net is not None else None,
            "history": result.history}
     Path(json_path).write_text(json.dumps(doc, indent=2, default=str) + "\n")
+    _plot(result, png_path, data)
+
+
+def _plot(result: SafeResult, png_path: Path, data: str) -> None:
+    """Validation pitch RMSE per epoch against the physics, training loss and penalty; the
+    title says what was trained on what, and whether it was kept and why."""
+    import textwrap
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
+
     epochs = [h["epoch"] for h in result.history]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), constrained_layout=True)
+    horizon = result.validation.get("selection_horizon_s", 1)
     ax = axes[0]
     ax.plot(epochs, [h["val_theta_rmse"] for h in result.history], "C0-o", ms=3,
             label="corrected (validation)")
     ax.axhline(result.history[0]["physics_val_theta_rmse"], color="k", ls="--",
-               label="physics (validation)")
-    ax.axvline(result.best_epoch, color="grey", lw=0.8)
-    ax.set_xlabel("epoch")
-    ax.set_ylabel(f"pitch RMSE at {result.validation.get('selection_horizon_s', 1):g} s (rad)")
-    ax.legend(fontsize=8)
+               label="physics alone (validation)")
+    ax.axvline(result.best_epoch, color="grey", lw=0.8, label=f"best epoch {result.best_epoch}")
+    ax.set_ylabel(f"pitch RMSE at {horizon:g} s (rad)")
+    ax.set_title(f"validation split: {horizon:g} s pitch RMSE after each epoch", fontsize=9)
     ax = axes[1]
     rest = result.history[1:]
     if rest:
@@ -58,9 +69,20 @@ def write_safe_history_files(result: SafeResult, json_path: Path, png_path: Path
         pen = [(h["epoch"], h["stability_penalty"]) for h in rest if h["stability_penalty"] > 0]
         if pen:
             ax.semilogy(*zip(*pen), "C3:o", ms=3, label="stability penalty")
-    ax.set_xlabel("epoch")
-    ax.legend(fontsize=8)
-    fig.suptitle(result.reason[:150], fontsize=8)
-    fig.tight_layout()
+        low, high = ax.get_ylim()
+        plain = FuncFormatter(lambda v, _: f"{v:.3g}")  # not 1.07x10^0
+        ax.yaxis.set_major_formatter(plain)
+        ax.yaxis.set_minor_formatter(plain if high < 10 * low else NullFormatter())
+    ax.set_ylabel("loss relative to the physics")
+    ax.set_title("train split: loss over each epoch's mini-batches", fontsize=9)
+    for ax in axes:
+        ax.set_xlabel("epoch (0 = untrained: the physics)")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    head = (f"Safe correction training{': ' + data if data else ''}: "
+            f"{'kept' if result.kept else 'NOT kept (the physics is used)'}")
+    reason = result.reason if len(result.reason) <= 400 else result.reason[:397] + "..."
+    fig.suptitle(head + "\n" + textwrap.fill(reason, 160), fontsize=8)
     fig.savefig(png_path, dpi=110, format="png")
     plt.close(fig)
