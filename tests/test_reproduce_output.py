@@ -90,3 +90,22 @@ def test_the_default_dataset_cache_is_inside_the_compile_cache(tmp_path, monkeyp
     text = reproduce_summary(_result(), tmp_path / "results", None)
     assert f"compiled steps: {compiled} (1.0 MB without the datasets in it" in text
     assert f"datasets: {compiled / 'datasets'} (2.0 MB" in text
+
+
+def test_evaluate_writes_the_figure_its_report_refers_to(tmp_path, capsys):
+    """``uavdyn evaluate`` writes ``<out>.png`` (1 s pitch RMSE per sortie and rung) beside
+    its JSON and Markdown, and the Markdown links it."""
+    from test_reproduce import PNG_MAGIC, write_hand_dataset
+
+    from uavdyn.cli import main
+
+    folder = write_hand_dataset(tmp_path / "hand", n_sorties=6, duration=4.0)
+    out = tmp_path / "metrics.json"
+    assert main(["evaluate", "--airframe", "aerosonde", "--dataset", str(folder),
+                 "--out", str(out)]) == 0
+    png = out.with_suffix(".png")
+    assert png.read_bytes().startswith(PNG_MAGIC)
+    assert "![1 s pitch RMSE per sortie](metrics.png)" in out.with_suffix(".md").read_text()
+    assert str(png) in capsys.readouterr().out
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "hand", "metrics.json", "metrics.md", "metrics.png"]  # no temporary file left

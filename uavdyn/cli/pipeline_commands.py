@@ -34,7 +34,7 @@ from uavdyn.experiments.reproduce import (
     run,
 )
 from uavdyn.flightdata.manifest import MANIFEST_MAX_SORTIES
-from uavdyn.outputs import check_output_file, write_text_atomic
+from uavdyn.outputs import atomic_files, check_output_file
 
 MAX_COST_REPEATS = 1000
 MAX_DATASET_ROWS = 5_000_000  # the pipeline holds its whole dataset and the predictions on it
@@ -78,12 +78,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     """Table 1 and Table 4 for any dataset folder, as JSON and Markdown."""
 
     out = Path(args.out)
-    md = out.with_suffix(".md")
-    for path in (out, md):
+    md, png = out.with_suffix(".md"), out.with_suffix(".png")
+    for path in (out, md, png):
         check_output_file(path)  # before the work, not after it
     airframe = load_airframe(args.airframe)
     check_dataset_fits(airframe, args.dataset)
-    for path in (out, md):
+    for path in (out, md, png):
         if path.exists() and not args.force and not _own_json(out):
             raise CliError(f"{path} exists and is not an earlier 'uavdyn evaluate' result; "
                            "choose another --out or give --force")
@@ -91,11 +91,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     result = evaluate_dataset(airframe, args.dataset, args.weights or [],
                               identified=identified, all_sorties=args.all_sorties)
     result["command"] = "evaluate"
-    write_text_atomic(out, json.dumps(result, indent=2, default=_json) + "\n")
-    write_text_atomic(md, evaluation_markdown(result))
+    with atomic_files(out, md, *([png] if result.get("ladder") else [])) as tmps:
+        tmps[0].write_text(json.dumps(result, indent=2, default=_json) + "\n")
+        tmps[1].write_text(evaluation_markdown(result, png.name, out.name))
+        if result.get("ladder"):
+            from uavdyn.experiments.figures import per_sortie_figure
+
+            per_sortie_figure(result, tmps[2])
     for line in headline_lines(result) if result.get("ladder") else []:
         print(line.replace("**", ""))
-    print(f"wrote {out} and {md}")
+    print(f"wrote {out}, {md}" + (f" and {png}" if result.get("ladder") else ""))
     return 0
 
 

@@ -109,7 +109,9 @@ def _train_safe(airframe: Airframe, ds: Dataset, formulation: str, config: Repro
         cfg.epochs, cfg.max_seconds, cfg.batches_per_epoch = 3, 60.0, 3
     log(f"training the safe {formulation} correction for {airframe.name} ...")
     result = train_safe(ds.train, ds.validation, airframe, cfg)
-    write_safe_history(result, history_path(out))
+    write_safe_history(result, history_path(out),
+                       f"{airframe.name} on the emulated dataset ({len(ds.train)} train, "
+                       f"{len(ds.validation)} validation sorties)")
     if not result.kept:
         log(f"[{airframe.name}] correction not kept: {result.reason}")
         return None
@@ -127,7 +129,9 @@ def _train_formulation(airframe: Airframe, ds: Dataset, formulation: str,
     log(f"training {formulation} weights for {airframe.name} ...")
     result = train(ds.train, ds.validation, airframe, cfg)
     save_weights(result.net, out)
-    write_history(result, history_path(out))
+    write_history(result, history_path(out),
+                  f"{airframe.name} on the emulated dataset ({len(ds.train)} train, "
+                  f"{len(ds.validation)} validation sorties)")
     return out
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -15,6 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
+from matplotlib.ticker import FuncFormatter  # noqa: E402
 
 from uavdyn.airframes import Airframe  # noqa: E402
 from uavdyn.evaluation import Solver  # noqa: E402
@@ -93,8 +95,8 @@ def time_histories(airframe: Airframe, sortie, models: list[tuple[Candidate, str
             ax.plot(t, scale(pred[:, idx]), style, lw=1, label=f"{solver.name} @ {solver.dt:g} s")
             ax_err.plot(t, scale(pred[:, idx] - targ[:, idx]), style, lw=1, label=solver.name)
         ax.set_ylabel(label)
-        ax.set_title(f"Fig. {number}: {airframe.name}, {sortie.name} ({sortie.mission}), {how}",
-                     fontsize=9)
+        ax.set_title(f"Fig. {number}: {airframe.name}, test sortie {sortie.name} "
+                     f"({sortie.mission}, {condition(sortie)}), {how}", fontsize=9, wrap=True)
         ax.legend(fontsize=8)
         ax_err.set_ylabel("error " + label[label.index("("):])
         ax_err.set_xlabel("time (s)")
@@ -173,8 +175,11 @@ def error_vs_horizon(airframe: Airframe, curves: dict, out: Path) -> str | None:
         ax.set_title(f"{airframe.name}, {cond} test sorties ({n})", fontsize=9)
         ax.set_xlabel("prediction horizon (s), restarted from the recorded state")
         ax.grid(alpha=0.3, which="both")
-    axes[0][0].set_ylabel("pitch RMSE (rad); band: per-sortie quartiles, v: worst sortie")
+    axes[0][0].set_ylabel("pitch RMSE (rad)")
     axes[0][0].legend(fontsize=8)
+    fig.suptitle(f"Prediction error against horizon, {airframe.name}, held-out test split: "
+                 "lines pooled RMSE, band per-sortie quartiles, v worst sortie", fontsize=9,
+                 wrap=True)
     return _save(fig, out / f"error_vs_horizon_{airframe.name}.png")
 
 
@@ -208,12 +213,17 @@ def error_distribution(airframe: Airframe, sorties: list, models: list[tuple[Can
     ax.set_yscale("log")
     ax.set_xlabel(f"{mode.replace('_', ' ')} pitch error (deg)")
     ax.set_ylabel("samples")
-    ax.set_title(f"Fig. 6a: error distribution, {airframe.name}")
+    ax.set_title(f"Fig. 6a: {airframe.name}, pitch error over the {len(sorties)} test sorties",
+                 fontsize=9)
     ax2.set_xticks(range(len(sorties)))
-    ax2.set_xticklabels([f"{s.name} {s.mission} ({condition(s)})" for s in sorties],
-                        rotation=75, fontsize=6)
+    ax2.set_xticklabels([f"{s.name}\n{s.mission}\n{condition(s)}" for s in sorties],
+                        rotation=30 if len(sorties) > 6 else 0, fontsize=7,
+                        ha="right" if len(sorties) > 6 else "center")
+    ax2.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.3g}"))
+    ax2.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:.3g}"))
     ax2.set_ylabel("max |pitch error| per sortie (deg)")
-    ax2.set_title("Fig. 6b: error envelope per test sortie")
+    ax2.set_title(f"Fig. 6b: {airframe.name}, worst pitch error of each test sortie",
+                  fontsize=9)
     for a in (ax, ax2):
         a.legend(fontsize=8)
         a.grid(alpha=0.3)
@@ -257,11 +267,17 @@ def work_precision_figure(airframe_name: str, study: dict, out_dir: str | Path) 
                 (line,) = ax.loglog([p["median_ms"] for p in ok], [p[key] for p in ok],
                                     label=fam, **style)
                 handles.setdefault(fam, line)
+    fig.suptitle(f"Work-precision, {airframe_name}: free runs of the first "
+                 f"{study['segment_s']:g} s of test sortie {study['sortie']}", fontsize=10)
     axes[0].set_title(f"{airframe_name}: against the flight data (true states, {mode})",
                       fontsize=9)
     axes[1].set_title(f"{airframe_name}: free run against the nominal fine-step reference",
                       fontsize=9)
     for ax in axes:
+        low, high = ax.get_ylim()
+        if 0 < low and high < 10 * low:  # within a decade: 0.0265, not 2.65x10^-2
+            ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.3g}"))
+            ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:.3g}"))
         ax.set_xlabel(f"median wall time of the {study['segment_s']:g} s segment (ms, "
                       f"{study['repeats']} interleaved repeats)")
         ax.set_ylabel("pitch RMSE (rad)")
@@ -272,9 +288,9 @@ def work_precision_figure(airframe_name: str, study: dict, out_dir: str | Path) 
     notes = "points along a line: step sizes or tolerances of one family, ordered by time"
     if dropped:
         notes += f"; not drawn (error zero or not finite): {', '.join(dropped)}"
-    fig.text(0.01, 0.005, notes, fontsize=6, wrap=True)
+    fig.text(0.01, 0.005, notes, fontsize=7, wrap=True)
     rows = math.ceil(len(handles) / 4)
-    fig.tight_layout(rect=(0, 0.04 + 0.045 * rows, 1, 1))
+    fig.tight_layout(rect=(0, 0.04 + 0.045 * rows, 1, 0.95))
     return _save(fig, Path(out_dir) / f"work_precision_{airframe_name}.png", layout=False)
 
 
@@ -312,7 +328,8 @@ def cost_figure(airframe_name: str, study: dict, out_dir: str | Path) -> str:
     ax.set_yticks(y, labels, fontsize=8)
     ax.set_xscale("log")
     ax.invert_yaxis()
-    ax.set_xlabel(f"wall time of the {study['segment_s']:g} s segment of {study['sortie']} (ms)")
+    ax.set_xlabel(f"wall time of the {study['segment_s']:g} s segment of test sortie "
+                  f"{study['sortie']} (ms)")
     ax.set_title(f"Fig. 5: cost, {airframe_name} ({study['harness']})", fontsize=9)
     ax.grid(alpha=0.3, axis="x", which="both")
     used = dict.fromkeys(kind(p) for p in rows)
@@ -323,6 +340,54 @@ def cost_figure(airframe_name: str, study: dict, out_dir: str | Path) -> str:
               ncol=3, frameon=False)
     fig.tight_layout()
     return _save(fig, Path(out_dir) / f"fig5_cost_{airframe_name}.png", layout=False)
+
+
+def per_sortie_figure(result: dict, path: str | Path) -> Path:
+    """The figure of ``uavdyn evaluate``: the 1 s pitch RMSE of every sortie, one bar per rung
+    of the ladder (nominal physics, identified physics, corrected), log scale, from the
+    result's per-sortie table (:func:`uavdyn.experiments.ladder.per_sortie_rmse`)."""
+    from uavdyn.experiments.ladder import per_sortie_rmse
+
+    lad = result["ladder"]
+    rmse = per_sortie_rmse(lad["per_sortie"], "horizon_1s")
+    models = lad["models"]
+    rows = {r["sortie"]: r for r in lad["per_sortie"]}
+    sorties = list(rmse)
+    fig, ax = plt.subplots(figsize=(max(7.0, 1.0 + 0.55 * len(sorties) * len(models) / 2), 4.8),
+                           constrained_layout=True)
+    width = 0.8 / max(1, len(models))
+    for k, model in enumerate(models):
+        x = np.arange(len(sorties)) + (k - (len(models) - 1) / 2) * width
+        vals = [rmse[s].get(model, np.nan) for s in sorties]
+        ax.bar(x, [v if np.isfinite(v) else np.nan for v in vals], width,
+               color=STYLES.get(model, "C4-")[:2], label=model)
+        for xi, v in zip(x, vals):
+            if v == np.inf:
+                ax.annotate("diverged", (xi, 0), xycoords=("data", "axes fraction"),
+                            rotation=90, ha="center", va="bottom", fontsize=7)
+    finite = [v for s in sorties for v in rmse[s].values() if np.isfinite(v) and v > 0]
+    if finite and max(finite) > 30 * min(finite):  # bars from zero unless decades apart
+        ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.3g}"))
+    ax.set_xticks(range(len(sorties)))
+    ax.set_xticklabels([f"{s}\n{rows[s]['mission']}\n{rows[s]['condition']}" for s in sorties],
+                       rotation=30 if len(sorties) > 8 else 0, fontsize=7,
+                       ha="right" if len(sorties) > 8 else "center")
+    ax.set_ylabel("1 s pitch RMSE (rad)")
+    ax.grid(alpha=0.3, axis="y", which="both")
+    ax.legend(fontsize=8)
+    ax.set_title("\n".join(textwrap.wrap(
+        f"{result['airframe']} on {result['dataset']}, {result['split']} "
+        f"({len(sorties)} sorties): 1 s pitch RMSE per sortie, predictions restarted from the "
+        f"recorded state every second, step {fmt_dt(lad['dt'])} s", 100)), fontsize=9)
+    path = Path(path)
+    fig.savefig(path, dpi=100, format="png")
+    plt.close(fig)
+    return path
+
+
+def fmt_dt(dt) -> str:
+    return "n/a" if dt is None else f"{dt:g}"
 
 
 def make_all(airframe: Airframe, ds, rungs: list[Candidate], legacy: dict, result: dict,

@@ -194,14 +194,15 @@ def per_sortie_lines(af: dict) -> list[str]:
     return lines + [""]
 
 
-def horizon_lines(af: dict) -> list[str]:
-    """Pooled pitch RMSE against horizon, one table per condition, from the ladder."""
+def horizon_lines(af: dict, spread: str = "in the figure and in metrics.json") -> list[str]:
+    """Pooled pitch RMSE against horizon, one table per condition, from the ladder
+    (``spread``: where the per-sortie spread is)."""
     curves = (af.get("ladder") or {}).get("horizons", {})
     lines = []
     for cond, models in curves.items():
         horizons = [p["horizon_s"] for p in next(iter(models.values()))]
         lines += [f"{cond} test sorties, pooled pitch RMSE (rad) against horizon "
-                  "(per-sortie spread in the figure and in metrics.json):", "",
+                  f"(per-sortie spread {spread}):", "",
                   "| model | " + " | ".join(f"{h:g} s" for h in horizons) + " |",
                   "|---|" + "---|" * len(horizons)]
         for model, points in models.items():
@@ -382,10 +383,12 @@ def safety_lines(entry: dict) -> list[str]:
     return lines
 
 
-def evaluation_markdown(result: dict) -> str:
+def evaluation_markdown(result: dict, figure: str | None = None,
+                        json_name: str = "the JSON result") -> str:
     """Markdown of :func:`uavdyn.experiments.evaluate.evaluate_dataset`: the ladder's headline,
-    error against horizon and per-sortie table, Table 1, Table 4 and the per-sortie
-    comparison of each correction with its physics."""
+    error against horizon and per-sortie table (``figure``: the PNG of the per-sortie 1 s
+    pitch RMSE beside it, :func:`uavdyn.experiments.figures.per_sortie_figure`), Table 1,
+    Table 4 and the per-sortie comparison of each correction with its physics."""
 
     lines = [f"# Evaluation of {result['airframe']} on {result['dataset']}", "",
              f"{len(result['sorties'])} sorties ({result['split']}); weights: "
@@ -394,7 +397,9 @@ def evaluation_markdown(result: dict) -> str:
         lines += ["## Headline", "", "Pitch RMSE in rad at the log interval, pooled over the "
                   "sorties of a group [95 % bootstrap over sorties].", ""]
         lines += headline_lines(result) + ["", "## Error against horizon", ""]
-        lines += horizon_lines(result) + ["## Per sortie (pitch RMSE, rad)", ""]
+        lines += horizon_lines(result, f"in {json_name}, per sortie below")
+        lines += ["## Per sortie (pitch RMSE, rad)", ""]
+        lines += ([f"![1 s pitch RMSE per sortie]({figure})", ""] if figure else [])
         lines += per_sortie_lines(result)
     lines += ["## Table 1: accuracy", ""]
     lines += table1_lines(result) + ["## Table 4: robustness (free run, dt = 0.005 s)", ""]
