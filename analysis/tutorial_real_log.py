@@ -87,7 +87,36 @@ def main() -> int:
     parser.add_argument("--log", type=Path, default=DEFAULT_LOG, help="ALFA sequence folder")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "tutorials",
                         help="folder of the page (real_log.md) and its figures")
+    parser.add_argument("--check", action="store_true",
+                        help="regenerate into a temporary folder and exit 1 if the page differs "
+                             "from the one in --out (numbers by tolerance, timings ignored)")
     args = parser.parse_args()
+    if args.check:
+        return check(args)
+    return build(args)
+
+
+def check(args: argparse.Namespace) -> int:
+    """Rebuild the page elsewhere and compare it with the committed one."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from page_compare import first_difference
+
+    with tempfile.TemporaryDirectory() as tmp:
+        code = build(argparse.Namespace(log=args.log, out=Path(tmp)))
+        if code:
+            return code
+        fresh = (Path(tmp) / "real_log.md").read_text()
+    committed = (args.out / "real_log.md").read_text()
+    difference = first_difference(committed, fresh)
+    if difference:
+        print(f"{args.out / 'real_log.md'} is stale: {difference}", file=sys.stderr)
+        return 1
+    print(f"{args.out / 'real_log.md'} matches this run")
+    return 0
+
+
+def build(args: argparse.Namespace) -> int:
+    """Run the tutorial and write its page and figures into ``args.out``."""
     started = time.perf_counter()
     out = args.out
     figures = out / "real_log"
@@ -106,6 +135,7 @@ def main() -> int:
         ]
         for argv in commands:
             code, printed = run(argv)
+            printed = printed.replace(str(work) + "/", "").replace(str(ROOT) + "/", "")
             steps.append((shown(argv, work), printed.strip()))
             if code != 0:
                 print(printed, file=sys.stderr)
@@ -133,7 +163,8 @@ def render(steps: list[tuple[str, str]], ladder: dict, folds: list[dict], second
         "# Tutorial: a real fixed-wing log, from import to an evaluated model",
         "",
         "Produced by `python analysis/tutorial_real_log.py` "
-        f"({platform.machine()}, Python {platform.python_version()}, {seconds:.0f} s); every "
+        f"({platform.machine()}, Python {platform.python_version()}, wall time {seconds:.0f} s); "
+        "every "
         "command and number below is from that run. The log is the ALFA dataset's Carbon-Z "
         "T-28 flight of 18 July 2018 (Keipour, Mousaei and Scherer, IJRR 2021; the trimmed "
         "copy in `tests/data/reallogs`, BSD 3-Clause), flown by ArduPlane and recorded through "
