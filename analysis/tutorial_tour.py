@@ -20,13 +20,15 @@ import argparse
 import contextlib
 import io
 import os
-import re
 import sys
 import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from page_compare import line_difference  # noqa: E402  (a sibling script, not a package)
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -169,10 +171,6 @@ def render_readme_block(outputs: list[tuple[Step, str]]) -> str:
 def render_page(outputs: list[tuple[Step, str]], seconds: float) -> str:
     """``docs/tutorials/tour.md``."""
     lines = [
-        "---",
-        "orphan: true",
-        "---",
-        "",
         "# Tutorial: a five-minute tour",
         "",
         "Every command below was run by `python analysis/tutorial_tour.py` in an empty folder "
@@ -213,36 +211,6 @@ def replace_block(readme: str, new_block: str) -> str:
 
 # --- the comparison of --check -----------------------------------------------------------
 
-NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
-TIMING = re.compile(r"\b(in|took)\s+\d+(?:\.\d+)?\s*(s|ms|min)\b")
-
-
-def _normalised(line: str) -> tuple[list[str], list[float]]:
-    """A line's text between numbers and its numbers, with timing figures taken out."""
-    line = TIMING.sub(r"\1 <time> \2", line.rstrip())
-    texts = NUMBER.split(line)
-    numbers = [float(x) for x in NUMBER.findall(line)]
-    return texts, numbers
-
-
-def lines_match(a: str, b: str) -> bool:
-    """Equal text, numbers equal within the tolerance, timing figures ignored."""
-    (ta, na), (tb, nb) = _normalised(a), _normalised(b)
-    if ta != tb or len(na) != len(nb):
-        return False
-    return all(abs(x - y) <= max(ABS_TOL, REL_TOL * max(abs(x), abs(y))) for x, y in zip(na, nb))
-
-
-def _what_differs(want: str, have: str) -> str:
-    """One phrase: the first number out of tolerance, or that the text differs."""
-    (tw, nw), (th, nh) = _normalised(want), _normalised(have)
-    if tw == th and len(nw) == len(nh):
-        for x, y in zip(nw, nh):
-            if abs(x - y) > max(ABS_TOL, REL_TOL * max(abs(x), abs(y))):
-                return f"the number {y:g} should be {x:g}"
-    return "the text differs"
-
-
 def sections(text: str) -> list[tuple[str, list[str]]]:
     """The text cut at each ``$ uavdyn`` line: (command, its lines); the text before the
     first command is named ``(the text before the first command)``."""
@@ -266,9 +234,10 @@ def first_difference(expected: str, actual: str) -> str | None:
         for i in range(max(len(lines), len(got))):
             want = lines[i] if i < len(lines) else "(nothing)"
             have = got[i] if i < len(got) else "(nothing)"
-            if i >= len(lines) or i >= len(got) or not lines_match(want, have):
-                return f"{name}: {_what_differs(want, have)}\n    expected: {want}\n" \
-                       f"    the file: {have}"
+            what = "a line is missing" if i >= len(lines) or i >= len(got) else \
+                line_difference(want, have, REL_TOL, ABS_TOL)
+            if what:
+                return f"{name}: {what}\n    expected: {want}\n    the file: {have}"
     if len(act) > len(exp):
         return f"{act[len(exp)][0]}: in the file but not in the tour"
     return None
