@@ -98,8 +98,7 @@ def main() -> int:
 
 def check(args: argparse.Namespace) -> int:
     """Rebuild the page elsewhere and compare it with the committed one."""
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from page_compare import first_difference
+    from page_compare import first_difference  # the script's own folder is on the path
 
     with tempfile.TemporaryDirectory() as tmp:
         code = build(argparse.Namespace(log=args.log, out=Path(tmp)))

@@ -27,8 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from page_compare import line_difference  # noqa: E402  (a sibling script, not a package)
+from page_compare import line_difference  # the script's own folder is on the import path
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
