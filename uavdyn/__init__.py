@@ -33,7 +33,7 @@ from uavdyn.learned import hybrid_step
 from uavdyn.linear import trim
 from uavdyn.model import build_model
 
-__version__ = "0.4.0"
+__version__ = "0.5.0"
 __all__ = ["Airframe", "load_airframe", "perturb", "build_model", "trim", "DiscreteModel",
            "physics_step", "hybrid_step", "rk4_step",
            "rollout", "reference_step", "simulate", "free_run", "__version__"]
