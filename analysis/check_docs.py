@@ -36,7 +36,7 @@ PATH = re.compile(r"(?:(?<=[\s(`'\"])|^)((?:uavdyn|docs|examples|analysis|tests|
 COMMAND = re.compile(r"(?:^|[$;&|(]\s*)uavdyn ([a-z][a-z-]+)((?: +[^\s`|;&]+)*)")
 QUOTE = re.compile(r"(-?\d+(?:\.\d+)?(?:[eE][+-]?\d+)?)\s*(?:[^\s<]{0,6}\s*)?"
                    r"<!--\s*json\s+(\S+)\s+(\S+)(?:\s+(\S+))?\s*-->")
-SKIP = ("*", "<", "{", "...", "$")
+SKIP = ("*", "<", "{", "...", "$", "_build")  # patterns, placeholders, build outputs
 
 
 def documents(root: Path) -> list[Path]:
