@@ -10,7 +10,8 @@ benchmark JSON file.
   subcommand that exists and options it has;
 * **quoted numbers**: a number followed by ``<!-- json FILE KEY.PATH -->`` must equal the value
   at that key of that JSON file to the digits quoted (``KEY.PATH`` uses dots, list indices are
-  numbers; an optional third word scales the JSON value, e.g. ``1000`` for s -> ms).
+  numbers, ``~`` stands for a space in a key; an optional third word scales the JSON value,
+  e.g. ``1000`` for s -> ms).
 
 Prints one line per problem (file:line: what) and exits 1 if there is any::
 
@@ -121,8 +122,9 @@ def check_commands(where: str, lines: list[str], options: dict[str, set[str]]) -
 
 
 def _value(data, key: str):
+    """The value at a dotted key (``~`` stands for a space in a key: ``nominal~physics``)."""
     for part in key.split("."):
-        data = data[int(part)] if isinstance(data, list) else data[part]
+        data = data[int(part)] if isinstance(data, list) else data[part.replace("~", " ")]
     return data
 
 
