@@ -35,8 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
+from uavdyn.flightdata.ardupilot_maps import default_maps
 from uavdyn.flightdata.attitude import body_from_euler, rotate_to_body
-from uavdyn.flightdata.control_map import ChannelMap, override_maps
+from uavdyn.flightdata.control_map import ChannelMap
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.flightlog import FlightLog
 from uavdyn.flightdata.import_checks import MAX_RATE_HZ, _as_path, check_reader_options
@@ -47,11 +48,6 @@ from uavdyn.safefiles import UnreadableFile, stat_regular
 PYMAVLINK_HINT = "reading ArduPilot .bin logs needs pymavlink: pip install 'uavdyn[ardupilot]'"
 MAX_DATAFLASH_BYTES = 4 * 2**30      # larger files are refused before pymavlink maps them
 DATAFLASH_HEAD = b"\xa3\x95"         # every DataFlash message starts with these two bytes
-ELEVATOR_DEFLECTION_RAD = 0.35       # assumed elevator deflection at full servo travel
-ELEVATOR_FUNCTION = 19               # SERVOn_FUNCTION of an elevator output
-SERVO_DEFAULTS = {"MIN": 1100.0, "MAX": 1900.0, "TRIM": 1500.0, "REVERSED": 0.0}
-PERCENT_LIMIT = 1.5                  # a throttle above this is a percentage, not a fraction
-MAX_SERVOS = 32
 VEHICLE_BUILDS = {1: "Rover", 2: "ArduCopter", 3: "ArduPlane", 4: "AntennaTracker",
                   7: "ArduSub", 12: "Blimp", 13: "Helicopter"}     # VER.BU
 VEHICLE_KINDS = {"ArduPlane": "fixed_wing", "ArduCopter": "multirotor"}
@@ -255,89 +251,6 @@ def _vehicle_kind(scan: _Scan, path: Path) -> tuple[str, str]:
                           "no STAT/RATE): pass kind", path)
 
 
-def _elevator_map(scan: _Scan, path: Path) -> tuple[ChannelMap, str]:
-    """The default elevator map from the servo parameters (see module docstring)."""
-    functions = {n: scan.param(f"SERVO{n}_FUNCTION") for n in range(1, MAX_SERVOS + 1)}
-    if not any(v is not None for v in functions.values()):
-        n, note = 2, ("no SERVOn_FUNCTION parameters in the log: servo 2 assumed to be the "
-                      "elevator (ArduPlane's default)")
-    else:
-        elevators = [k for k, v in functions.items() if v == ELEVATOR_FUNCTION]
-        if not elevators:
-            raise FlightDataError(
-                "no servo output has SERVOn_FUNCTION = 19 (elevator): elevons or a V-tail mix "
-                "pitch with roll; give the elevator's map (--control-map "
-                "elevator=RCOU.C2:1100:1900:0.35:-0.35)", path, column="elevator")
-        n = elevators[0]
-        note = f"SERVO{n}_FUNCTION = 19 (elevator)" + (
-            f"; servos {elevators[1:]} are elevators too, ignored" if len(elevators) > 1 else "")
-    if n > len(MESSAGES["RCOU"]):
-        raise FlightDataError(f"the elevator is servo {n}, beyond RCOU's C1..C14: give its map",
-                              path, column="elevator")
-    p = {}
-    for key, default in SERVO_DEFAULTS.items():
-        value = scan.param(f"SERVO{n}_{key}")
-        p[key] = default if value is None else value
-        if value is None:
-            note += f"; SERVO{n}_{key} not in the log, {default:g} assumed"
-        elif len(set(scan.params[f"SERVO{n}_{key}"])) > 1:
-            note += f"; SERVO{n}_{key} changed during the log, last value {value:g} used"
-    lo, hi, trim = p["MIN"], p["MAX"], p["TRIM"]
-    if not lo < trim < hi:
-        raise FlightDataError(f"SERVO{n}_MIN/TRIM/MAX = {lo:g}/{trim:g}/{hi:g} are not "
-                              "increasing: give the elevator's map", path, column="elevator")
-    nose_up_at_max = p["REVERSED"] == 0     # ArduPlane: a positive output pitches nose up
-    d = ELEVATOR_DEFLECTION_RAD
-    v_lo, v_hi = (d, -d) if nose_up_at_max else (-d, d)
-    source = f"RCOU.C{n}"
-    if abs(trim - (lo + hi) / 2) <= 1.0:
-        m = ChannelMap("elevator", source, lo, hi, v_lo, v_hi)
-    elif hi - trim >= trim - lo:
-        m = ChannelMap("elevator", source, trim, hi, 0.0, v_hi)
-    else:
-        m = ChannelMap("elevator", source, lo, trim, v_lo, 0.0)
-    note += (f"; PWM {lo:g}/{trim:g}/{hi:g} us, reversed {int(p['REVERSED'])}: the trim PWM "
-             f"is 0 rad and full travel +-{d:g} rad (assumed, not in the log; positive = "
-             "trailing edge down), linear through trim and the farther end")
-    return m, note
-
-
-def _throttle_map(control: str, scan: _Scan) -> tuple[ChannelMap, str]:
-    """``CTUN.ThO`` (``ThrOut`` in old logs) as a fraction: percent when its values say so."""
-    name = "ThrOut" if not scan.has("CTUN", "ThO") and scan.has("CTUN", "ThrOut") else "ThO"
-    source = f"CTUN.{name}"
-    values = scan.series["CTUN"][1][name] if scan.has("CTUN", name) else np.zeros(0)
-    peak = float(np.nanmax(np.abs(values))) if np.isfinite(values).any() else 0.0
-    if peak > PERCENT_LIMIT:
-        return (ChannelMap(control, source, 0.0, 100.0, 0.0, 1.0),
-                f"{source} read as percent (its largest value {peak:g} > {PERCENT_LIMIT:g}; "
-                "ArduPlane logs percent)")
-    return (ChannelMap(control, source, 0.0, 1.0, 0.0, 1.0),
-            f"{source} read as a fraction 0..1 (its largest value {peak:g} <= "
-            f"{PERCENT_LIMIT:g}; ArduCopter logs a fraction)")
-
-
-def _default_maps(kind: str, scan: _Scan, given: list[ChannelMap] | None, path: Path
-                  ) -> tuple[dict[str, ChannelMap], dict[str, str]]:
-    """The default maps (those the user replaced are not inferred) and a note on each."""
-    replaced = {m.control for m in given or []}
-    maps: dict[str, ChannelMap] = {}
-    notes: dict[str, str] = {}
-    for control in CONTROL_NAMES[kind]:
-        if control in replaced:
-            maps[control] = next(m for m in given if m.control == control)
-            notes[control] = "given by the user"
-        elif control == "elevator":
-            maps[control], notes[control] = _elevator_map(scan, path)
-        elif control in ("throttle", "collective"):
-            maps[control], notes[control] = _throttle_map(control, scan)
-        else:  # pitch_cmd
-            maps[control] = ChannelMap(control, "RATE.POut", -1.0, 1.0, -1.0, 1.0)
-            notes[control] = ("RATE.POut, the pitch rate controller's normalised output "
-                              "(positive nose up), used as it is")
-    return override_maps(maps, given, path), notes
-
-
 def _field(scan: _Scan, source: str, what: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Stamps and values of ``MESSAGE.FIELD``, or one line naming what is missing."""
     message, _, name = source.partition(".")
@@ -439,7 +352,7 @@ def read_dataflash(path: str | Path, kind: str | None = None, rate_hz: float | N
     att = _attitude(scan, path)
     gyro = [_field(scan, f"IMU.{f}", "the body rates", path) for f in MESSAGES["IMU"]]
     vel_source, vel_t, v_ned = _ned_velocity(scan, path)
-    maps, notes = _default_maps(kind, scan, control_maps, path)
+    maps, notes = default_maps(kind, scan, control_maps, path)
     raw = {c: _field(scan, maps[c].source, f"the {c} control", path) for c in maps}
     att_t = scan.series[att][0]
     grid, rate_hz = _grid_for([att_t, gyro[0][0], vel_t] + [r[0] for r in raw.values()],

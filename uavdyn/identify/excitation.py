@@ -124,3 +124,14 @@ def unexcited(names: list[str], sorties: list) -> list[str]:
                    f"{against} (needs {EXCITATION_SNR:g}x its noise and at least {floor:g} "
                    f"{unit}); would need: {excitation_for(name, [])}")
     return out
+
+
+def refuse_unexcited(names: list[str], sorties: list) -> None:
+    """Raise :class:`~uavdyn.identify.errors.IdentifyError` naming every parameter of
+    ``names`` the ``sorties`` do not excite (:func:`unexcited`), in one line."""
+    from uavdyn.identify.errors import IdentifyError
+
+    problems = unexcited(names, sorties)
+    if problems:
+        raise IdentifyError("the train data do not excite " + "; ".join(problems)
+                            + " (drop it from the parameters, or fly that manoeuvre)")

@@ -40,7 +40,7 @@ from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
 from uavdyn.identify.consistency import compare_halves
 from uavdyn.identify.errors import IdentifyError
-from uavdyn.identify.excitation import excitation_for, unexcited
+from uavdyn.identify.excitation import excitation_for, refuse_unexcited
 from uavdyn.identify.problem import COMPILE_FLAGS, _check_excitation, _Problem
 from uavdyn.identify.result import DEFAULT_SUBSTEPS, Estimate, IdentificationResult
 from uavdyn.identify.search import RECHECK_STEPS, SEARCH_ROUNDS, _recheck_delays, _search
@@ -170,10 +170,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     t_start = time.perf_counter()
     continuous, searched = _check_request(airframe, names, train, max_delay)
     if screen:
-        problems = unexcited(continuous, train)
-        if problems:
-            raise IdentifyError("the train data do not excite " + "; ".join(problems)
-                                + " (drop it from the parameters, or fly that manoeuvre)")
+        refuse_unexcited(continuous, train)
     fit = _prepare(airframe, train, continuous, searched, window_s, dt, substeps,
                    max_windows, relative_bound, bounds, estimate_x0, preroll)
     outcome = _solve(fit, max_delay, max_iterations, progress)
@@ -488,14 +485,7 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int
                                              float(delays[k]), 0.0, searched=True,
                                              at_bound="upper" if delays[k] == max_delay
                                              else "", std_error_corrected=0.0)
-    diagnostics = {} if unc is None else {
-        "condition_indices": unc.condition_indices.tolist(),
-        "variance_proportions": unc.variance_proportions.tolist(),
-        "collinear_groups": groups,
-        "residual_correlation_time_s": dict(zip(("u", "w", "q", "theta"),
-                                                unc.correlation_time_s.tolist())),
-        "corrected_over_cramer_rao": dict(zip(continuous, (std_c / np.maximum(std, 1e-300))
-                                              .tolist()))}
+    diagnostics = {} if unc is None else unc.diagnostics(continuous, std, std_c)
     return fitted, [by_name[n] for n in names], corr, flagged, sigma_w, diagnostics
 
 

@@ -71,6 +71,19 @@ class Uncertainty:
     variance_proportions: np.ndarray
     collinear_groups: list[list[int]]
 
+    def diagnostics(self, names: list[str], std: np.ndarray, std_corrected: np.ndarray
+                    ) -> dict:
+        """The result's ``diagnostics`` record: condition indices, variance proportions,
+        collinear groups by name, residual correlation times, corrected / Cramer-Rao ratios."""
+        return {
+            "condition_indices": self.condition_indices.tolist(),
+            "variance_proportions": self.variance_proportions.tolist(),
+            "collinear_groups": [[names[j] for j in g] for g in self.collinear_groups],
+            "residual_correlation_time_s": dict(zip(("u", "w", "q", "theta"),
+                                                    self.correlation_time_s.tolist())),
+            "corrected_over_cramer_rao": dict(zip(names, (std_corrected / np.maximum(
+                std, 1e-300)).tolist()))}
+
 
 def estimate_uncertainty(J, r: np.ndarray, n_theta: int, n_windows: int, length: int,
                          estimate_x0: bool, interval: float,
