@@ -150,8 +150,11 @@ def test_alfa_flight_imports_splits_identifies_and_evaluates_with_no_hand_edit(t
     ds = load_dataset(data)
     assert ds.sample_rate_hz == 10.0
     fitted = tmp_path / "alfa_id.toml"
+    # --dt 0.02 (5 sub-steps of the 0.1 s interval, not the default 20): a smaller library to
+    # compile; .ci/run takes the same log through the defaults from the wheel
     code, out, err = _run(capsys, "identify", "--airframe", airframe, "--dataset", str(data),
-                          "--params", "C_m_0,C_L_0,C_D_0", "--out", str(fitted), "--quiet")
+                          "--params", "C_m_0,C_L_0,C_D_0", "--dt", "0.02", "--out",
+                          str(fitted), "--quiet")
     assert code == 0, err
     result = tmp_path / "eval.json"
     code, out, err = _run(capsys, "evaluate", "--airframe", airframe, "--identified",
