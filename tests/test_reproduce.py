@@ -293,9 +293,11 @@ def test_train_and_evaluate_on_a_hand_written_dataset(tmp_path, capsys):
     pytest.importorskip("torch")
     folder = write_hand_dataset(tmp_path / "hand")
     weights = tmp_path / "w.npz"
-    # two epochs: what is checked is the evaluation of whatever the trainer wrote, not its fit
+    # two epochs of 0.3 s rollouts: what is checked is the evaluation of whatever the trainer
+    # wrote, not its fit
     assert main(["train", "--airframe", "aerosonde", "--dataset", str(folder), "--epochs", "2",
-                 "--hidden", "8", "--max-seconds", "30", "--out", str(weights), "--quiet"]) == 0
+                 "--hidden", "8", "--max-seconds", "30", "--horizon", "0.3", "--out",
+                 str(weights), "--quiet"]) == 0
     assert weights.exists()
     out = tmp_path / "metrics.json"
     assert main(["evaluate", "--airframe", "aerosonde", "--dataset", str(folder), "--weights",
