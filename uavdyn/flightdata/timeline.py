@@ -3,7 +3,6 @@ user sees at a glance what was kept, what was cut and why."""
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -73,8 +72,6 @@ def draw_timeline(report: SegmentReport, path: str | Path, splits: list[str] | N
                  f"{f.duration:.1f} s kept\n(|roll| <= {limit:g} deg, |r| <= "
                  f"{report.rules.max_yaw_rate_deg_s:g} deg/s, >= "
                  f"{report.rules.min_duration_s:g} s)", fontsize=10)
-    if not math.isfinite(kept):  # pragma: no cover - defensive
-        kept = 0.0
     path = Path(path)
     fig.savefig(path, dpi=110, format="png")
     plt.close(fig)

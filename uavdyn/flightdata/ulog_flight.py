@@ -24,7 +24,7 @@ from uavdyn.flightdata.attitude import (
 from uavdyn.flightdata.control_map import ChannelMap, override
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.flightlog import FlightLog
-from uavdyn.flightdata.import_checks import _as_path, _check_name
+from uavdyn.flightdata.import_checks import _as_path
 from uavdyn.flightdata.resample import (
     _hold,
     _quaternions_on_grid,
@@ -127,8 +127,7 @@ def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str |
         One line naming the file and topic for anything missing or malformed.
     """
     path = _as_path(path, "path")
-    _check_ulog_options(path, rate_hz, kind, pitch_mix, "auto", name, {})
-    _check_name(name, path)
+    _check_ulog_options(path, rate_hz, kind, pitch_mix, "auto", name, {})  # name included
     ulog, truncated_at, _ = _read_ulog(path, False)
     topics = _Topics(ulog, path)
     kind = kind or _vehicle_kind(ulog)
