@@ -10,7 +10,7 @@ may be biased; the test of honesty is that it is then flagged or its corrected i
 wide enough.
 
 Usage: ``python analysis/identify_recovery.py [--airframe FILE] [--sorties 30]
-[--duration 30] [--params a,b,c] [--out FILE]``.
+[--duration 30] [--params a,b,c] [--max-windows 120] [--out FILE]``.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import json
 import math
 import os
 import platform
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -29,10 +30,14 @@ REPO = Path(__file__).resolve().parents[1]
 TRUTH_KEYS = {"C_m_alpha_dot": "C_m_alphadot", "C_L_alpha_dot": "C_L_alphadot",
               "tau_elevator": "tau_elevator", "tau_throttle": "tau_throttle",
               "tau_rotor": "tau_rotor"}
+# the model's slew time is 1 / the truth model's actuator rate limit
+SLEW_KEYS = {"slew_elevator": "rate_elevator", "slew_throttle": "rate_throttle"}
 
 
 def truth_of(name: str, airframe, truth: dict) -> float:
     """The value the emulator flew for parameter ``name``."""
+    if SLEW_KEYS.get(name) in truth:
+        return 1.0 / float(truth[SLEW_KEYS[name]])
     key = TRUTH_KEYS.get(name)
     if key is not None and key in truth:
         return float(truth[key])
@@ -46,6 +51,8 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=30.0)
     ap.add_argument("--params", help="comma-separated (default: the pipeline's list)")
     ap.add_argument("--data", help="dataset folder to use (default: generate a new one)")
+    ap.add_argument("--max-windows", type=int, default=120,
+                    help="windows the fit uses at most (0: all)")
     ap.add_argument("--out", help="also write the JSON here")
     args = ap.parse_args()
 
@@ -65,7 +72,8 @@ def main() -> None:
         ds = load_dataset(data)
         truth = json.loads((data / "manifest.json").read_text()).get("truth", {})
         t0 = time.perf_counter()
-        result = identify(airframe, ds.train, ds.validation, names, progress=False)
+        result = identify(airframe, ds.train, ds.validation, names, progress=False,
+                          max_windows=args.max_windows or None)
         wall = time.perf_counter() - t0
     rows = []
     for e in result.estimates:
@@ -82,9 +90,10 @@ def main() -> None:
            "estimates": rows, "diagnostics": result.diagnostics,
            "confident_and_wrong": [r["name"] for r in rows
                                    if r["determined"] and r["error_in_corrected_se"] > 3],
+           "max_windows": args.max_windows or None,
            "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                        "load_1min": os.getloadavg()[0]},
-           "command": "python analysis/identify_recovery.py"}
+           "command": " ".join(["python analysis/identify_recovery.py", *sys.argv[1:]])}
     print(f"{'name':>14} {'value':>10} {'truth':>10} {'CR s.e.':>9} {'corr. s.e.':>10} "
           f"{'|err|/s.e.':>10}  flags")
     for r in rows:

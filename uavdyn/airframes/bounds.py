@@ -52,6 +52,9 @@ _ALPHA_DOT = _b(-100, 100, "1/rad", "alpha-dot derivative (times alpha_dot c/2V)
                 low_open=False)
 _TAU = _b(0, 10, "s", "first-order time constant; 0 = no lag (no actuator state)",
           low_open=False)
+_SLEW = _b(0, 10, "s per unit", "actuator slew time, 1 / its rate limit (s/rad for the "
+                                "elevator, s per full throttle); 0 = no rate limit",
+           low_open=False)
 # The closed-form alpha-dot divides by 1 + rho S c C_L_alpha_dot / (4 m) (the alpha-dot lift
 # acts like an added mass); below this the "added mass" would more than double alpha_dot.
 ALPHA_DOT_DENOMINATOR_MIN = 0.5
@@ -84,6 +87,7 @@ BOUNDS: dict[str, dict[str, Bound]] = {
         "C_T2": _COEFF, "C_T1": _COEFF, "C_T0": _COEFF,
         "C_L_alpha_dot": _ALPHA_DOT, "C_m_alpha_dot": _ALPHA_DOT,
         "tau_elevator": _TAU, "tau_throttle": _TAU,
+        "slew_elevator": _SLEW, "slew_throttle": _SLEW,
     },
     "multirotor": {
         "mass": _MASS, "Jy": _JY, "arm": _LENGTH,

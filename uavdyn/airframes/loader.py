@@ -30,7 +30,8 @@ never widen the kind's physical range. Not parameters of ``p``, so ``param_hash`
     elevator_rate = 1.0        # '<control>_rate': a positive rate in control units per second
 
 Fixed wing also: ``tau_elevator``, ``tau_throttle`` (s, first-order actuator lag; the throttle
-lag is the engine's power lag in front of the thrust model or table). Multirotor: ``tau_rotor``
+lag is the engine's power lag in front of the thrust model or table) and ``slew_elevator``,
+``slew_throttle`` (1 / the actuator's rate limit, s per unit; 0 = none). Multirotor: ``tau_rotor``
 (s, rotor-speed lag of both commands: rotor speed is linear in them) and ``k_inflow`` (thrust loss
 ``k_inflow * omega * v_axial`` with the climb speed through the disc). A time constant of 0 means
 no lag and no actuator state. Multirotor pitching moments a rotor craft has besides the rotors'

@@ -53,6 +53,8 @@ class FixedWingParams:
     C_m_alpha_dot: float = 0.0
     tau_elevator: float = 0.0
     tau_throttle: float = 0.0
+    slew_elevator: float = 0.0
+    slew_throttle: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -91,7 +91,9 @@ def airframe_truth(airframe) -> dict[str, float]:
     """The truth-model extras an airframe file sets itself: its actuator lags and rate limits.
 
     Fixed wing: ``tau_elevator`` and ``tau_throttle`` (where non-zero) are the servo and
-    engine lags, ``[limits]`` ``elevator_rate`` and ``throttle_rate`` the actuator rates.
+    engine lags; the actuator rates are 1 / ``slew_elevator`` and 1 / ``slew_throttle`` (the
+    model's own rate limits, where non-zero), else ``[limits]`` ``elevator_rate`` and
+    ``throttle_rate``.
     Multirotor: ``tau_rotor`` (where non-zero) is the spin-up lag; spin-down keeps the
     emulator's ratio (no active braking: ``tau_motor_down / tau_motor_up`` of
     :data:`TRUTH_DEFAULTS`). Everything else keeps the emulator's defaults."""
@@ -101,7 +103,8 @@ def airframe_truth(airframe) -> dict[str, float]:
             if getattr(P, name) > 0:
                 out[name] = float(getattr(P, name))
         for control in ("elevator", "throttle"):
-            rate = airframe.limits.get(f"{control}_rate")
+            slew = getattr(P, f"slew_{control}")
+            rate = 1.0 / slew if slew > 0 else airframe.limits.get(f"{control}_rate")
             if rate is not None:
                 out[f"rate_{control}"] = float(rate)
     elif P.tau_rotor > 0:

@@ -23,6 +23,10 @@ EXCITATION: dict[str, str] = {
              "decelerations)",
     "tau_elevator": "sharp elevator steps (a 3-2-1-1 with short pulses)",
     "tau_throttle": "sharp throttle steps",
+    "slew_elevator": "large fast elevator steps (the servo at its rate limit) beside small "
+                     "ones (its lag)",
+    "slew_throttle": "large fast throttle steps (the engine at its rate limit) beside small "
+                     "ones (its lag)",
     # multirotor
     "pitch_mix": "open-loop pitch-command steps or doublets (attitude loop off or with "
                  "injected inputs)",
@@ -75,6 +79,7 @@ EXCITED_BY: dict[str, str] = {
     "C_m_q": "q", "C_L_q": "q", "C_D_q": "q", "C_m_alpha_dot": "q", "C_L_alpha_dot": "q",
     "C_m_delta_e": "elevator", "C_L_delta_e": "elevator", "C_D_delta_e": "elevator",
     "C_D_0": "u", "tau_elevator": "elevator", "tau_throttle": "throttle",
+    "slew_elevator": "elevator", "slew_throttle": "throttle",
     "pitch_damping": "q", "pitch_mix": "pitch_cmd", "M_u": "u", "drag_linear": "u",
     "CdA_x": "u", "CdA_z": "w", "k_inflow": "w", "c_T": "collective",
     "tau_rotor": "collective",

@@ -19,7 +19,8 @@ What each kind of name means:
   constant whose nominal value is 0 (no lag) starts from the best of :data:`TAU_GRID` on the
   cost and stays in :data:`TAU_BOUNDS`. Each window's lag states start from the exact lag
   recursion over the commands before it, in the same CasADi graph, so the Jacobian with
-  respect to the time constant is exact too.
+  respect to the time constant is exact too. A slew time ``slew_*`` (1 / an actuator's rate
+  limit) at 0 (no rate limit) starts the same way from the best of :data:`SLEW_GRID`.
 * ``delay_<control>``: an integer transport delay in samples, found by a coordinate search over
   ``0..max_delay`` on the cost, then re-checked at +-1 after the continuous fit. A delay is
   data to the fit (the commands shifted by it), so every candidate uses the one compiled graph.
@@ -65,6 +66,7 @@ from uavdyn.identify.windows import (
     inside_envelope,
     make_windows,
     physics_windows,
+    stall_onset,
     window_density_ratios,
 )
 from uavdyn.integrate import EvalGrid, substeps_for
@@ -256,8 +258,15 @@ class _Fit:
         return np.concatenate([th, np.zeros(self.problem.n_dx)])
 
     def taus_of(self, th: np.ndarray) -> np.ndarray:
-        """The structure's time constants at the scaled unknowns ``th``."""
-        return self.unknowns.p_of(th)[list(self.structure.tau_indices)]
+        """The structure's time constants at the scaled unknowns ``th``; a rate-limited
+        actuator's at least the one whose pre-roll also covers a slew over its full travel."""
+        p = self.unknowns.p_of(th)
+        bounds = self.airframe.control_bounds()
+        return np.array([max(p[i], 0.0 if k is None else p[k] * (bounds[c][1] - bounds[c][0])
+                             / PREROLL_TAUS)
+                         for c, i, k in zip(self.structure.lag_indices,
+                                            self.structure.tau_indices,
+                                            self.structure.slew_indices)])
 
 
 @dataclass
@@ -300,15 +309,17 @@ def _training_windows(airframe: Airframe, train: list[Sortie], L: int, stride: i
     inside = inside_envelope(airframe, w_train)
     if not inside.all():
         if not inside.any():
-            raise IdentifyError("every training window passes the stall angle (alpha0 = "
-                                f"{math.degrees(airframe.params.alpha0):.1f} deg): the model's "
+            raise IdentifyError("every training window reaches the stall (the onset of the "
+                                "stall blend, alpha = "
+                                f"{math.degrees(stall_onset(airframe)):.1f} deg): the model's "
                                 "quasi-steady aerodynamics cannot be fitted to these data")
         log["left_out"] = {
             "windows": int((~inside).sum()), "of": int(w_train.count),
             "sorties": sorted({w_train.sorties[i].name for i, _ in
                                np.asarray(w_train.starts)[~inside]}),
-            "why": f"angle of attack past the stall angle alpha0 = "
-                   f"{math.degrees(airframe.params.alpha0):.1f} deg: dynamic stall (lag and "
+            "why": f"angle of attack past the onset of the stall blend, "
+                   f"{math.degrees(stall_onset(airframe)):.1f} deg (alpha0 = "
+                   f"{math.degrees(airframe.params.alpha0):.1f} deg): dynamic stall (lag and "
                    "hysteresis of the separation) is not in the model and would bias every "
                    "aerodynamic estimate"}
         w_train = w_train.subset(np.flatnonzero(inside))

@@ -56,8 +56,7 @@ class _Problem:
         self.estimate_x0 = estimate_x0
         self.n_dx = N_BODY * n_windows if estimate_x0 else 0
         self.W, self.L, self.M, self.n_lag, self.n_p = n_windows, L, preroll, n_lag, n_p
-        window = window_function(step, n_p, structure.tau_indices, rho_index, L, preroll,
-                                 sample_dt)
+        window = window_function(step, structure, rho_index, L, preroll, sample_dt)
         theta = ca.MX.sym("theta", self.n_theta)
         dx = ca.MX.sym("dx", N_BODY)
         p_ref, scale = ca.MX.sym("p_ref", n_p), ca.MX.sym("scale", self.n_theta)

@@ -9,7 +9,7 @@ import numpy as np
 from uavdyn.identify.errors import IdentifyError
 from uavdyn.identify.lm import solve_bounded
 from uavdyn.identify.problem import _Problem
-from uavdyn.identify.unknowns import DELAY_PREFIX, TAU_GRID
+from uavdyn.identify.unknowns import DELAY_PREFIX, START_GRIDS
 
 RECHECK_STEPS = 4        # Gauss-Newton steps at a neighbouring delay before comparing costs
 SEARCH_ROUNDS = 3        # rounds of the delay / tau start coordinate search
@@ -20,8 +20,8 @@ def _search(problem: _Problem, data_for, with_dx, theta: np.ndarray, delays: lis
             max_delay: int, lo: np.ndarray, hi: np.ndarray, controls: tuple[str, ...],
             log: list[dict]) -> tuple[np.ndarray, list[int]]:
     """Coordinate search on the cost (start states as recorded, continuous parameters at their
-    start values) over each searched delay in ``0..max_delay`` and each time constant fitted
-    from 0 over :data:`TAU_GRID`, until a round changes nothing."""
+    start values) over each searched delay in ``0..max_delay`` and each time constant or slew
+    time fitted from 0 over its :data:`START_GRIDS` grid, until a round changes nothing."""
     theta, delays = theta.copy(), list(delays)
     for round_ in range(SEARCH_ROUNDS):
         changed = False
@@ -44,13 +44,13 @@ def _search(problem: _Problem, data_for, with_dx, theta: np.ndarray, delays: lis
             changed |= best != delays[k]
             delays[k] = best
         for j in from_zero:
-            costs = []
-            for tau in TAU_GRID:
+            costs, grid = [], START_GRIDS[names[j]][0]
+            for value in grid:
                 trial = theta.copy()
-                trial[j] = min(max(tau / scale[j], lo[j]), hi[j])
+                trial[j] = min(max(value / scale[j], lo[j]), hi[j])
                 costs.append(problem.cost(with_dx(trial), data_for(delays)))
-            best = float(TAU_GRID[int(np.argmin(costs))])
-            log.append({"step": f"start {names[j]}", "round": round_, "grid": list(TAU_GRID),
+            best = float(grid[int(np.argmin(costs))])
+            log.append({"step": f"start {names[j]}", "round": round_, "grid": list(grid),
                         "costs": costs, "chosen": best})
             changed |= not math.isclose(best / scale[j], theta[j])
             theta[j] = min(max(best / scale[j], lo[j]), hi[j])

@@ -39,6 +39,8 @@ LINEAR_TERMS: dict[str, tuple[tuple[str, str], ...]] = {
         ("C_L_alpha_dot", "lift from the rate of angle of attack"),
         ("C_m_alpha_dot", "pitching moment from the rate of angle of attack"),
         ("tau_elevator", "elevator actuator lag"),
+        ("slew_elevator", "elevator servo rate limit"),
+        ("slew_throttle", "throttle (engine) rate limit"),
     ),
     "multirotor": (
         ("M_u", "speed-stability pitching moment"),

@@ -11,13 +11,24 @@ from uavdyn.airframes import BOUNDS, CONTROL_RANGES, DELAY_MAX_SAMPLES, Airframe
 from uavdyn.airframes.tables import VALUE_LIMITS
 from uavdyn.flightdata import Sortie
 from uavdyn.identify.errors import IdentifyError
-from uavdyn.model import LAG_PARAMS
+from uavdyn.model import LAG_PARAMS, SLEW_PARAMS
 
 DELAY_PREFIX = "delay_"
 TAU_NAMES = frozenset(t for lags in LAG_PARAMS.values() for t in lags.values())
 TAU_GRID = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)   # s, start candidates of a time constant at 0
 TAU_BOUNDS = (1e-3, 10.0)                       # s, a fitted time constant stays inside
 TAU_SCALE = 0.1                                 # s, unit of the unknown of a tau fitted from 0
+SLEW_NAMES = frozenset(s for slews in SLEW_PARAMS.values() for s in slews.values())
+# s per unit, start candidates of a slew time (1 / rate limit) at 0; the first is as good as
+# no rate limit (100 units/s)
+SLEW_GRID = (0.01, 0.1, 0.2, 0.5, 1.0, 2.0)
+# a fitted slew time stays inside: at 0 the cost is flat in it (the rate-limited lag is even
+# in the slew), so the data could never say anything there
+SLEW_BOUNDS = (0.01, 10.0)
+SLEW_SCALE = 0.5                                # s per unit, unit of a slew fitted from 0
+# per name: the start grid, the unknown's unit from 0, and the range a fit stays inside
+START_GRIDS = {**{n: (TAU_GRID, TAU_SCALE, TAU_BOUNDS) for n in TAU_NAMES},
+               **{n: (SLEW_GRID, SLEW_SCALE, SLEW_BOUNDS) for n in SLEW_NAMES}}
 
 
 def control_names(kind: str) -> tuple[str, ...]:
@@ -60,8 +71,8 @@ def _check_request(airframe: Airframe, names: list[str], sorties: list[Sortie],
 @dataclass
 class Unknowns:
     """The continuous unknowns of a fit: ``p[index] = p_nom[index] + scale * theta``, with
-    ``theta`` starting at ``theta0`` (0, or a time constant fitted from 0 at the middle of
-    :data:`TAU_GRID`, ``from_zero``) and bounded by ``[lo, hi]``."""
+    ``theta`` starting at ``theta0`` (0, or a time constant or slew time fitted from 0 at the
+    middle of its :data:`START_GRIDS` grid, ``from_zero``) and bounded by ``[lo, hi]``."""
 
     index: list[int]
     p_nom: np.ndarray
@@ -81,16 +92,19 @@ class Unknowns:
 def scaled_unknowns(airframe: Airframe, continuous: list[str], relative_bound: float | None,
                     bounds: dict[str, tuple[float, float]] | None = None) -> Unknowns:
     """The unknowns of the parameters ``continuous``, each scaled by its nominal magnitude (a
-    time constant at 0: :data:`TAU_SCALE`; another parameter at 0: 1)."""
+    time constant or slew time at 0: its :data:`START_GRIDS` unit; another parameter at 0:
+    1)."""
     index = [airframe.param_names.index(n) for n in continuous]
     p_nom = airframe.p
-    is_tau = np.array([n in TAU_NAMES for n in continuous], bool)
-    from_zero = [j for j, n in enumerate(continuous) if is_tau[j] and p_nom[index[j]] == 0]
-    scale = np.where(np.abs(p_nom[index]) > 0, np.abs(p_nom[index]),
-                     np.where(is_tau, TAU_SCALE, 1.0)) if continuous else np.zeros(0)
+    unit = np.array([START_GRIDS[n][1] if n in START_GRIDS else 1.0 for n in continuous])
+    from_zero = [j for j, n in enumerate(continuous)
+                 if n in START_GRIDS and p_nom[index[j]] == 0]
+    scale = (np.where(np.abs(p_nom[index]) > 0, np.abs(p_nom[index]), unit) if continuous
+             else np.zeros(0))
     theta = np.zeros(len(continuous))
-    guess = TAU_GRID[len(TAU_GRID) // 2]
-    theta[from_zero] = guess / TAU_SCALE
+    for j in from_zero:
+        grid = START_GRIDS[continuous[j]][0]
+        theta[j] = grid[len(grid) // 2] / scale[j]
     unknown = sorted(set(bounds or {}) - set(continuous))
     if unknown:
         raise IdentifyError(f"bounds given for {unknown}, which are not fitted ({continuous})")
@@ -112,9 +126,9 @@ def _bound_of(airframe: Airframe, name: str) -> tuple[float, float, bool, bool]:
     """The physical range of a parameter ``(low, high, low_open, high_open)``: the schema's
     bound (its physical meaning and sign convention: a coefficient may take either sign, a
     time constant is >= 0, a share lies in [0, 1]), a table's value limit, or
-    :data:`TAU_BOUNDS` for a time constant."""
-    if name in TAU_NAMES:
-        return (*TAU_BOUNDS, False, False)
+    :data:`TAU_BOUNDS` / :data:`SLEW_BOUNDS` for a time constant / slew time."""
+    if name in START_GRIDS:
+        return (*START_GRIDS[name][2], False, False)
     if name in BOUNDS[airframe.kind]:
         bound = BOUNDS[airframe.kind][name]
         return bound.low, bound.high, bound.low_open, bound.high_open

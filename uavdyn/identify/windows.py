@@ -21,10 +21,10 @@ from uavdyn.flightdata import FlightDataError, Sortie, Windows
 from uavdyn.flightdata import make_windows as cut_windows
 from uavdyn.identify.errors import IdentifyError
 from uavdyn.integrate import StateLayout, compile_function, predict_windows, rollout
-from uavdyn.integrate.augmented import lag_toward, physics_function
-from uavdyn.model import sortie_params, structure_of
+from uavdyn.integrate.augmented import actuators_after, physics_function
+from uavdyn.model import ModelStructure, sortie_params, structure_of
 from uavdyn.model.atmosphere import isa_density_ratio
-from uavdyn.model.ops import NUMPY_OPS
+from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS
 
 N_BODY = 4  # u, w, q, theta: the states compared with the recorded ones
 
@@ -135,16 +135,15 @@ def physics_windows(airframe: Airframe, windows: Windows, sample_dt: float, subs
     return pred[..., :N_BODY]
 
 
-def window_function(step: ca.Function, n_p: int, tau_indices, rho_index: int | None,
+def window_function(step: ca.Function, structure: ModelStructure, rho_index: int | None,
                     length: int, preroll: int, sample_dt: float) -> ca.Function:
     """One window's prediction as an MX Function ``(p, ratio, x0, v, u) -> y (4 x L)``: ``p``
     with ``rho`` times ``ratio`` (the sortie's density factor; ``rho_index`` None: unscaled),
-    each lagged actuator started by the exact lag recursion
-    ``a_{k+1} = v_k + (a_k - v_k) exp(-T/tau)`` over the pre-roll commands ``v``
-    (``n_lag x preroll``, at rest on the first), then ``step`` rolled over the commands ``u``
-    (``nu x L``, delays already applied), one call per sample. Without lags there is no ``v``
-    input."""
-    n_lag = len(tau_indices)
+    each lagged actuator started by the step's own exact actuator recursion (the lag, or the
+    rate-limited lag of a slewed control) over the pre-roll commands ``v`` (``n_lag x
+    preroll``, at rest on the first), then ``step`` rolled over the commands ``u`` (``nu x L``,
+    delays already applied), one call per sample. Without lags there is no ``v`` input."""
+    n_lag, n_p = structure.n_actuator, structure.np
     nx, nu = step.size1_in(0), step.size1_in(1)
     p = ca.MX.sym("p", n_p)
     ratio = ca.MX.sym("ratio")
@@ -157,10 +156,14 @@ def window_function(step: ca.Function, n_p: int, tau_indices, rho_index: int | N
     inputs, names = [p, ratio, x0], ["p", "ratio", "x0"]
     if n_lag:
         v = ca.MX.sym("v", n_lag, preroll)
-        a, e, vk = (ca.MX.sym("a", n_lag), ca.MX.sym("e", n_lag), ca.MX.sym("vk", n_lag))
-        lag = ca.Function("lag", [ca.vertcat(a, e), vk], [ca.vertcat(lag_toward(a, vk, e), e)])
-        decay = ca.exp(-sample_dt / ca.vertcat(*[pw[i] for i in tau_indices]))
-        history = lag.mapaccum("preroll", preroll)(ca.vertcat(v[:, 0], decay), v)
+        a, pa, vk = ca.SX.sym("a", n_lag), ca.SX.sym("p", n_p), ca.SX.sym("vk", n_lag)
+        commands = [vk[0] * 0.0] * nu  # only the lagged controls' rows are read
+        for j, c in enumerate(structure.lag_indices):
+            commands[c] = vk[j]
+        moved = actuators_after(structure, [a[j] for j in range(n_lag)], commands, pa,
+                                sample_dt, CASADI_OPS)
+        lag = ca.Function("lag", [ca.vertcat(a, pa), vk], [ca.vertcat(*moved, pa)])
+        history = lag.mapaccum("preroll", preroll)(ca.vertcat(v[:, 0], pw), v)
         z0 = ca.vertcat(x0, history[:n_lag, -1])
         inputs, names = [*inputs, v], [*names, "v"]
     else:
@@ -174,14 +177,24 @@ def window_function(step: ca.Function, n_p: int, tau_indices, rho_index: int | N
 
 def inside_envelope(airframe: Airframe, windows: Windows) -> np.ndarray:
     """Which windows the model's structure can explain: for a fixed wing, those whose angle of
-    attack stays below its stall angle ``alpha0`` (the quasi-steady model holds; past it, the
-    flow separates with a lag and hysteresis the model does not have). Every multirotor window
+    attack stays below the onset of its stall blend (:func:`stall_onset`; the quasi-steady
+    model holds; past it, the flow separates with a lag and hysteresis the model does not
+    have). Every multirotor window
     is inside."""
     if airframe.kind != "fixed_wing":
         return np.ones(windows.count, bool)
     x = np.concatenate([windows.x0[:, None, :], windows.y], axis=1)
     alpha = np.arctan2(x[..., 1], x[..., 0])
-    return np.max(np.abs(alpha), axis=1) < airframe.params.alpha0
+    return np.max(np.abs(alpha), axis=1) < stall_onset(airframe)
+
+
+def stall_onset(airframe: Airframe) -> float:
+    """The angle of attack where the model's stall blend starts to act: 1 % of the way to
+    separated flow, ``alpha0 - ln(99) / M_blend``. Between it and ``alpha0`` the quasi-steady
+    blend is already changing the forces, and real separation there lags and overshoots
+    (hysteresis), so those windows would bias the attached-flow derivatives."""
+    P = airframe.params
+    return float(P.alpha0 - math.log(99.0) / max(P.M_blend, 1e-9))
 
 
 def fit_summary(nominal: Airframe, fitted: Airframe, sorties: list[Sortie], interval: float,

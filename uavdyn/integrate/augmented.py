@@ -3,7 +3,8 @@ delays carried as augmented states, written once against ``ops`` (CasADi, NumPy,
 
 One call advances one sample: the delayed command is read from the buffer (or is the command
 itself), each lagged channel follows it exactly (``a(s) = c + (a0 - c) exp(-s/tau)``, stable and
-exact for any step, however fast the actuator), and the rigid body is integrated by the RK
+exact for any step, however fast the actuator; a rate-limited one by the exact solution of
+its slewing lag, :func:`slew_toward`), and the rigid body is integrated by the RK
 tableau with the actuator value taken at each stage's time (a clock rides along as an extra RK
 state). A delay of ``k`` samples means a command acts ``k`` calls later: the delay counts calls
 of the step, so use the step at the sample period the delays were identified at.
@@ -30,6 +31,8 @@ from uavdyn.model import (
 
 STEP_INPUTS = ["x", "u", "p", "dt"]
 TAU_FLOOR = 1e-300  # s; a time constant of 0 is an instant jump, never 0/0 at a stage time 0
+SLEW_FLOOR = 1e-12  # s per unit; a slew time of 0 (no rate limit) is the plain lag to round-off
+LOG_2 = math.log(2.0)
 
 
 def _rows(z, start: int, stop: int):
@@ -58,11 +61,45 @@ def lag_toward(value, command, decay):
     return command + (value - command) * decay
 
 
-def _lagged(structure: ModelStructure, a0: list, delayed: list, p, s, ops) -> list:
-    """Each actuator ``s`` seconds into the call, following its (delayed) command exactly; a
+def slew_toward(value, command, elapsed, tau, slew, ops):
+    """The actuator ``elapsed`` seconds on, following ``command`` held, by the exact solution of
+    the rate-limited lag ``a' = tanh(slew (command - a) / tau) / slew`` (slope ``1/tau`` for a
+    small error, the rate limit ``1/slew`` for a large one; the emulator's actuator model):
+    with ``y = slew (command - a) / tau``, ``sinh(y(t)) = sinh(y(0)) exp(-t/tau)``.
+
+    Odd and smooth in the error (its derivative at zero error is the lag's ``exp(-t/tau)``, so
+    trims linearise as with the plain lag); a slew of 0 is the plain lag (:data:`SLEW_FLOOR`); a
+    time constant of 0 is a pure rate limiter. Large ``|y|`` are computed in the log domain (no
+    overflow), and each ``if_else`` branch stays finite for every input (no NaN in
+    derivatives)."""
+    tau = ops.fmax(tau, TAU_FLOOR)
+    slew = ops.fmax(slew, SLEW_FLOOR)
+    y0 = slew * (command - value) / tau
+    log_decay = -elapsed / tau
+    small = ops.asinh(ops.sinh(ops.fmin(ops.fmax(y0, -1.0), 1.0)) * ops.exp(log_decay))
+    m = ops.fmax(ops.fabs(y0), 1.0)  # |y0| >= 1: log(sinh(m) exp(-t/tau)) without overflow
+    log_sinh = m + ops.log1p(-ops.exp(-2.0 * m)) - LOG_2 + log_decay
+    below, above = ops.fmin(log_sinh, 0.0), ops.fmax(log_sinh, 0.0)
+    large = ops.sign(y0) * ops.if_else(
+        log_sinh < 0, ops.asinh(ops.exp(below)),
+        above + ops.log1p(ops.sqrt(1.0 + ops.exp(-2.0 * above))))
+    y = ops.if_else(ops.fabs(y0) < 1.0, small, large)
+    return command - tau / slew * y
+
+
+def actuators_after(structure: ModelStructure, a0: list, commands: list, p, elapsed, ops
+                    ) -> list:
+    """Each actuator ``elapsed`` seconds on from ``a0``, following its (delayed) command held:
+    the exact lag, or the exact rate-limited lag of a slewed control (:func:`slew_toward`); a
     time constant at 0 (a lag about to be fitted) jumps: ``exp(-s/0+) = 0``."""
-    return [lag_toward(a, delayed[c], ops.exp(-s / ops.fmax(p[i], TAU_FLOOR)))
-            for a, c, i in zip(a0, structure.lag_indices, structure.tau_indices)]
+    out = []
+    for a, c, i, k in zip(a0, structure.lag_indices, structure.tau_indices,
+                          structure.slew_indices):
+        if k is None:
+            out.append(lag_toward(a, commands[c], ops.exp(-elapsed / ops.fmax(p[i], TAU_FLOOR))))
+        else:
+            out.append(slew_toward(a, commands[c], elapsed, p[i], p[k], ops))
+    return out
 
 
 def augmented_rk_step(structure: ModelStructure, body_rhs: Callable, z, u, p, dt,
@@ -81,7 +118,7 @@ def augmented_rk_step(structure: ModelStructure, body_rhs: Callable, z, u, p, dt
     a0 = _rows(z, nb, buffer_start)
 
     def actuator(s):
-        return _lagged(structure, a0, delayed, p, s, ops)
+        return actuators_after(structure, a0, delayed, p, s, ops)
 
     def effective(values):
         out = list(delayed)
@@ -168,7 +205,7 @@ def advance_actuators_ops(structure: ModelStructure, states: list, u, p, dt, ops
     body), in any ``ops``."""
     n_act = structure.n_actuator
     delayed, new_buffers = _shift_buffers(structure, states[n_act:], u)
-    return [*_lagged(structure, states[:n_act], delayed, p, dt, ops), *new_buffers]
+    return [*actuators_after(structure, states[:n_act], delayed, p, dt, ops), *new_buffers]
 
 
 def advance_actuators(structure: ModelStructure, states, u, p, dt: float) -> np.ndarray:

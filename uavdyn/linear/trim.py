@@ -81,7 +81,7 @@ def body_structure(airframe: Airframe | ModelStructure) -> ModelStructure:
     """An airframe's structure without its actuator lags and delays: the rigid body's model,
     shared by every airframe that differs only in those."""
     structure = (airframe if isinstance(airframe, ModelStructure) else structure_of(airframe))
-    return dataclasses.replace(structure, lagged=(), delays=())
+    return dataclasses.replace(structure, lagged=(), slewed=(), delays=())
 
 
 def trim_state(airframe: Airframe, point: TrimPoint, with_position: bool = False,

@@ -40,6 +40,7 @@ from uavdyn.model.ranges import (
 from uavdyn.model.structure import (
     LAG_PARAMS,
     POSITION_STATE_NAMES,
+    SLEW_PARAMS,
     STATE_NAMES,
     ModelStructure,
     structure_of,
@@ -47,7 +48,8 @@ from uavdyn.model.structure import (
 
 __all__ = ["LongitudinalModel", "build_model", "numpy_rhs", "uses_alpha_dot", "sortie_params",
            "isa_density", "isa_density_ratio", "air_density", "body_forces", "interp1",
-           "interp2", "LAG_PARAMS", "ModelStructure", "structure_of", "CONTROL_BOUNDS",
+           "interp2", "LAG_PARAMS", "SLEW_PARAMS", "ModelStructure", "structure_of",
+           "CONTROL_BOUNDS",
            "CONTROL_NAMES",
            "FORCE_MODELS", "FORCE_NAMES", "fixed_wing_alpha_dot", "fixed_wing_forces",
            "multirotor_forces", "propeller_thrust", "rotor_thrust", "POSITION_STATE_NAMES",

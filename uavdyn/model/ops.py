@@ -33,7 +33,8 @@ def _ca_matmul(w, z):
 
 CASADI_OPS = SimpleNamespace(
     name="casadi", sqrt=ca.sqrt, atan2=ca.atan2, exp=ca.exp, log1p=ca.log1p, sin=ca.sin,
-    cos=ca.cos, tanh=ca.tanh, sign=ca.sign, fabs=ca.fabs, fmax=ca.fmax, fmin=ca.fmin, pi=ca.pi,
+    cos=ca.cos, tanh=ca.tanh, sinh=ca.sinh, asinh=ca.asinh, if_else=ca.if_else, sign=ca.sign,
+    fabs=ca.fabs, fmax=ca.fmax, fmin=ca.fmin, pi=ca.pi,
     stack=ca.vertcat, vertcat=ca.vertcat, concat=ca.vertcat, col=_ca_col, matmul=_ca_matmul,
     zeros=lambda rows, like: ca.DM.zeros(rows, like.shape[1]),
 )
@@ -46,7 +47,8 @@ def _np_stack(*rows):
 
 NUMPY_OPS = SimpleNamespace(
     name="numpy", sqrt=np.sqrt, atan2=np.arctan2, exp=np.exp, log1p=np.log1p, sin=np.sin,
-    cos=np.cos, tanh=np.tanh, sign=np.sign, fabs=np.abs, fmax=np.maximum, fmin=np.minimum,
+    cos=np.cos, tanh=np.tanh, sinh=np.sinh, asinh=np.arcsinh, if_else=np.where, sign=np.sign,
+    fabs=np.abs, fmax=np.maximum, fmin=np.minimum,
     pi=np.pi, stack=_np_stack, vertcat=_np_stack,
     concat=lambda *blocks: np.concatenate([np.atleast_1d(b) for b in blocks], axis=0),
     col=lambda v: np.asarray(v, float).reshape(-1, 1),
@@ -78,7 +80,8 @@ def torch_ops() -> SimpleNamespace:
 
     return SimpleNamespace(
         name="torch", sqrt=sqrt, atan2=torch.atan2, exp=torch.exp, log1p=torch.log1p,
-        sin=torch.sin, cos=torch.cos, tanh=torch.tanh, sign=torch.sign, fabs=torch.abs,
+        sin=torch.sin, cos=torch.cos, tanh=torch.tanh, sinh=torch.sinh, asinh=torch.asinh,
+        if_else=torch.where, sign=torch.sign, fabs=torch.abs,
         fmax=lambda a, b: torch.clamp(a, min=b) if not isinstance(b, torch.Tensor)
         else torch.maximum(a, b),
         fmin=lambda a, b: torch.clamp(a, max=b) if not isinstance(b, torch.Tensor)

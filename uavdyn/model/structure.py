@@ -7,7 +7,8 @@ The discrete step of a structure with actuator dynamics works on the augmented s
     z = [x (4, or 6 with position) | actuator states (one per lagged control) |
          delay buffers (per control, most recent command first)]
 
-A lagged control's actuator state follows the (delayed) command with a first-order lag; a
+A lagged control's actuator state follows the (delayed) command with a first-order lag, which
+a slewed control also limits in rate (``slew_<control>`` = 1 / the rate limit); a
 delay of ``k`` samples means the command given at step ``n`` acts from step ``n + k``.
 """
 
@@ -25,6 +26,10 @@ POSITION_STATE_NAMES = ("x_n", "h")
 # both commands, so one rotor-speed lag is the same lag on each of them).
 LAG_PARAMS = {"fixed_wing": {"elevator": "tau_elevator", "throttle": "tau_throttle"},
               "multirotor": {"collective": "tau_rotor", "pitch_cmd": "tau_rotor"}}
+# The slew time (1 / rate limit) of each control's actuator, per kind: a servo or an engine
+# cannot follow a large command step faster than its rate limit, which no lag reproduces.
+SLEW_PARAMS = {"fixed_wing": {"elevator": "slew_elevator", "throttle": "slew_throttle"},
+               "multirotor": {}}
 
 
 @dataclass(frozen=True)
@@ -39,6 +44,8 @@ class ModelStructure:
         Carry the fixed-wing alpha-dot terms.
     lagged : tuple of str
         Controls with a first-order actuator lag (an actuator state each).
+    slewed : tuple of str
+        Lagged controls whose actuator is also rate limited.
     delays : tuple of int
         Transport delay of each control in samples (empty: none).
     tables : tuple
@@ -50,6 +57,7 @@ class ModelStructure:
     kind: str
     alpha_dot: bool = False
     lagged: tuple[str, ...] = ()
+    slewed: tuple[str, ...] = ()
     delays: tuple[int, ...] = ()
     tables: tuple[tuple[str, tuple[tuple[str, tuple[float, ...]], ...]], ...] = ()
     isa: bool = False
@@ -59,6 +67,8 @@ class ModelStructure:
         unknown = [c for c in self.lagged if c not in names]
         if unknown:
             raise ValueError(f"lagged control(s) {unknown} not in {names}")
+        if not set(self.slewed) <= set(self.lagged):
+            raise ValueError(f"slewed control(s) {self.slewed} must be lagged {self.lagged}")
         if self.delays and (len(self.delays) != len(names) or min(self.delays) < 0):
             raise ValueError(f"delays must give a whole number >= 0 per control {names}")
 
@@ -103,6 +113,13 @@ class ModelStructure:
         return tuple(names.index(LAG_PARAMS[self.kind][c]) for c in self.lagged)
 
     @property
+    def slew_indices(self) -> tuple[int | None, ...]:
+        """Index in ``p`` of each actuator state's slew time (None: not rate limited)."""
+        names = param_names(self.kind)
+        return tuple(names.index(SLEW_PARAMS[self.kind][c]) if c in self.slewed else None
+                     for c in self.lagged)
+
+    @property
     def delay_samples(self) -> tuple[int, ...]:
         return self.delays or (0,) * self.nu
 
@@ -142,12 +159,17 @@ def structure_of(airframe: Airframe, fitting: tuple[str, ...] | list[str] = ()
     P = airframe.params
     alpha_dot = airframe.kind == "fixed_wing" and any(
         getattr(P, k) != 0.0 or k in fitting for k in ALPHA_DOT_KEYS)
-    lags = LAG_PARAMS[airframe.kind]
-    lagged = tuple(c for c in (n for n, _ in CONTROL_RANGES[airframe.kind])
-                   if getattr(P, lags[c]) > 0.0 or lags[c] in fitting)
+    lags, slews = LAG_PARAMS[airframe.kind], SLEW_PARAMS[airframe.kind]
+
+    def wanted(name: str | None) -> bool:
+        return name is not None and (getattr(P, name) > 0.0 or name in fitting)
+
+    slewed = tuple(c for c, _ in CONTROL_RANGES[airframe.kind] if wanted(slews.get(c)))
+    lagged = tuple(c for c, _ in CONTROL_RANGES[airframe.kind]
+                   if wanted(lags[c]) or c in slewed)
     delays = airframe.delay_samples()
     return ModelStructure(
-        kind=airframe.kind, alpha_dot=alpha_dot, lagged=lagged,
+        kind=airframe.kind, alpha_dot=alpha_dot, lagged=lagged, slewed=slewed,
         delays=delays if any(delays) else (),
         tables=tuple((n, airframe.tables[n].axes) for n in sorted(airframe.tables)),
         isa=airframe.atmosphere == "isa")
