@@ -15,7 +15,7 @@ from uavdyn.integrate import (
     EvalGrid,
     StepUseError,
     check_use,
-    compile_function,
+    compiled_rollout,
     rollout,
     takes_time,
 )
@@ -129,10 +129,13 @@ def free_run_runner(step: DiscreteModel, x0: np.ndarray, controls: np.ndarray, p
         controls = controls[:len(controls) - len(controls) % g.stride:g.stride]
         g = EvalGrid(dt, dt)
     check_use(step, dt, 0.0, len(controls) * g.sample_dt)
-    func = rollout(step, len(controls), g.substeps)
-    func = compile_function(func) if compiled else func
+    func = (compiled_rollout(step, len(controls), g.substeps) if compiled
+            else rollout(step, len(controls), g.substeps))
     z0 = step_states(step, x0[None, :], controls[:1], p, g)[0]
-    args = [ca.DM(z0), ca.DM(np.ascontiguousarray(controls.T)), ca.DM(p), dt]
+    if isinstance(func, ca.Function):
+        args = [ca.DM(z0), ca.DM(np.ascontiguousarray(controls.T)), ca.DM(p), dt]
+    else:  # the compiled loop reads NumPy buffers as they are
+        args = [z0, np.ascontiguousarray(controls).T, np.asarray(p, float), dt]
     if takes_time(step):
         args.append(0.0)
 

@@ -43,6 +43,7 @@ from uavdyn.integrate.rollout import (
     check_departure,
     check_finite,
     check_use,
+    compiled_rollout,
     estimate_start,
     fitting_steps,
     free_run,
@@ -79,6 +80,6 @@ __all__ = ["actuator_history", "actuator_rest", "advance_actuators", "augment_st
            "estimate_start",
            "predict_windows", "window_rollouts", "sortie_free_run", "sortie_p",
            "step_states",
-           "free_run", "rollout",
+           "free_run", "rollout", "compiled_rollout",
            "simulate", "takes_time", "STEP_INPUTS", "reference_step", "rk4_numpy", "rk4_step",
            "rk_step", "substepped", "EULER", "HEUN", "RK4", "ButcherTableau", "explicit_rk_step"]

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import tempfile
 import warnings
+from collections.abc import Callable
 from collections.abc import Iterator as Iterator
 from pathlib import Path
 
@@ -91,7 +92,9 @@ _timed_out: dict[str, str] = {}  # compiler -> the message of its timeout in thi
 
 
 def compile_function(func: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS,
-                     directory: str | Path | None = None, warn: bool = True) -> ca.Function:
+                     directory: str | Path | None = None, warn: bool = True,
+                     source: Callable[[Path, str], Path] | None = None,
+                     opener: Callable[[str, str], object] | None = None) -> ca.Function:
     """Return a compiled equivalent of ``func`` (same name, inputs and outputs).
 
     The generated source is hashed together with the compiler, flags and CasADi version; a
@@ -112,6 +115,13 @@ def compile_function(func: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS,
         Cache folder (default :func:`cache_dir`); created with mode 0o700.
     warn : bool
         Whether to warn (once) when falling back to the VM.
+    source : callable, optional
+        ``source(folder, name) -> path`` writes the C source of an equivalent of ``func`` under
+        ``name`` into ``folder`` (default: CasADi's code generation of ``func``); the library
+        is checked against ``func``'s inputs and outputs all the same.
+    opener : callable, optional
+        ``opener(name, path)`` loads the verified library instead of ``casadi.external`` (and
+        is what is returned; ``func`` itself still without a compiler).
 
     Returns
     -------
@@ -142,7 +152,7 @@ def compile_function(func: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS,
     folder = _prepare_folder(Path(directory) if directory else cache_dir())
     signature = _signature(func)
     with tempfile.TemporaryDirectory() as tmp:
-        source = generate_c(func, Path(tmp), name)
+        source = (source or (lambda folder, n: generate_c(func, folder, n)))(Path(tmp), name)
         external = _external_calls(source.read_text(errors="replace"))
         if external:
             # the generated C would call a function living in another library: loading it
@@ -170,4 +180,4 @@ def compile_function(func: ca.Function, flags: tuple[str, ...] = DEFAULT_FLAGS,
                                      f"it failed: {exc}", lib, compiler=exc.compiler,
                                      function=name, command=exc.command,
                                      returncode=exc.returncode, stderr=exc.stderr) from None
-            return _load_verified(lib, key, name, signature)
+            return _load_verified(lib, key, name, signature, opener)

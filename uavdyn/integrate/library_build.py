@@ -11,6 +11,7 @@ import sys
 import tempfile
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 
 import casadi as ca
@@ -220,13 +221,15 @@ def _trial_load(partial: Path, compiler: str, name: str, signature: list, err: d
                            returncode=0, **err)
 
 
-def _load_verified(lib: Path, key: str, name: str, signature: list) -> ca.Function:
+def _load_verified(lib: Path, key: str, name: str, signature: list,
+                   opener: Callable[[str, str], object] | None = None) -> ca.Function:
     """``casadi.external`` on a private hard link of ``lib`` verified just before ``dlopen``.
 
     The link pins the verified inode (a later replacement of ``lib`` cannot swap what is
     loaded) and gives every load a fresh name: the dynamic loader returns an already loaded
     object of the same name without reopening the file, which would otherwise hand back a stale
-    mapping of an earlier library with this name.
+    mapping of an earlier library with this name. ``opener(name, path)`` loads it otherwise
+    (e.g. with ``ctypes``, to call it on NumPy buffers without CasADi's conversions).
     """
     link = lib.with_name(f".{lib.name}.{os.getpid()}-{uuid.uuid4().hex[:12]}.load.tmp")
     try:
@@ -238,7 +241,7 @@ def _load_verified(lib: Path, key: str, name: str, signature: list) -> ca.Functi
         if reason is not None:
             raise CacheError(f"refusing library {lib} ({reason})", lib)
         try:
-            loaded = ca.external(name, str(link))
+            loaded = (opener or ca.external)(name, str(link))
         except RuntimeError as exc:
             raise CacheError(f"verified library {lib} cannot be loaded "
                              f"({_casadi_reason(exc)})", lib) from None
@@ -246,7 +249,7 @@ def _load_verified(lib: Path, key: str, name: str, signature: list) -> ca.Functi
         if link != lib:
             with contextlib.suppress(OSError):
                 link.unlink()
-    if _signature(loaded) != signature:
+    if isinstance(loaded, ca.Function) and _signature(loaded) != signature:
         raise CacheError(f"library {lib} has other inputs/outputs than CasADi Function "
                          f"'{name}'", lib)
     return loaded

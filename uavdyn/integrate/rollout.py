@@ -9,6 +9,7 @@ step size and time range it is valid for: every rollout here enforces them.
 
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass
 
@@ -16,6 +17,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.airframes import Airframe
+from uavdyn.integrate.c_loop import NativeRollout, write_loop_source
 from uavdyn.integrate.codegen import compile_function
 from uavdyn.integrate.discrete import DiscreteModel, StepUseError, model_function
 from uavdyn.model import first_departure, sortie_params
@@ -173,6 +175,25 @@ def rollout(step: DiscreteModel | ca.Function, n_samples: int, substeps: int = 1
     return ca.Function(name, inputs, [Z[:nx, :]], names, ["x"])
 
 
+def compiled_rollout(step: DiscreteModel | ca.Function, n_samples: int, substeps: int = 1,
+                     name: str = "rollout", warn: bool = True) -> NativeRollout | ca.Function:
+    """:func:`rollout` compiled as a plain C loop around the step's generated code
+    (:mod:`uavdyn.integrate.c_loop`: no per-sample copies of the state, parameters and step
+    size, so a sample costs what the step costs), cached like every compiled Function, and
+    called on NumPy buffers (:class:`~uavdyn.integrate.c_loop.NativeRollout`: it returns NumPy
+    arrays).
+    Without a compiler it is the ``mapaccum`` rollout in the CasADi VM; a step that is itself
+    compiled (an ``External``) is looped in the VM around its compiled code."""
+    function = model_function(step)
+    sim = rollout(function, n_samples, substeps, name)
+    if function.is_a("External"):
+        return sim
+    loaded = compile_function(
+        sim, warn=warn, opener=lambda n, path: NativeRollout(ctypes.CDLL(path), n, sim),
+        source=lambda folder, n: write_loop_source(function, n_samples, substeps, n, folder))
+    return loaded
+
+
 _WINDOW_FUNCTIONS: dict = {}
 
 
@@ -283,10 +304,8 @@ def free_run(step: DiscreteModel | ca.Function, x0, controls, p, dt: float, subs
     controls = np.atleast_2d(np.asarray(controls, dtype=float))
     x0 = np.asarray(x0, float).ravel()
     check_use(step, dt, t0, t0 + controls.shape[0] * substeps * dt)
-    sim = rollout(step, controls.shape[0], substeps)
-    # an already compiled step is called as it is
-    if compile and not model_function(step).is_a("External"):
-        sim = compile_function(sim)
+    sim = (compiled_rollout(step, controls.shape[0], substeps) if compile
+           else rollout(step, controls.shape[0], substeps))
     args = [x0, controls.T, np.asarray(p, float), float(dt)]
     if takes_time(step):
         args.append(float(t0))

@@ -1,0 +1,154 @@
+"""Long rollouts against the tight C loop of the same step (issue 32, item 1), in one run.
+
+For the shipped identified Aerosonde's physics step and its hybrid step (the shipped safe
+correction on top), each at its trim with a doublet every 5 s, 100 000 samples of 0.01 s:
+
+* ``c_loop``: the step's CasADi-generated C called in a plain C loop by a small harness
+  compiled with the library's flags (the floor: what a C programmer would write);
+* ``compiled_rollout``: :func:`uavdyn.integrate.compiled_rollout` called from Python on NumPy
+  arrays (what the library's free runs, ``simulate`` and the evaluation use);
+* ``mapaccum``: the previous route, CasADi's compiled ``mapaccum`` rollout called on NumPy
+  arrays.
+
+Per sample in microseconds, the median of ``--repeats`` calls each; the ratios are to the C
+loop of the same run. The states of the two library routes are compared too (max abs
+difference). Prints JSON; ``--out`` also writes it.
+
+Usage: ``python analysis/bench_rollout.py [--samples 100000] [--repeats 7] [--out FILE]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+HARNESS = """
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+#include "step.h"
+int main(int argc, char** argv) {{
+  static double x[2][{nx}], u[{nu}], p[{np}], dt = {dt};
+  double* out = malloc(sizeof(double) * {nx} * {N});
+  FILE* fp = fopen(argv[1], "rb");
+  if (!fp || fread(x[0], 8, {nx}, fp) != {nx} || fread(u, 8, {nu}, fp) != {nu}
+      || fread(p, 8, {np}, fp) != {np}) return 2;
+  fclose(fp);
+  static casadi_int iw[{sz_iw} + 1];
+  static double w[{sz_w} + 1];
+  const double* arg[{sz_arg}];
+  double* res[{sz_res}];
+  for (int rep = 0; rep < {repeats}; ++rep) {{
+    struct timespec a, b;
+    const double* xin = x[0];
+    clock_gettime(CLOCK_MONOTONIC, &a);
+    for (long k = 0; k < {N}; ++k) {{
+      arg[0] = xin; arg[1] = u; arg[2] = p; arg[3] = &dt; res[0] = out + k * {nx};
+      step(arg, res, iw, w, 0);
+      xin = out + k * {nx};
+    }}
+    clock_gettime(CLOCK_MONOTONIC, &b);
+    printf("%.6f\\n", ((b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec)) / {N} / 1000.0);
+  }}
+  return out[0] == out[0] ? 0 : 3;
+}}
+"""
+
+
+def c_loop_us(function: ca.Function, x0, u, p, dt: float, n: int, repeats: int) -> float:
+    """Median us per sample of ``function`` called ``n`` times in a plain C loop (the command
+    held: the loop's cost does not depend on the values)."""
+    from uavdyn.integrate.compiler import DEFAULT_FLAGS, find_compiler
+
+    inner = function if function.is_a("SXFunction") else function.expand()
+    step = ca.Function("step", inner.sx_in(), inner.call(inner.sx_in()))
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        gen = ca.CodeGenerator("step.c", {"with_header": True})
+        gen.add(step)
+        gen.generate(str(folder) + os.sep)
+        (folder / "main.c").write_text(HARNESS.format(
+            nx=step.size1_in(0), nu=step.size1_in(1), np=step.size1_in(2), dt=dt, N=n,
+            sz_iw=step.sz_iw(), sz_w=step.sz_w(), sz_arg=step.sz_arg(), sz_res=step.sz_res(),
+            repeats=repeats))
+        (folder / "in.bin").write_bytes(np.concatenate([x0, u, p]).astype(float).tobytes())
+        flags = [f for f in DEFAULT_FLAGS if f not in ("-shared", "-fPIC")]
+        subprocess.run([find_compiler(), *flags, "-o", str(folder / "loop"),
+                        str(folder / "main.c"), str(folder / "step.c"), "-lm"], check=True)
+        out = subprocess.run([str(folder / "loop"), str(folder / "in.bin")],
+                             capture_output=True, text=True, check=True).stdout
+    return statistics.median(float(v) for v in out.split())
+
+
+def library_us(call, args, n: int, repeats: int) -> tuple[float, np.ndarray]:
+    """Median us per sample of ``call(*args)`` and its (last) states."""
+    out = np.asarray(call(*args))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = np.asarray(call(*args))
+        times.append((time.perf_counter() - t0) / n * 1e6)
+    return statistics.median(times), out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--samples", type=int, default=100_000)
+    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--out", help="also write the JSON here")
+    args = ap.parse_args()
+
+    from uavdyn.integrate import compile_function, compiled_rollout, physics_step, rollout
+    from uavdyn.learned.hybrid import hybrid_step, shipped_correction, shipped_identified
+    from uavdyn.linear import trim
+
+    airframe = shipped_identified("aerosonde")
+    weights, _ = shipped_correction("aerosonde")
+    dt, n = 0.01, args.samples
+    point = trim(airframe, 25.0)
+    models = {"physics": physics_step(airframe),
+              "hybrid": hybrid_step(weights, airframe, compile=False)}
+    results = {}
+    for label, model in models.items():
+        function = model.function
+        nx = function.size1_in(0)
+        p = np.asarray(airframe.p, float)
+        x0 = np.asarray(model.initial_state(point.x, point.u, p, dt), float).ravel()
+        controls = np.tile(point.u, (n, 1))
+        phase = np.arange(n) % 500
+        controls[phase < 25, 0] += 0.02  # an elevator doublet every 5 s
+        controls[(phase >= 25) & (phase < 50), 0] -= 0.02
+        floor = c_loop_us(function, x0, point.u, p, dt, n, args.repeats)
+        native = compiled_rollout(function, n)
+        old = compile_function(rollout(function, n))
+        call_args = (x0, controls.T, p, dt)
+        t_native, x_native = library_us(native, call_args, n, args.repeats)
+        t_old, x_old = library_us(old, call_args, n, args.repeats)
+        results[label] = {
+            "states": nx, "c_loop_us_per_sample": floor,
+            "compiled_rollout_us_per_sample": t_native, "mapaccum_us_per_sample": t_old,
+            "compiled_rollout_over_c_loop": t_native / floor,
+            "mapaccum_over_c_loop": t_old / floor,
+            "max_abs_difference": float(np.max(np.abs(x_native - x_old)))}
+    out = {"airframe": "aerosonde (shipped identified)", "samples": n, "dt": dt,
+           "repeats": args.repeats, "results": results,
+           "machine": {"platform": platform.platform(), "processor": platform.processor(),
+                       "cpus": os.cpu_count(), "load_1min_after": os.getloadavg()[0]},
+           "command": "python analysis/bench_rollout.py"}
+    print(json.dumps(out, indent=2))
+    if args.out:
+        Path(args.out).write_text(json.dumps(out, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
