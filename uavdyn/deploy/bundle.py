@@ -19,7 +19,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from uavdyn.integrate import DiscreteModel, generate_c, rollout
+from uavdyn.integrate import DiscreteModel, generate_c
+from uavdyn.integrate.c_loop import loop_work_sizes, write_loop_source
 from uavdyn.linear import TrimPoint, point_params
 from uavdyn.outputs import output_folder
 
@@ -150,12 +151,14 @@ def export_bundle(step: DiscreteModel | ca.Function, spec: BundleSpec, out_dir: 
 
 def _write_bundle(step: ca.Function, spec: BundleSpec, out: Path) -> Path:
     n, N = spec.name, spec.name.upper()
-    if spec.rollout_steps:
-
-        func = _renamed(rollout(step, spec.rollout_steps), f"{n}_casadi")
+    if spec.rollout_steps:  # a plain C loop around the step: no per-step copies
+        source = write_loop_source(step, spec.rollout_steps, 1, f"{n}_casadi", out,
+                                   file_name=f"{n}_generated", casadi_real=spec.real)
+        sz_arg, sz_res, sz_iw, sz_w = loop_work_sizes(step)
     else:
         func = _renamed(step, f"{n}_casadi")
-    source = generate_c(func, out, name=f"{n}_generated", casadi_real=spec.real)
+        source = generate_c(func, out, name=f"{n}_generated", casadi_real=spec.real)
+        sz_arg, sz_res, sz_iw, sz_w = func.sz_arg(), func.sz_res(), func.sz_iw(), func.sz_w()
     source.write_text(silence_unused_parameters(source.read_text()))
     real = spec.real
     nx, nu, n_p = len(spec.state_names), len(spec.control_names), len(spec.param_names)
@@ -211,10 +214,10 @@ const {real} {n}_trim_x[{nx}] = {{{_c_array(spec.x0)}}};
 const {real} {n}_trim_u[{nu}] = {{{_c_array(spec.u_trim)}}};
 const {real} {n}_default_dt = {spec.dt:.17g};
 
-static const casadi_real* arg_buf[{max(func.sz_arg(), 1)}];
-static casadi_real* res_buf[{max(func.sz_res(), 1)}];
-static casadi_int iw_buf[{max(func.sz_iw(), 1)}];
-static casadi_real w_buf[{max(func.sz_w(), 1)}];
+static const casadi_real* arg_buf[{max(sz_arg, 1)}];
+static casadi_real* res_buf[{max(sz_res, 1)}];
+static casadi_int iw_buf[{max(sz_iw, 1)}];
+static casadi_real w_buf[{max(sz_w, 1)}];
 
 int {n}(const {real}* x, const {real}* u, const {real}* p, {real} dt, {t_param}{real}* x_out) {{
   {assign}

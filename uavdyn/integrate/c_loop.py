@@ -37,6 +37,14 @@ def loop_step(step: ca.Function, name: str) -> ca.Function:
     return ca.Function(name, inputs, step.call(inputs), step.name_in(), step.name_out())
 
 
+def loop_work_sizes(step: ca.Function) -> tuple[int, int, int, int]:
+    """``(sz_arg, sz_res, sz_iw, sz_w)`` the loop around ``step`` needs (its ``_work``)."""
+    inner = loop_step(step, "work")
+    nx, nu, n_p = (step.size1_in(i) for i in range(3))
+    return (max(inner.sz_arg(), 5), max(inner.sz_res(), 1), inner.sz_iw(),
+            inner.sz_w() + 3 * nx + nu + n_p)
+
+
 def _body_call(source: str, name: str) -> str:
     """The generated static function the exported ``name`` wraps (called directly by the
     loop: a call through the exported symbol of a shared library cannot be inlined), or
@@ -48,19 +56,20 @@ def _body_call(source: str, name: str) -> str:
 
 
 def write_loop_source(step: ca.Function, n_samples: int, substeps: int, name: str,
-                      folder: Path) -> Path:
-    """Write ``<name>.c``: the step's generated code and the loop ``name(x0, u, p, dt[, t0])
-    -> x`` (the signature of :func:`uavdyn.integrate.rollout`: ``u`` is ``nu x N``, ``x``
-    the ``nx x N`` states after each interval of ``substeps`` steps; a time-dependent step
-    gets ``t0`` plus the elapsed time)."""
+                      folder: Path, file_name: str | None = None,
+                      casadi_real: str = "double") -> Path:
+    """Write ``<file_name or name>.c``: the step's generated code and the loop ``name(x0, u,
+    p, dt[, t0]) -> x`` (the signature of :func:`uavdyn.integrate.rollout`: ``u`` is ``nu x
+    N``, ``x`` the ``nx x N`` states after each interval of ``substeps`` steps; a
+    time-dependent step gets ``t0`` plus the elapsed time), in ``casadi_real`` arithmetic."""
     inner = loop_step(step, f"{name}_step")
-    source = generate_c(inner, folder, name)
+    source = generate_c(inner, folder, file_name or name, casadi_real=casadi_real)
     nx, nu, n_p = (step.size1_in(i) for i in range(3))
     timed = step.n_in() == 5
+    sz_arg, sz_res, sz_iw, sz_w = loop_work_sizes(step)
     values = {"name": name, "nx": nx, "nu": nu, "np": n_p, "N": n_samples, "S": substeps,
-              "n_in": 5 if timed else 4, "sz_arg": max(inner.sz_arg(), 5),
-              "sz_res": max(inner.sz_res(), 1), "sz_iw": inner.sz_iw(), "sz_w": inner.sz_w(),
-              "timed": int(timed)}
+              "n_in": 5 if timed else 4, "sz_arg": sz_arg, "sz_res": sz_res, "sz_iw": sz_iw,
+              "sz_w": sz_w, "sz_w_step": inner.sz_w(), "timed": int(timed)}
     text = source.read_text()
     values["call"] = _body_call(text, f"{name}_step")
     source.write_text(text + _LOOP.format(**values))
@@ -141,7 +150,7 @@ CASADI_SYMBOL_EXPORT int {name}_work(casadi_int* sz_arg, casadi_int* sz_res, cas
   if (sz_arg) *sz_arg = {sz_arg};
   if (sz_res) *sz_res = {sz_res};
   if (sz_iw) *sz_iw = {sz_iw};
-  if (sz_w) *sz_w = {sz_w} + 3 * {nx} + {nu} + {np};
+  if (sz_w) *sz_w = {sz_w};
   return 0;
 }}
 CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casadi_int* iw,
@@ -149,7 +158,7 @@ CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casa
   const casadi_real *x_in, *u_k, *p;
   const casadi_real* step_arg[{sz_arg}];
   casadi_real* step_res[{sz_res}];
-  casadi_real *buffer = w + {sz_w}, *zeros = buffer + 2 * {nx}, *x_out, *target;
+  casadi_real *buffer = w + {sz_w_step}, *zeros = buffer + 2 * {nx}, *x_out, *target;
   casadi_real dt, t;
   casadi_int i, k, s;
   if (!res[0]) return 0;
