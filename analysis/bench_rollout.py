@@ -101,6 +101,17 @@ def library_us(call, args, n: int, repeats: int) -> tuple[float, np.ndarray]:
     return statistics.median(times), out
 
 
+def _cpu_model() -> str:
+    """The CPU's model name (Linux), else what the platform module says."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--samples", type=int, default=100_000)
@@ -142,7 +153,7 @@ def main() -> None:
             "max_abs_difference": float(np.max(np.abs(x_native - x_old)))}
     out = {"airframe": "aerosonde (shipped identified)", "samples": n, "dt": dt,
            "repeats": args.repeats, "results": results,
-           "machine": {"platform": platform.platform(), "processor": platform.processor(),
+           "machine": {"platform": platform.platform(), "cpu": _cpu_model(),
                        "cpus": os.cpu_count(), "load_1min_after": os.getloadavg()[0]},
            "command": "python analysis/bench_rollout.py"}
     print(json.dumps(out, indent=2))
