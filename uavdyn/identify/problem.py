@@ -19,6 +19,7 @@ from tqdm import tqdm
 from uavdyn.identify.errors import IdentifyError
 from uavdyn.identify.lm import solve_bounded
 from uavdyn.identify.windows import (
+    COMPILE_FLAGS,
     N_BODY,
     Windows,
     window_commands,
@@ -29,7 +30,6 @@ from uavdyn.integrate import compile_function
 from uavdyn.integrate.augmented import physics_function
 from uavdyn.model import ModelStructure
 
-COMPILE_FLAGS = ("-O1", "-fPIC", "-shared")  # -O1: as fast as -O3 here, compiles faster
 MAP_THREADS = 2
 CHUNK = 32  # windows per call of the mapped Function (the last chunk padded): one library
             # serves any number of windows

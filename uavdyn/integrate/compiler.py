@@ -16,8 +16,9 @@ TIMEOUT_PER_MB = 20.0
 # shared library a visible function may be interposed and is called through the PLT, which
 # made a compiled step 15-20 % slower than the same code in an executable. The entry points
 # CasADi's code marks CASADI_SYMBOL_EXPORT (the interface casadi.external loads) stay visible.
-DEFAULT_FLAGS = ("-O3", "-fPIC", "-shared", "-fvisibility=hidden",
-                 '-DCASADI_SYMBOL_EXPORT=__attribute__((visibility("default")))')
+HIDDEN_HELPERS = ("-fvisibility=hidden",
+                  '-DCASADI_SYMBOL_EXPORT=__attribute__((visibility("default")))')
+DEFAULT_FLAGS = ("-O3", "-fPIC", "-shared", *HIDDEN_HELPERS)
 
 
 class CodegenWarning(UserWarning):
