@@ -63,10 +63,8 @@ from uavdyn.identify.windows import (
     N_BODY,
     Windows,
     fit_summary,
-    inside_envelope,
-    make_windows,
     physics_windows,
-    stall_onset,
+    training_windows,
     window_density_ratios,
 )
 from uavdyn.integrate import EvalGrid, substeps_for
@@ -301,34 +299,6 @@ def _time_grid(train: list[Sortie], dt: float | None, substeps: int | None
     return sample_dt, S, stride
 
 
-def _training_windows(airframe: Airframe, train: list[Sortie], L: int, stride: int,
-                      max_windows: int | None, log: dict) -> Windows:
-    """The training windows inside the model's envelope (:func:`inside_envelope`), at most
-    ``max_windows`` evenly spread over the data; ``log`` records what was left out."""
-    w_train = make_windows(train, L, stride)
-    inside = inside_envelope(airframe, w_train)
-    if not inside.all():
-        if not inside.any():
-            raise IdentifyError("every training window reaches the stall (the onset of the "
-                                "stall blend, alpha = "
-                                f"{math.degrees(stall_onset(airframe)):.1f} deg): the model's "
-                                "quasi-steady aerodynamics cannot be fitted to these data")
-        log["left_out"] = {
-            "windows": int((~inside).sum()), "of": int(w_train.count),
-            "sorties": sorted({w_train.sorties[i].name for i, _ in
-                               np.asarray(w_train.starts)[~inside]}),
-            "why": f"angle of attack past the onset of the stall blend, "
-                   f"{math.degrees(stall_onset(airframe)):.1f} deg (alpha0 = "
-                   f"{math.degrees(airframe.params.alpha0):.1f} deg): dynamic stall (lag and "
-                   "hysteresis of the separation) is not in the model and would bias every "
-                   "aerodynamic estimate"}
-        w_train = w_train.subset(np.flatnonzero(inside))
-    if max_windows is not None and w_train.count > max_windows:
-        keep = np.unique(np.linspace(0, w_train.count - 1, max_windows).round().astype(int))
-        w_train = w_train.subset(keep)
-    return w_train
-
-
 def _nominal_weights(airframe: Airframe, windows: Windows, interval: float, substeps: int
                      ) -> np.ndarray:
     """State weights: the nominal model's residual RMS per state (puts every state on one
@@ -359,7 +329,7 @@ def _prepare(airframe: Airframe, train: list[Sortie], continuous: list[str],
                             "step that divides the log interval")
     L = max(1, int(round(window_s / interval)))
     envelope: dict = {}
-    w_train = _training_windows(airframe, train, L, stride, max_windows, envelope)
+    w_train = training_windows(airframe, train, L, stride, max_windows, envelope)
     weights = _nominal_weights(airframe, w_train, interval, S)
     unknowns = scaled_unknowns(airframe, continuous, relative_bound, bounds)
     rho_index = airframe.param_names.index("rho") if airframe.atmosphere == "isa" else None

@@ -200,6 +200,34 @@ def stall_onset(airframe: Airframe) -> float:
     return float(P.alpha0 - math.log(99.0) / max(P.M_blend, 1e-9))
 
 
+def training_windows(airframe: Airframe, train: list[Sortie], L: int, stride: int,
+                      max_windows: int | None, log: dict) -> Windows:
+    """The training windows inside the model's envelope (:func:`inside_envelope`), at most
+    ``max_windows`` evenly spread over the data; ``log`` records what was left out."""
+    w_train = make_windows(train, L, stride)
+    inside = inside_envelope(airframe, w_train)
+    if not inside.all():
+        if not inside.any():
+            raise IdentifyError("every training window reaches the stall (the onset of the "
+                                "stall blend, alpha = "
+                                f"{math.degrees(stall_onset(airframe)):.1f} deg): the model's "
+                                "quasi-steady aerodynamics cannot be fitted to these data")
+        log["left_out"] = {
+            "windows": int((~inside).sum()), "of": int(w_train.count),
+            "sorties": sorted({w_train.sorties[i].name for i, _ in
+                               np.asarray(w_train.starts)[~inside]}),
+            "why": f"angle of attack past the onset of the stall blend, "
+                   f"{math.degrees(stall_onset(airframe)):.1f} deg (alpha0 = "
+                   f"{math.degrees(airframe.params.alpha0):.1f} deg): dynamic stall (lag and "
+                   "hysteresis of the separation) is not in the model and would bias every "
+                   "aerodynamic estimate"}
+        w_train = w_train.subset(np.flatnonzero(inside))
+    if max_windows is not None and w_train.count > max_windows:
+        keep = np.unique(np.linspace(0, w_train.count - 1, max_windows).round().astype(int))
+        w_train = w_train.subset(keep)
+    return w_train
+
+
 def fit_summary(nominal: Airframe, fitted: Airframe, sorties: list[Sortie], interval: float,
                  substeps: int, L: int, stride: int) -> dict:
     """Pitch RMSE over the windows of each sortie, nominal vs fitted airframe (each with its
