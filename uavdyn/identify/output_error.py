@@ -103,8 +103,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
              bounds: dict[str, tuple[float, float]] | None = None, max_iterations: int = 60,
              estimate_x0: bool = True, max_windows: int | None = 120, max_delay: int = 5,
              substeps: int | None = None, progress: bool = True,
-             check_halves: bool = True, preroll: int | None = None, screen: bool = True,
-             state_weights: np.ndarray | None = None) -> IdentificationResult:
+             check_halves: bool = True, preroll: int | None = None, screen: bool = True
+             ) -> IdentificationResult:
     """Fit the parameters ``names`` of ``airframe`` to ``train`` sorties by output error.
 
     Parameters
@@ -156,10 +156,6 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     preroll : int, optional
         Samples of lag pre-roll before each window (default: enough for the time constants,
         with room to grow); never shorter than the lags need.
-    state_weights : ndarray, optional
-        Weights of ``u, w, q, theta`` (1 / their residual level) to fit with as they are, with
-        no reweighting pass (default: the nominal model's residuals, then each state's own
-        after a first fit). The halves check fits with the whole fit's final weights.
 
     Returns
     -------
@@ -176,7 +172,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     if screen:
         refuse_unexcited(continuous, train)
     fit = _prepare(airframe, train, continuous, searched, window_s, dt, substeps,
-                   max_windows, relative_bound, bounds, estimate_x0, preroll, state_weights)
+                   max_windows, relative_bound, bounds, estimate_x0, preroll)
     outcome = _solve(fit, max_delay, max_iterations, progress)
     fitted, estimates, corr, flagged, sigma_w, diagnostics = _estimates(fit, outcome, names,
                                                                         max_delay)
@@ -203,7 +199,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
                        "max_iterations": min(max_iterations, HALF_ITERATIONS),
                        "estimate_x0": estimate_x0,
                        "substeps": substeps, "progress": False, "check_halves": False,
-                       "preroll": fit.problem.M or None, "state_weights": fit.weights})
+                       "preroll": fit.problem.M or None})
         result.seconds = time.perf_counter() - t_start
     return result
 
@@ -231,7 +227,6 @@ class _Fit:
     weights_nominal: np.ndarray
     estimate_x0: bool
     envelope: dict = field(default_factory=dict)
-    reweight: bool = True
     problem: _Problem | None = None
     data_cache: dict[tuple, np.ndarray] = field(default_factory=dict)
 
@@ -319,7 +314,7 @@ def _prepare(airframe: Airframe, train: list[Sortie], continuous: list[str],
              searched: list[str], window_s: float, dt: float | None, substeps: int | None,
              max_windows: int | None, relative_bound: float | None,
              bounds: dict[str, tuple[float, float]] | None, estimate_x0: bool,
-             preroll: int | None = None, state_weights: np.ndarray | None = None) -> _Fit:
+             preroll: int | None = None) -> _Fit:
     """Everything the fit needs before its first solve, ending with the compiled problem."""
     sample_dt, S, stride = _time_grid(train, dt, substeps)
     interval = stride * sample_dt
@@ -335,19 +330,12 @@ def _prepare(airframe: Airframe, train: list[Sortie], continuous: list[str],
     L = max(1, int(round(window_s / interval)))
     envelope: dict = {}
     w_train = training_windows(airframe, train, L, stride, max_windows, envelope)
-    if state_weights is None:
-        weights = _nominal_weights(airframe, w_train, interval, S)
-    else:
-        weights = np.asarray(state_weights, float)
-        if weights.shape != (N_BODY,) or not np.all(np.isfinite(weights) & (weights > 0)):
-            raise IdentifyError("state_weights must be 4 positive finite numbers (u, w, q, "
-                                f"theta), got {state_weights!r}")
+    weights = _nominal_weights(airframe, w_train, interval, S)
     unknowns = scaled_unknowns(airframe, continuous, relative_bound, bounds)
     rho_index = airframe.param_names.index("rho") if airframe.atmosphere == "isa" else None
     fit = _Fit(airframe, continuous, searched, structure, w_train, L, interval, S, stride,
                unknowns, rho_index, window_density_ratios(w_train, airframe),
-               measurement_noise(train)[:N_BODY], weights, weights, estimate_x0, envelope,
-               reweight=state_weights is None)
+               measurement_noise(train)[:N_BODY], weights, weights, estimate_x0, envelope)
     # room for a fitted lag PREROLL_GROWTH times the start (extended after the fit if longer:
     # a recompile)
     tau_top = PREROLL_GROWTH * max([0.0, *fit.taus_of(unknowns.theta0)])
@@ -376,15 +364,12 @@ def _solve(fit: _Fit, max_delay: int, max_iterations: int, progress: bool) -> _O
     z = fit.with_dx(theta)
     cost_initial = fit.problem.cost(z, fit.data_for(delays))
     iterations, stats = 0, {}
-    passes = REWEIGHT_PASSES if fit.reweight else 0
-    for pass_ in range(passes + 1):
+    for pass_ in range(REWEIGHT_PASSES + 1):
         z, delays, iterations, stats = _fit_and_recheck(
             fit, z, delays, lower, upper, max_delay, max_iterations, progress, iterations,
             stats, log)
-        if pass_ == passes:
-            break
         rms, floor, new = _residual_weights(fit, z, delays)
-        if (np.all(rms <= floor)  # noise-free: fit exact
+        if (pass_ == REWEIGHT_PASSES or np.all(rms <= floor)  # noise-free: fit exact
                 or np.max(np.abs(np.log(new / fit.weights))) < 0.1):
             break
         fit.weights = new
