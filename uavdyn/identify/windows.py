@@ -159,14 +159,18 @@ def window_function(step: ca.Function, structure: ModelStructure, rho_index: int
     inputs, names = [p, ratio, x0], ["p", "ratio", "x0"]
     if n_lag:
         v = ca.MX.sym("v", n_lag, preroll)
-        a, pa, vk = ca.SX.sym("a", n_lag), ca.SX.sym("p", n_p), ca.SX.sym("vk", n_lag)
+        # only the actuators' own parameters ride along (time constants, slew times)
+        used = sorted({*structure.tau_indices,
+                       *(k for k in structure.slew_indices if k is not None)})
+        a, q, vk = ca.SX.sym("a", n_lag), ca.SX.sym("q", len(used)), ca.SX.sym("vk", n_lag)
         commands = [vk[0] * 0.0] * nu  # only the lagged controls' rows are read
         for j, c in enumerate(structure.lag_indices):
             commands[c] = vk[j]
-        moved = actuators_after(structure, [a[j] for j in range(n_lag)], commands, pa,
-                                sample_dt, CASADI_OPS)
-        lag = ca.Function("lag", [ca.vertcat(a, pa), vk], [ca.vertcat(*moved, pa)])
-        history = lag.mapaccum("preroll", preroll)(ca.vertcat(v[:, 0], pw), v)
+        moved = actuators_after(structure, [a[j] for j in range(n_lag)], commands,
+                                {i: q[j] for j, i in enumerate(used)}, sample_dt, CASADI_OPS)
+        lag = ca.Function("lag", [ca.vertcat(a, q), vk], [ca.vertcat(*moved, q)])
+        history = lag.mapaccum("preroll", preroll)(
+            ca.vertcat(v[:, 0], *[pw[i] for i in used]), v)
         z0 = ca.vertcat(x0, history[:n_lag, -1])
         inputs, names = [*inputs, v], [*names, "v"]
     else:

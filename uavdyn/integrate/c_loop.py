@@ -105,9 +105,10 @@ class NativeRollout:
             if a.size != int(np.prod(shape)):
                 raise ValueError(f"rollout input {k} has {a.size} values, expected "
                                  f"{int(np.prod(shape))} (shape {shape})")
-            # CasADi's layout is column-major: u column k is sample k
-            buffers.append(np.asfortranarray(a.reshape(shape) if shape else a.reshape(1))
-                           .ravel(order="K" if a.ndim < 2 else "F"))
+            # CasADi's layout is column-major: u column k is sample k (a transposed
+            # row-per-sample array, the usual input, passes without a copy)
+            buffers.append(np.ascontiguousarray(a.reshape(shape or (1,), order="F")
+                                                .ravel(order="F")))
         out = np.empty((self.n_samples, self.nx))  # row k: the states after sample k
         arg = (ctypes.c_void_p * self._sz_arg)(*(b.ctypes.data for b in buffers))
         res = (ctypes.c_void_p * self._sz_res)(out.ctypes.data)

@@ -188,10 +188,9 @@ def compiled_rollout(step: DiscreteModel | ca.Function, n_samples: int, substeps
     sim = rollout(function, n_samples, substeps, name)
     if function.is_a("External"):
         return sim
-    loaded = compile_function(
+    return compile_function(
         sim, warn=warn, opener=lambda n, path: NativeRollout(ctypes.CDLL(path), n, sim),
         source=lambda folder, n: write_loop_source(function, n_samples, substeps, n, folder))
-    return loaded
 
 
 _WINDOW_FUNCTIONS: dict = {}
