@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from uavdyn.integrate import compiled_rollout, find_compiler, physics_step, rollout
-from uavdyn.integrate.c_loop import NativeRollout, _body_call
+from uavdyn.integrate.c_loop import NativeRollout, generated_body
 from uavdyn.learned.hybrid import hybrid_step, shipped_correction, shipped_identified
 from uavdyn.linear import trim
 
@@ -95,5 +95,5 @@ def test_the_loop_calls_the_generated_body_directly():
     source = ("CASADI_SYMBOL_EXPORT int r_step(const casadi_real** arg, casadi_real** res, "
               "casadi_int* iw, casadi_real* w, int mem){\n  return casadi_f3(arg, res, iw, w, "
               "mem);\n}\n")
-    assert _body_call(source, "r_step") == "casadi_f3"
-    assert _body_call("int other(void);", "r_step") == "r_step"  # not found: the export
+    assert generated_body(source, "r_step") == "casadi_f3"
+    assert generated_body("int other(void);", "r_step") == "r_step"  # not found: the export

@@ -107,7 +107,7 @@ class Airframe:
         if unknown:
             raise AirframeError(f"unknown parameter(s) {sorted(unknown)} for kind '{self.kind}'")
         numbers = {k: _as_number(v, k, origin) for k, v in changes.items()}
-        values = dataclasses.asdict(self.params)
+        values = {f.name: getattr(self.params, f.name) for f in dataclasses.fields(self.params)}
         values.update({k: v for k, v in numbers.items() if k in values})
         _check_values(values, self.kind, origin)
         tables = dict(self.tables)

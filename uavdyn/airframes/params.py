@@ -91,8 +91,11 @@ OPTIONAL_PARAMS: dict[str, dict[str, float]] = {
     for kind, cls in PARAM_CLASSES.items()}
 
 
+_PARAM_NAMES = {kind: tuple(f.name for f in fields(cls)) for kind, cls in PARAM_CLASSES.items()}
+
+
 def param_names(kind: str) -> tuple[str, ...]:
     """Names of the parameter vector ``p`` for an airframe kind, in order."""
     if not isinstance(kind, str) or kind not in PARAM_CLASSES:
         raise AirframeError(f"unknown airframe kind {_short(kind)}; expected one of {KINDS}")
-    return tuple(f.name for f in fields(PARAM_CLASSES[kind]))
+    return _PARAM_NAMES[kind]

@@ -45,7 +45,7 @@ def loop_work_sizes(step: ca.Function) -> tuple[int, int, int, int]:
             inner.sz_w() + 3 * nx + nu + n_p)
 
 
-def _body_call(source: str, name: str) -> str:
+def generated_body(source: str, name: str) -> str:
     """The generated static function the exported ``name`` wraps (called directly by the
     loop: a call through the exported symbol of a shared library cannot be inlined), or
     ``name`` itself where the wrapper is not found."""
@@ -53,6 +53,58 @@ def _body_call(source: str, name: str) -> str:
                       rf"res, casadi_int\* iw, casadi_real\* w, int mem\)\s*\{{\s*"
                       rf"return (casadi_f\d+)\(arg, res, iw, w, mem\);", source)
     return found.group(1) if found else name
+
+
+def external_interface(name: str, inputs: list[tuple[str, int, int]],
+                       outputs: list[tuple[str, int, int]],
+                       work: tuple[int, int, int, int]) -> str:
+    """C of CasADi's external-function interface for a hand-written ``name``: dense inputs and
+    outputs ``(name, rows, columns)`` and the work sizes ``(sz_arg, sz_res, sz_iw, sz_w)``
+    (``casadi.external`` and the compile cache's verification read these)."""
+    def sparsity(side: str, entries: list[tuple[str, int, int]]) -> str:
+        lines = [f"static const casadi_int {name}_sp_{side}{i}[3] = {{{r}, {c}, 1}};"
+                 for i, (_, r, c) in enumerate(entries)]
+        cases = "\n".join(f"    case {i}: return {name}_sp_{side}{i};"
+                           for i in range(len(entries)))
+        names = ", ".join(f'"{n}"' for n, _, _ in entries)
+        return "\n".join([
+            *lines,
+            f"static const char* {name}_{side}_names[{len(entries)}] = {{{names}}};",
+            f"CASADI_SYMBOL_EXPORT casadi_int {name}_n_{side}(void) {{ return {len(entries)}; }}",
+            f"CASADI_SYMBOL_EXPORT const char* {name}_name_{side}(casadi_int i) {{",
+            f"  return (i >= 0 && i < {len(entries)}) ? {name}_{side}_names[i] : 0;", "}",
+            f"CASADI_SYMBOL_EXPORT const casadi_int* {name}_sparsity_{side}(casadi_int i) {{",
+            "  switch (i) {", cases, "    default: return 0;", "  }", "}"])
+    sz_arg, sz_res, sz_iw, sz_w = work
+    return "\n".join([
+        f"\n/* ---- the external interface of {name} (uavdyn.integrate.c_loop) ---- */",
+        sparsity("in", inputs), sparsity("out", outputs),
+        f"CASADI_SYMBOL_EXPORT int {name}_work(casadi_int* sz_arg, casadi_int* sz_res, "
+        "casadi_int* sz_iw, casadi_int* sz_w) {",
+        f"  if (sz_arg) *sz_arg = {sz_arg};", f"  if (sz_res) *sz_res = {sz_res};",
+        f"  if (sz_iw) *sz_iw = {sz_iw};", f"  if (sz_w) *sz_w = {sz_w};", "  return 0;", "}",
+        ""])
+
+
+def column_major_buffers(args, shapes: list[tuple[int, ...]], what: str) -> list[np.ndarray]:
+    """Each argument as a contiguous float64 buffer in CasADi's column-major layout, its size
+    checked against ``shapes`` (a transposed row-per-sample array passes without a copy)."""
+    buffers = []
+    for k, (value, shape) in enumerate(zip(args, shapes)):
+        a = np.asarray(value, dtype=float)
+        if a.size != int(np.prod(shape)):
+            raise ValueError(f"{what} input {k} has {a.size} values, expected "
+                             f"{int(np.prod(shape))} (shape {shape})")
+        buffers.append(np.ascontiguousarray(a.reshape(shape or (1,), order="F")
+                                            .ravel(order="F")))
+    return buffers
+
+
+def work_sizes(library: ctypes.CDLL, name: str) -> tuple[int, int, int, int]:
+    """``(sz_arg, sz_res, sz_iw, sz_w)`` as the library's ``<name>_work`` reports them."""
+    sizes = [ctypes.c_longlong() for _ in range(4)]
+    getattr(library, f"{name}_work")(*(ctypes.byref(v) for v in sizes))
+    return tuple(int(v.value) for v in sizes)
 
 
 def write_loop_source(step: ca.Function, n_samples: int, substeps: int, name: str,
@@ -68,11 +120,15 @@ def write_loop_source(step: ca.Function, n_samples: int, substeps: int, name: st
     timed = step.n_in() == 5
     sz_arg, sz_res, sz_iw, sz_w = loop_work_sizes(step)
     values = {"name": name, "nx": nx, "nu": nu, "np": n_p, "N": n_samples, "S": substeps,
-              "n_in": 5 if timed else 4, "sz_arg": sz_arg, "sz_res": sz_res, "sz_iw": sz_iw,
-              "sz_w": sz_w, "sz_w_step": inner.sz_w(), "timed": int(timed)}
+              "sz_arg": sz_arg, "sz_res": sz_res, "sz_w_step": inner.sz_w(),
+              "timed": int(timed)}
     text = source.read_text()
-    values["call"] = _body_call(text, f"{name}_step")
-    source.write_text(text + _LOOP.format(**values))
+    values["call"] = generated_body(text, f"{name}_step")
+    inputs = [("x0", nx, 1), ("u", nu, n_samples), ("p", n_p, 1), ("dt", 1, 1),
+              ("t0", 1, 1)][:5 if timed else 4]
+    interface = external_interface(name, inputs, [("x", nx, n_samples)],
+                                   (sz_arg, sz_res, sz_iw, sz_w))
+    source.write_text(text + interface + _LOOP.format(**values))
     return source
 
 
@@ -87,9 +143,7 @@ class NativeRollout:
         self._call = getattr(library, name)
         self._call.restype = ctypes.c_int
         self._call.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_int]
-        sizes = [ctypes.c_longlong() for _ in range(4)]
-        getattr(library, f"{name}_work")(*(ctypes.byref(v) for v in sizes))
-        self._sz_arg, self._sz_res, self._sz_iw, self._sz_w = (int(v.value) for v in sizes)
+        self._sz_arg, self._sz_res, self._sz_iw, self._sz_w = work_sizes(library, name)
         self.nx, self.nu, self.np = (function.size1_in(i) for i in range(3))
         self.n_samples = function.size2_in(1)
         self.n_in = function.n_in()
@@ -99,16 +153,7 @@ class NativeRollout:
             raise TypeError(f"rollout takes {self.n_in} inputs (x0, u, p, dt[, t0]), got "
                             f"{len(args)}")
         shapes = [(self.nx,), (self.nu, self.n_samples), (self.np,), (), ()]
-        buffers = []
-        for k, (value, shape) in enumerate(zip(args, shapes)):
-            a = np.asarray(value, dtype=float)
-            if a.size != int(np.prod(shape)):
-                raise ValueError(f"rollout input {k} has {a.size} values, expected "
-                                 f"{int(np.prod(shape))} (shape {shape})")
-            # CasADi's layout is column-major: u column k is sample k (a transposed
-            # row-per-sample array, the usual input, passes without a copy)
-            buffers.append(np.ascontiguousarray(a.reshape(shape or (1,), order="F")
-                                                .ravel(order="F")))
+        buffers = column_major_buffers(args, shapes, "rollout")
         out = np.empty((self.n_samples, self.nx))  # row k: the states after sample k
         arg = (ctypes.c_void_p * self._sz_arg)(*(b.ctypes.data for b in buffers))
         res = (ctypes.c_void_p * self._sz_res)(out.ctypes.data)
@@ -121,39 +166,6 @@ class NativeRollout:
 
 _LOOP = """
 /* ---- the rollout loop (uavdyn.integrate.c_loop) ---- */
-static const casadi_int {name}_sp_x0[3] = {{{nx}, 1, 1}};
-static const casadi_int {name}_sp_u[3] = {{{nu}, {N}, 1}};
-static const casadi_int {name}_sp_p[3] = {{{np}, 1, 1}};
-static const casadi_int {name}_sp_1[3] = {{1, 1, 1}};
-static const casadi_int {name}_sp_x[3] = {{{nx}, {N}, 1}};
-static const char* {name}_in_names[5] = {{"x0", "u", "p", "dt", "t0"}};
-
-CASADI_SYMBOL_EXPORT casadi_int {name}_n_in(void) {{ return {n_in}; }}
-CASADI_SYMBOL_EXPORT casadi_int {name}_n_out(void) {{ return 1; }}
-CASADI_SYMBOL_EXPORT const char* {name}_name_in(casadi_int i) {{
-  return (i >= 0 && i < {n_in}) ? {name}_in_names[i] : 0;
-}}
-CASADI_SYMBOL_EXPORT const char* {name}_name_out(casadi_int i) {{ return i == 0 ? "x" : 0; }}
-CASADI_SYMBOL_EXPORT const casadi_int* {name}_sparsity_in(casadi_int i) {{
-  switch (i) {{
-    case 0: return {name}_sp_x0;
-    case 1: return {name}_sp_u;
-    case 2: return {name}_sp_p;
-    case 3: case 4: return {name}_sp_1;
-    default: return 0;
-  }}
-}}
-CASADI_SYMBOL_EXPORT const casadi_int* {name}_sparsity_out(casadi_int i) {{
-  return i == 0 ? {name}_sp_x : 0;
-}}
-CASADI_SYMBOL_EXPORT int {name}_work(casadi_int* sz_arg, casadi_int* sz_res, casadi_int* sz_iw,
-                                      casadi_int* sz_w) {{
-  if (sz_arg) *sz_arg = {sz_arg};
-  if (sz_res) *sz_res = {sz_res};
-  if (sz_iw) *sz_iw = {sz_iw};
-  if (sz_w) *sz_w = {sz_w};
-  return 0;
-}}
 CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casadi_int* iw,
                                 casadi_real* w, int mem) {{
   const casadi_real *x_in, *u_k, *p;

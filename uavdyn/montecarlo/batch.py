@@ -26,6 +26,8 @@ the augmented RK step or the hybrid formulation's step), no second copy of the e
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import casadi as ca
 import numpy as np
 
@@ -141,6 +143,73 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
     if n_steps < 1 or stride < 1:
         raise ValueError(f"n_steps and stride must be >= 1, got {n_steps}, {stride}")
     stride = min(stride, n_steps)
+    pieces = run_pieces(step, airframe, structure, gusts, name, feedback)
+    start, body = pieces.start, pieces.body
+    nx, nu, n_p, n_in = pieces.nx, pieces.nu, pieces.np, pieces.n_in
+
+    # the run: initial signals, K intervals of `stride` steps (history), then the tail
+    X0, U0, P = ca.MX.sym("x0", nx), ca.MX.sym("u0", nu), ca.MX.sym("p", n_p)
+    DU, DT, LIM = ca.MX.sym("du", nu, n_steps), ca.MX.sym("dt"), ca.MX.sym("limits", N_LIMITS)
+    XR = ca.MX.sym("xref", 4)
+    G = ca.MX.sym("g", N_GUST, n_steps) if gusts else None
+    IN = ca.vertcat(DU, G) if gusts else DU
+    a0, sig0 = start(X0, U0, P, DU[:, 0], G[:, 0] if gusts else ca.DM.zeros(N_GUST), DT, LIM,
+                     XR if feedback is not None else ca.DM.zeros(4))
+    n_int = n_steps // stride
+    if stride > 1:
+        inner = body.mapaccum(f"{name}_inner", stride)
+        a_sym, blk = ca.MX.sym("acc", body.size1_in(0)), ca.MX.sym("blk", n_in * stride)
+        interval = ca.Function(f"{name}_interval", [a_sym, blk],
+                               [inner(a_sym, ca.reshape(blk, n_in, stride))[:, -1]])
+    else:
+        interval = body
+    A = interval.mapaccum(f"{name}_outer", n_int)(
+        a0, ca.reshape(IN[:, :n_int * stride], n_in * stride, n_int))
+    a_end = A[:, -1]
+    tail = n_steps - n_int * stride
+    if tail:
+        a_end = body.mapaccum(f"{name}_tail", tail)(a_end, IN[:, n_int * stride:])[:, -1]
+    sig_rows = ca.vertcat(*(A[i, :] for i in pieces.signal_rows))
+    hist = ca.horzcat(sig0, sig_rows)
+    stats = ca.vertcat(*(a_end[i] for i in pieces.stat_rows))
+    inputs = [X0, U0, P, DU] + ([G] if gusts else []) + [DT, LIM]
+    in_names = ["x0", "u0", "p", "du"] + (["g"] if gusts else []) + ["dt", "limits"]
+    if feedback is not None:
+        inputs, in_names = [*inputs, XR], [*in_names, "xref"]
+    return ca.Function(name, inputs, [stats, hist], in_names, ["stats", "hist"])
+
+
+@dataclass(frozen=True)
+class RunPieces:
+    """A run's two SX pieces, shared by the ``mapaccum`` run and the native loop.
+
+    Attributes
+    ----------
+    start : casadi.Function
+        ``(x0, u0, p, du0, g0, dt, limits, xref) -> (acc0, signals0)``: the accumulator at the
+        first sample and the first history column.
+    body : casadi.Function
+        ``(acc, [du_k; g_k]) -> acc_next``: one step, its signals and statistics.
+    signal_rows, stat_rows : tuple of int
+        Rows of the accumulator holding :data:`SIGNALS` and :data:`STAT_NAMES`.
+    nx, nu, np, n_in, n_acc : int
+        Sizes of the step's state, command, parameters, a sample's input and the accumulator.
+    """
+
+    start: ca.Function
+    body: ca.Function
+    signal_rows: tuple[int, ...]
+    stat_rows: tuple[int, ...]
+    nx: int
+    nu: int
+    np: int
+    n_in: int
+    n_acc: int
+
+
+def run_pieces(step: ca.Function, airframe: Airframe, structure: ModelStructure, gusts: bool,
+               name: str = "mc_run", feedback: np.ndarray | None = None) -> RunPieces:
+    """The start and body of a run (see :func:`run_function`)."""
     nx, n_p = step.size1_in(0), step.size1_in(2)
     nu = structure.nu
     n_in = nu + (N_GUST if gusts else 0)
@@ -175,45 +244,19 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
                           p, dt, lim, xr)
     body = ca.Function(f"{name}_step", [acc, inp], [acc_next])
 
-    # the run: initial signals, K intervals of `stride` steps (history), then the tail
-    X0, U0, P = ca.MX.sym("x0", nx), ca.MX.sym("u0", nu), ca.MX.sym("p", n_p)
-    DU, DT, LIM = ca.MX.sym("du", nu, n_steps), ca.MX.sym("dt"), ca.MX.sym("limits", N_LIMITS)
-    XR = ca.MX.sym("xref", 4)
-    G = ca.MX.sym("g", N_GUST, n_steps) if gusts else None
-    IN = ca.vertcat(DU, G) if gusts else DU
-    sx = [ca.SX.sym(nm, n) for nm, n in (("x", nx), ("u", nu), ("g", N_GUST), ("p", n_p))]
-    first = ca.Function(f"{name}_signals", sx, [_signals(forces, sx[0], sx[1],
-                                                         sx[2] if gusts else None, sx[3],
-                                                         i_mass, i_g)])
-    u_first = _command(U0 + DU[:, 0], X0, XR, feedback, lo, hi)
-    sig0 = first(X0, u_first, G[:, 0] if gusts else ca.DM.zeros(N_GUST), P)
-    ok0 = _inside(X0, sig0, body_limits)
-    th0 = ca.fabs(sig0[0])
-    s0 = ca.vertcat(th0, sig0[2], sig0[3], sig0[4], sig0[4], 0, 0, 0, 0)
-    a0 = ca.vertcat(X0, U0, s0, sig0[2:], 0, ca.if_else(ok0, -1, 0), P, DT, LIM,
-                    XR if feedback is not None else ca.DM.zeros(4))
-    n_int = n_steps // stride
-    if stride > 1:
-        inner = body.mapaccum(f"{name}_inner", stride)
-        a_sym, blk = ca.MX.sym("acc", body.size1_in(0)), ca.MX.sym("blk", n_in * stride)
-        interval = ca.Function(f"{name}_interval", [a_sym, blk],
-                               [inner(a_sym, ca.reshape(blk, n_in, stride))[:, -1]])
-    else:
-        interval = body
-    A = interval.mapaccum(f"{name}_outer", n_int)(
-        a0, ca.reshape(IN[:, :n_int * stride], n_in * stride, n_int))
-    a_end = A[:, -1]
-    tail = n_steps - n_int * stride
-    if tail:
-        a_end = body.mapaccum(f"{name}_tail", tail)(a_end, IN[:, n_int * stride:])[:, -1]
-    sig_rows = ca.vertcat(A[offsets[0] + 3, :], A[offsets[0] + 2, :], A[offsets[3]:offsets[4], :])
-    hist = ca.horzcat(sig0, sig_rows)
-    stats = ca.vertcat(a_end[offsets[2]:offsets[3]], a_end[offsets[5]])
-    inputs = [X0, U0, P, DU] + ([G] if gusts else []) + [DT, LIM]
-    in_names = ["x0", "u0", "p", "du"] + (["g"] if gusts else []) + ["dt", "limits"]
-    if feedback is not None:
-        inputs, in_names = [*inputs, XR], [*in_names, "xref"]
-    return ca.Function(name, inputs, [stats, hist], in_names, ["stats", "hist"])
+    x0, uu0, pp, du0 = (ca.SX.sym(nm, k) for nm, k in (("x0", nx), ("u0", nu), ("p", n_p),
+                                                          ("du0", nu)))
+    g0, dt0, lim0, xr0 = (ca.SX.sym(nm, k) for nm, k in (("g0", N_GUST), ("dt", 1),
+                                                          ("limits", N_LIMITS), ("xref", 4)))
+    u_first = _command(uu0 + du0, x0, xr0, feedback, lo, hi)
+    sig0 = _signals(forces, x0, u_first, g0 if gusts else None, pp, i_mass, i_g)
+    ok0 = _inside(x0, sig0, body_limits)
+    s0 = ca.vertcat(ca.fabs(sig0[0]), sig0[2], sig0[3], sig0[4], sig0[4], 0, 0, 0, 0)
+    a0 = ca.vertcat(x0, uu0, s0, sig0[2:], 0, ca.if_else(ok0, -1, 0), pp, dt0, lim0, xr0)
+    start = ca.Function(f"{name}_start", [x0, uu0, pp, du0, g0, dt0, lim0, xr0], [a0, sig0])
+    o = [int(v) for v in offsets]
+    return RunPieces(start, body, (o[0] + 3, o[0] + 2, o[3], o[3] + 1, o[3] + 2),
+                     tuple(range(o[2], o[3])) + (o[5],), nx, nu, n_p, n_in, o[-1])
 
 
 def batch_function(run: ca.Function, n_runs: int, threads: int = 1, compile: bool = True,

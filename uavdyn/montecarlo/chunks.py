@@ -35,8 +35,16 @@ import numpy as np
 from uavdyn.airframes import AirframeError
 from uavdyn.integrate import StateLayout
 from uavdyn.linear import TrimError, point_params, trim
-from uavdyn.montecarlo.batch import N_GUST, SIGNALS, STAT_NAMES, batch_function, run_function
+from uavdyn.montecarlo.batch import (
+    N_GUST,
+    SIGNALS,
+    STAT_NAMES,
+    batch_function,
+    run_function,
+    run_pieces,
+)
 from uavdyn.montecarlo.dispersions import STATE_KEYS
+from uavdyn.montecarlo.native import NativeBatch, native_batch
 from uavdyn.montecarlo.spec import MonteCarloError, StudySpec
 from uavdyn.outputs import atomic_file
 from uavdyn.safefiles import UnreadableFile, read_regular
@@ -49,7 +57,7 @@ RESULT_COLUMNS = ("run", "trim_ok", "diverged", "t_diverged_s", "max_abs_pitch_d
                   "time_pitch_over_s", "time_alpha_over_s", "time_airspeed_under_s",
                   "time_load_over_s", "trim_airspeed_mps")
 _STAT_INDEX = {name: i for i, name in enumerate(STAT_NAMES)}
-_COMPILED: dict[tuple, ca.Function] = {}  # per-process cache of built batch Functions
+_COMPILED: dict[tuple, NativeBatch | ca.Function] = {}  # per-process cache of built batch Functions
 _COMPILED_MAX = 8  # oldest dropped beyond this (a notebook may run many studies)
 # CasADi graph construction and the trim are not thread-safe: one chunk at a time per process
 # (a Dask worker with several threads runs its chunks one after the other; a chunk's own
@@ -96,17 +104,22 @@ class ChunkResult:
     file: str | None = None
 
 
-def compiled_batch(spec: StudySpec, n_runs: int, threads: int) -> ca.Function:
-    """The compiled batch Function for ``n_runs`` runs on ``threads`` threads (built once per
-    process and study model; the compiled library is cached on disk)."""
+def compiled_batch(spec: StudySpec, n_runs: int, threads: int) -> NativeBatch | ca.Function:
+    """The compiled chunk of ``n_runs`` runs on ``threads`` threads
+    (:func:`uavdyn.montecarlo.native.native_batch`; built once per process and study model,
+    the compiled library cached on disk)."""
     key = (spec.model_key, n_runs, threads)
     if key not in _COMPILED:
-        run = run_function(spec.step(), spec.airframe, spec.structure, spec.n_steps,
-                           spec.stride, spec.gusts, name=f"mc_{spec.model_key[:10]}",
-                           feedback=spec.feedback)
+        name, step = f"mc_{spec.model_key[:10]}", spec.step()
+        run = run_function(step, spec.airframe, spec.structure, spec.n_steps, spec.stride,
+                           spec.gusts, name=name, feedback=spec.feedback)
+        pieces = run_pieces(step, spec.airframe, spec.structure, spec.gusts, name,
+                            spec.feedback)
         while len(_COMPILED) >= _COMPILED_MAX:
             _COMPILED.pop(next(iter(_COMPILED)))
-        _COMPILED[key] = batch_function(run, n_runs, threads)
+        _COMPILED[key] = native_batch(pieces, batch_function(run, n_runs, threads, False),
+                                      spec.n_steps, spec.stride, spec.gusts,
+                                      spec.feedback is not None, threads)
     return _COMPILED[key]
 
 

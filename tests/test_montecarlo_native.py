@@ -1,0 +1,232 @@
+"""Monte-Carlo chunks as one C loop, four runs at a time (``uavdyn.montecarlo.native``, issue 32):
+
+* every operation written in lanes gives, lane by lane, bit for bit what CasADi's own generated
+  scalar code gives (special values included);
+* a chunk equals the compiled ``map`` of the ``mapaccum`` run bit for bit on a non-preset fixed
+  wing with gusts and dispersed initial states, a non-preset quadrotor in closed loop and the
+  shipped hybrid correction, with a run count that leaves lanes empty, on 1 and 2 threads;
+* runs that diverge at different times keep their own statistics and divergence times;
+* a body the lanes cannot write runs through CasADi's map, with a warning.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import subprocess
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from uavdyn.airframes import load_airframe
+from uavdyn.integrate import compile_function, find_compiler
+from uavdyn.integrate.compiler import CodegenWarning
+from uavdyn.integrate.lanes import LanesError, lanes_c
+from uavdyn.learned import shipped_correction
+from uavdyn.linear import trim
+from uavdyn.model import structure_of
+from uavdyn.montecarlo import build_spec, load_dispersions
+from uavdyn.montecarlo import chunks as chunk_module
+from uavdyn.montecarlo.batch import batch_function, run_function, run_pieces
+from uavdyn.montecarlo.native import FLAGS, LANES, NativeBatch, native_batch
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+needs_cc = pytest.mark.skipif(find_compiler() is None, reason="no C compiler")
+
+
+def _every_operation() -> ca.Function:
+    x, y = ca.SX.sym("x", 3), ca.SX.sym("y", 3)
+    a, b, c = ca.vertsplit(x)
+    d, e, f = ca.vertsplit(y)
+    out = [a + d, a - d, a * d, a / d, -a, a**2, 2 * a, 1 / b, ca.fabs(a), ca.exp(a), ca.log(b),
+           ca.sqrt(b), ca.sin(a), ca.cos(a), ca.tan(a), ca.asin(c), ca.acos(c), ca.atan(a),
+           ca.sinh(a), ca.cosh(a), ca.tanh(a), ca.asinh(a), ca.acosh(1 + b), ca.atanh(c),
+           ca.floor(a), ca.ceil(a), ca.erf(a), ca.expm1(a), ca.log1p(b), a < d, a <= d, a == d,
+           a != d, ca.logic_and(a, d), ca.logic_or(a, d), ca.logic_not(a),
+           ca.if_else(a > d, e, f), b**d, a**3, ca.fmin(a, d), ca.fmax(a, d), ca.atan2(a, d),
+           ca.fmod(a, d), ca.remainder(a, d), ca.hypot(a, d), ca.copysign(a, d), ca.sign(a),
+           a + np.inf, a * np.nan, a - np.inf]
+    return ca.Function("every_op", [x, y], [ca.vertcat(*out)])
+
+
+def _lanes_library(func: ca.Function, folder: Path) -> ctypes.CDLL:
+    source = folder / "lanes.c"
+    source.write_text("#include <math.h>\ntypedef double casadi_real;\n"
+                      + lanes_c(func, "f_lanes", LANES)
+                      + "CASADI_SYMBOL_EXPORT void call(const double* const* arg, "
+                        "double* const* res) { f_lanes(arg, res); }\n")
+    library = folder / "lanes.so"
+    subprocess.run([find_compiler(), *FLAGS, str(source), "-o", str(library), "-lm"],
+                   check=True, capture_output=True)
+    return ctypes.CDLL(str(library))
+
+
+@needs_cc
+def test_every_operation_in_lanes_equals_casadis_scalar_code_bit_for_bit(tmp_path):
+    func = _every_operation()
+    scalar = compile_function(func, FLAGS, directory=tmp_path / "cache")
+    library = _lanes_library(func, tmp_path)
+    rng = np.random.default_rng(5)
+    values = rng.uniform(-3, 3, (2, 3, 4 * LANES))
+    specials = np.array([0.0, -0.0, np.inf, -np.inf, np.nan, 1.0, -1.0, 0.5])
+    values[0, :, :8], values[1, :, :8] = specials, specials[::-1]
+    n_out = func.size1_out(0)
+    for start in range(0, values.shape[2], LANES):
+        block = values[:, :, start:start + LANES]
+        args = [np.ascontiguousarray(block[i]) for i in range(2)]  # element j, lane b at j*4+b
+        out = np.empty((n_out, LANES))
+        arg = (ctypes.c_void_p * 2)(*(a.ctypes.data for a in args))
+        res = (ctypes.c_void_p * 1)(out.ctypes.data)
+        with np.errstate(all="ignore"):
+            library.call(arg, res)
+        for lane in range(LANES):
+            expected = np.asarray(scalar(block[0, :, lane], block[1, :, lane])).ravel()
+            np.testing.assert_array_equal(out[:, lane], expected)
+
+
+def test_lanes_refuse_an_mx_function_and_an_operation_without_c():
+    x = ca.MX.sym("x")
+    with pytest.raises(LanesError, match="not an SX Function"):
+        lanes_c(ca.Function("m", [x], [2 * x]), "m", 4)
+    s = ca.SX.sym("s")
+    with pytest.raises(LanesError, match="ERFINV"):
+        lanes_c(ca.Function("e", [s], [ca.erfinv(s)]), "e", 4)
+
+
+# ----------------------------------------------------------------------------- whole chunks
+
+TRAINER_DISPERSIONS = """
+seed = 11
+[params.C_m_alpha]
+dist = "uniform"
+low = -0.2
+high = 0.2
+[params.mass]
+dist = "normal"
+sd = 0.03
+[initial]
+theta = { dist = "normal", sd = 0.03 }
+q = { dist = "uniform", low = -0.05, high = 0.05 }
+[gust]
+intensity = { dist = "uniform", low = 0.0, high = 2.0 }
+"""
+
+X500_DISPERSIONS = """
+seed = 4
+[params.mass]
+dist = "uniform"
+low = -0.1
+high = 0.1
+[params.Jy]
+dist = "uniform"
+low = -0.2
+high = 0.2
+[initial]
+theta = { dist = "normal", sd = 0.05 }
+"""
+
+
+def _dispersions(folder: Path, text: str, airframe):
+    path = folder / "dispersions.toml"
+    path.write_text(text)
+    return load_dispersions(path, airframe)
+
+
+def _both_routes(spec, threads: int):
+    """(chunk through the native loop, chunk through the compiled map of the mapaccum run)."""
+    chunk_module._COMPILED.clear()
+    native = chunk_module.evaluate_chunk(spec, 0, threads)
+    batch = chunk_module.compiled_batch(spec, spec.runs, threads)
+    assert isinstance(batch, NativeBatch)
+    chunk_module._COMPILED[(spec.model_key, spec.runs, threads)] = compile_function(
+        batch.function, FLAGS)
+    try:
+        reference = chunk_module.evaluate_chunk(spec, 0, threads)
+    finally:
+        chunk_module._COMPILED.clear()
+    return native, reference
+
+
+def _assert_same(native, reference):
+    np.testing.assert_array_equal(native.table, reference.table)
+    np.testing.assert_array_equal(native.history, reference.history)
+
+
+@needs_cc
+@pytest.mark.parametrize("threads", [1, 2])
+def test_a_gusty_chunk_of_the_own_fixed_wing_equals_the_mapped_run(tmp_path, threads):
+    airframe = load_airframe(EXAMPLES / "trainer.toml")
+    dispersions = _dispersions(tmp_path, TRAINER_DISPERSIONS, airframe)
+    spec = build_spec(airframe, dispersions, runs=7, duration=3.0, dt=0.01, mission="3211",
+                      chunk_size=7, history_dt=0.1)
+    native, reference = _both_routes(spec, threads)
+    _assert_same(native, reference)
+    assert np.all(np.isfinite(native.history)) and not np.any(native.table[:, 2])
+
+
+@needs_cc
+def test_a_closed_loop_chunk_of_the_own_quadrotor_equals_the_mapped_run(tmp_path):
+    airframe = load_airframe(EXAMPLES / "x500.toml")
+    dispersions = _dispersions(tmp_path, X500_DISPERSIONS, airframe)
+    spec = build_spec(airframe, dispersions, runs=6, duration=2.0, dt=0.01, chunk_size=6,
+                      closed_loop=True, history_dt=0.05)
+    _assert_same(*_both_routes(spec, 1))
+
+
+@needs_cc
+def test_a_hybrid_chunk_equals_the_mapped_run(tmp_path):
+    weights, airframe = shipped_correction("aerosonde")
+    dispersions = _dispersions(tmp_path, X500_DISPERSIONS.replace("Jy", "C_m_q"), airframe)
+    spec = build_spec(airframe, dispersions, runs=5, duration=1.5, dt=0.01, chunk_size=5,
+                      weights=weights)
+    _assert_same(*_both_routes(spec, 1))
+
+
+def _doubling(airframe):
+    x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 2)
+    p, dt = ca.SX.sym("p", len(airframe.p)), ca.SX.sym("dt")
+    return x, u, p, dt
+
+
+@needs_cc
+def test_runs_diverging_at_different_times_keep_their_own_statistics(aerosonde):
+    """Pitch doubled every step from 0.01 * 2**-k leaves |theta| <= pi at step 9 + k: the runs
+    of one group of four diverge at different steps (and one never within 30 steps); each has
+    its own divergence time and statistics, equal to the mapped run's."""
+    x, u, p, dt = _doubling(aerosonde)
+    doubling = ca.Function("doubling", [x, u, p, dt], [ca.vertcat(x[:3], 2 * x[3])])
+    structure, n_steps, stride = structure_of(aerosonde), 30, 5
+    point = trim(aerosonde)
+    run = run_function(doubling, aerosonde, structure, n_steps, stride, False)
+    pieces = run_pieces(doubling, aerosonde, structure, False)
+    runs = 6
+    mapped = batch_function(run, runs, compile=False)
+    native = native_batch(pieces, mapped, n_steps, stride, False, False)
+    assert isinstance(native, NativeBatch)
+    theta0 = 0.01 * 2.0 ** -np.array([0, 3, 1, 25, 2, 0])
+    x0 = np.vstack([np.tile(point.x[:3, None], (1, runs)), theta0])
+    args = (x0, np.tile(point.u[:, None], (1, runs)), np.tile(aerosonde.p[:, None], (1, runs)),
+            np.zeros((2, n_steps)), 0.01, [np.inf, np.inf, -np.inf, np.inf])
+    stats, hist = native(*args)
+    ref_stats, ref_hist = (np.asarray(a) for a in mapped(*args))
+    np.testing.assert_array_equal(stats, ref_stats)
+    t_div = stats[-1]
+    np.testing.assert_allclose(t_div, [0.09, 0.12, 0.10, -1, 0.11, 0.09], atol=1e-12)
+    times = np.arange(n_steps // stride + 1) * stride * 0.01
+    hist, ref_hist = hist.reshape(5, runs, -1), ref_hist.reshape(5, runs, -1)
+    for r in range(runs):
+        kept = times < t_div[r] - 1e-12 if t_div[r] >= 0 else times >= 0
+        np.testing.assert_array_equal(hist[:, r, kept], ref_hist[:, r, kept])
+
+
+def test_a_body_without_lane_form_runs_through_casadis_map_with_a_warning(aerosonde):
+    x, u, p, dt = _doubling(aerosonde)
+    odd = ca.Function("odd", [x, u, p, dt], [ca.vertcat(x[:3], x[3] + 1e-9 * ca.erfinv(x[3]))])
+    structure = structure_of(aerosonde)
+    run = run_function(odd, aerosonde, structure, 4, 2, False)
+    mapped = batch_function(run, 2, compile=False)
+    with pytest.warns(CodegenWarning, match="ERFINV"):
+        batch = native_batch(run_pieces(odd, aerosonde, structure, False), mapped, 4, 2, False,
+                             False)
+    assert isinstance(batch, ca.Function)

@@ -1,0 +1,86 @@
+"""C of an SX Function evaluated for several independent cases at once ("lanes").
+
+CasADi's generated code evaluates one case: every operation of the SX algorithm on scalars. Here
+every operation runs over ``lanes`` cases side by side (element ``j`` of an input or output for
+lane ``b`` at ``[j * lanes + b]``, structure of arrays), so the C compiler turns the arithmetic
+into vector instructions. The operations, their order and operands are the algorithm's own, in
+the same C functions CasADi's generated code calls: each lane gives bit for bit what the scalar
+code gives for that case (compiled without floating-point contraction, ``-ffp-contract=off``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+
+_NAMES = {getattr(ca, n): n[3:] for n in dir(ca) if n.startswith("OP_")}
+_UNARY = {"NEG": "-{0}", "SQ": "{0}*{0}", "TWICE": "2.*{0}", "INV": "1./{0}", "NOT": "!{0}",
+          "ASSIGN": "{0}", "SIGN": "{0}<0 ? -1 : {0}>0 ? 1 : {0}"}
+_UNARY.update({op.upper(): op + "({0})" for op in (
+    "exp", "log", "sqrt", "sin", "cos", "tan", "asin", "acos", "atan", "sinh", "cosh", "tanh",
+    "asinh", "acosh", "atanh", "floor", "ceil", "fabs", "erf", "expm1", "log1p")})
+_BINARY = {"ADD": "{0}+{1}", "SUB": "{0}-{1}", "MUL": "{0}*{1}", "DIV": "{0}/{1}",
+           "LT": "{0}<{1}", "LE": "{0}<={1}", "EQ": "{0}=={1}", "NE": "{0}!={1}",
+           "AND": "{0}&&{1}", "OR": "{0}||{1}", "IF_ELSE_ZERO": "{0} ? {1} : 0",
+           "POW": "pow({0},{1})", "CONSTPOW": "pow({0},{1})"}
+_BINARY.update({op.upper(): op + "({0},{1})" for op in (
+    "fmin", "fmax", "atan2", "fmod", "remainder", "hypot", "copysign")})
+
+
+class LanesError(ValueError):
+    """The Function cannot be written in lanes (not SX, or an operation without a C form)."""
+
+
+def _constant(value: float) -> str:
+    if math.isnan(value):
+        return "NAN"
+    if math.isinf(value):
+        return "INFINITY" if value > 0 else "-INFINITY"
+    return repr(float(value))
+
+
+def lanes_c(func: ca.Function, name: str, lanes: int) -> str:
+    """C of ``static void <name>(const casadi_real* const* arg, casadi_real* const* res)``:
+    ``func`` for ``lanes`` cases at once, every input and output dense and lane-interleaved.
+
+    Parameters
+    ----------
+    func : casadi.Function
+        An SX Function (expand an MX one first).
+    name : str
+        Name of the C function.
+    lanes : int
+        Cases per call (4 suits 128- and 256-bit vector units).
+
+    Raises
+    ------
+    LanesError
+        If ``func`` is not an SX Function or uses an operation this writer has no C for.
+    """
+    if not func.is_a("SXFunction"):
+        raise LanesError(f"'{func.name()}' is not an SX Function; expand it first")
+    if lanes < 1:
+        raise LanesError(f"lanes must be >= 1, got {lanes}")
+    loop = f"  for (b = 0; b < {lanes}; ++b) "
+    lines = [f"static void {name}(const casadi_real* const* arg, casadi_real* const* res) {{",
+             f"  casadi_real w[{max(func.sz_w(), 1)}][{lanes}];", "  int b;"]
+    for k in range(func.n_instructions()):
+        op = _NAMES.get(func.instruction_id(k), str(func.instruction_id(k)))
+        ins, outs = func.instruction_input(k), func.instruction_output(k)
+        operands = [f"w[{i}][b]" for i in ins]
+        if op == "INPUT":
+            body = f"w[{outs[0]}][b] = arg[{ins[0]}][{ins[1]} * {lanes} + b];"
+        elif op == "OUTPUT":
+            body = f"res[{outs[0]}][{outs[1]} * {lanes} + b] = w[{ins[0]}][b];"
+        elif op == "CONST":
+            body = f"w[{outs[0]}][b] = {_constant(func.instruction_constant(k))};"
+        elif op in _UNARY and len(ins) >= 1:
+            body = f"w[{outs[0]}][b] = ({_UNARY[op].format(*operands)});"
+        elif op in _BINARY and len(ins) == 2:
+            body = f"w[{outs[0]}][b] = ({_BINARY[op].format(*operands)});"
+        else:
+            raise LanesError(f"'{func.name()}' uses the operation {op}, which has no lane C form")
+        lines.append(loop + body)
+    lines.append("}")
+    return "\n".join(lines) + "\n"
