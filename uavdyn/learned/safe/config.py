@@ -67,6 +67,9 @@ class SafeConfig:
                                      # within DEPARTURE_RAD of the data; no new departures
     seed: int = 0
     threads: int = 1
+    compiled: bool = True             # window rollouts and their gradients in compiled CasADi
+                                      # code (uavdyn.learned.safe.twin; needs a C compiler),
+                                      # else in torch: the same loss to round-off
     max_seconds: float = 3600.0       # a safety net: epochs and patience end a run, so
                                       # the result does not depend on the machine's speed
     progress: bool = True
@@ -85,6 +88,7 @@ class SafeResult:
     seconds: float
     validation: dict = field(default_factory=dict)
     stability: StabilityReport | None = None
+    stopped: str = ""  # why the epochs ended (patience, epoch or wall-clock budget)
 
 
 @dataclass(frozen=True)

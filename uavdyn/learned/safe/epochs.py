@@ -15,7 +15,14 @@ from tqdm import tqdm
 
 from uavdyn.learned.safe.config import SafeConfig
 from uavdyn.learned.safe.data import WindowTensors
-from uavdyn.learned.safe.scoring import ValidationReference, WindowLoss, rank, score
+from uavdyn.learned.safe.scoring import (
+    Predictor,
+    ValidationReference,
+    WindowLoss,
+    rank,
+    score,
+)
+from uavdyn.learned.safe.twin import CompiledTwin
 from uavdyn.learned.stability import TrimSample, stability_penalty
 from uavdyn.learned.torch_model import TorchCorrection
 
@@ -39,6 +46,19 @@ class TrainingData:
     fixed: tuple[torch.Tensor, torch.Tensor]  # windows of ``train``, ``val`` scored each epoch
     loss: WindowLoss
     reference: ValidationReference
+    twin: CompiledTwin | None = None  # the compiled rollouts and gradients (None: torch's)
+
+    @property
+    def predict(self) -> Predictor | None:
+        return self.twin.predict if self.twin is not None else None
+
+    def window_loss(self, model: TorchCorrection, D: WindowTensors) -> float:
+        """The loss on the windows ``D`` (no gradient)."""
+        with torch.no_grad():
+            if self.twin is None:
+                return float(self.loss(model, D))
+            return float(self.loss.of_prediction(torch.as_tensor(self.twin.predict(model, D)),
+                                                 D))
 
 
 @dataclass(frozen=True)
@@ -57,6 +77,7 @@ class EpochRun:
     history: list[dict]
     snapshots: list[Snapshot]
     best: Snapshot
+    stopped: str = ""  # why the epochs ended
 
 
 def _state(model: TorchCorrection) -> dict:
@@ -65,9 +86,8 @@ def _state(model: TorchCorrection) -> dict:
 
 def fixed_losses(model: TorchCorrection, data: TrainingData) -> dict:
     """The loss on the fixed training and validation windows."""
-    with torch.no_grad():
-        return {"train_loss_fixed": float(data.loss(model, data.train.take(data.fixed[0]))),
-                "val_loss_fixed": float(data.loss(model, data.val.take(data.fixed[1])))}
+    return {"train_loss_fixed": data.window_loss(model, data.train.take(data.fixed[0])),
+            "val_loss_fixed": data.window_loss(model, data.val.take(data.fixed[1]))}
 
 
 def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: TrainingData,
@@ -78,14 +98,23 @@ def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: Traini
     n_w = data.train.count
     for _ in range(cfg.batches_per_epoch):
         idx = torch.as_tensor(rng.choice(n_w, min(cfg.batch_windows, n_w), replace=False))
-        loss = data.loss(model, data.train.take(idx))
-        pen = (stability_penalty(model, stab.trims, stab.targets, data.loss.dt) if stab.trims
-               else loss * 0)
-        total = loss + cfg.stability_weight * pen
+        batch = data.train.take(idx)
         opt.zero_grad()
-        total.backward()
+        if data.twin is None:
+            loss_t = data.loss(model, batch)
+            pen_t = (stability_penalty(model, stab.trims, stab.targets, data.loss.dt)
+                     if stab.trims else loss_t * 0)
+            (loss_t + cfg.stability_weight * pen_t).backward()
+            loss, pen = loss_t.item(), float(pen_t.detach())
+        else:  # the compiled twin's values and gradients
+            loss, grad = data.twin.loss_and_grad(model, batch, data.loss.pooled_weight)
+            pen, pen_grad = data.twin.penalty_and_grad(model, stab.trims, stab.targets,
+                                                       data.loss.dt)
+            grads = data.twin.unflatten(grad + cfg.stability_weight * pen_grad)
+            for param, g in zip(model.parameters(), grads):
+                param.grad = torch.as_tensor(g, dtype=param.dtype)
         opt.step()
-        sum_l, sum_s = sum_l + loss.item(), sum_s + float(pen.detach())
+        sum_l, sum_s = sum_l + loss, sum_s + pen
     return sum_l / cfg.batches_per_epoch, sum_s / cfg.batches_per_epoch
 
 
@@ -99,7 +128,7 @@ def run_epochs(model: TorchCorrection, data: TrainingData, stab: StabilityTarget
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     gamma = (cfg.lr_final / cfg.lr) ** (1.0 / max(1, cfg.epochs))
     sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma)
-    sel0 = score(model, data.val, ref, dt)
+    sel0 = score(model, data.val, ref, dt, data.predict)
     history = [{"epoch": 0, **sel0, **fixed_losses(model, data),
                 "physics_val_theta_rmse": physics_val, "seconds": time.perf_counter() - start}]
     best = Snapshot((True, math.inf), 0, _state(model), sel0)
@@ -109,7 +138,7 @@ def run_epochs(model: TorchCorrection, data: TrainingData, stab: StabilityTarget
     for epoch in bar:
         loss, penalty = train_epoch(model, opt, data, stab, cfg, rng)
         sched.step()
-        sel = score(model, data.val, ref, dt)
+        sel = score(model, data.val, ref, dt, data.predict)
         fixed_now = fixed_losses(model, data)
         elapsed = time.perf_counter() - start
         history.append({"epoch": epoch, "train_loss": loss, **fixed_now,
@@ -124,8 +153,13 @@ def run_epochs(model: TorchCorrection, data: TrainingData, stab: StabilityTarget
         if rank(sel, cfg) < best.rank and math.isfinite(sel["val_theta_rmse"]):
             best = snapshots[-1]
         elif epoch - best.epoch >= cfg.patience:
+            stopped = (f"patience: no better validation rank in the {cfg.patience} epochs "
+                       f"after epoch {best.epoch}")
             break
         if elapsed > cfg.max_seconds:
+            stopped = f"wall-clock budget: {elapsed:.0f} s > {cfg.max_seconds:g} s"
             break
+    else:
+        stopped = f"epoch budget: {cfg.epochs} epochs"
     bar.close()
-    return EpochRun(history, snapshots, best)
+    return EpochRun(history, snapshots, best, stopped)

@@ -6,6 +6,7 @@ noise taken off, :mod:`uavdyn.learned.rules`)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +18,9 @@ from uavdyn.learned.rules import state_noise as sortie_state_noise
 from uavdyn.learned.safe.config import THETA, SafeConfig
 from uavdyn.learned.safe.data import LossScales, TrainingWindows, WindowTensors, as_tensor
 from uavdyn.learned.torch_model import TorchCorrection
+
+# the model's free run through windows as NumPy (W, H, 4): the compiled twin's ``predict``
+Predictor = Callable[[TorchCorrection, WindowTensors], np.ndarray]
 
 
 def torch_rollout(model: TorchCorrection, z0, u, p, dt: float) -> torch.Tensor:
@@ -46,7 +50,10 @@ class WindowLoss:
         return cls(as_tensor(scales.state), as_tensor(scales.growth), cfg.pooled_weight, dt)
 
     def __call__(self, model: TorchCorrection, D: WindowTensors) -> torch.Tensor:
-        pred = torch_rollout(model, D.z0, D.u, D.p.T, self.dt)
+        return self.of_prediction(torch_rollout(model, D.z0, D.u, D.p.T, self.dt), D)
+
+    def of_prediction(self, pred: torch.Tensor, D: WindowTensors) -> torch.Tensor:
+        """The loss of the predicted body states ``pred`` (W, H, 4) of the windows ``D``."""
         e = torch.mean(torch.mean(((pred - D.y) / self.state_scale) ** 2, dim=2) / self.growth,
                        dim=1)
         return ((1.0 - self.pooled_weight) * torch.mean(e * D.weight)
@@ -108,16 +115,19 @@ def validation_reference(va: TrainingWindows, val_sorties: list[Sortie], horizon
         float(np.sqrt(np.mean(err_val))))
 
 
-def score(model: TorchCorrection, V: WindowTensors, ref: ValidationReference, dt: float
-          ) -> dict:
+def score(model: TorchCorrection, V: WindowTensors, ref: ValidationReference, dt: float,
+          predict: Predictor | None = None) -> dict:
     """Validation pitch RMSE at the selection horizon (pooled), per validation sortie the
     ratio corrected / physics of the pitch errors with the sortie's measurement noise taken
     off (their geometric mean selects, the worst one guards) and per body state the ratio of
     pooled errors, noise taken off too (guards: a correction may not buy pitch accuracy with
     airspeed or climb-rate errors, which a speed or altitude controller would pay for)."""
     H = ref.horizon
-    with torch.no_grad():
-        pred = torch_rollout(model, V.z0, V.u[:, :H], V.p.T, dt).numpy()
+    if predict is not None:
+        pred = predict(model, V)[:, :H]
+    else:
+        with torch.no_grad():
+            pred = torch_rollout(model, V.z0, V.u[:, :H], V.p.T, dt).numpy()
     err = (pred[:, :, THETA] - ref.y[:, :H, THETA]) ** 2
     noise = ref.noise
     with np.errstate(over="ignore", invalid="ignore"):

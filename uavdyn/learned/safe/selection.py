@@ -23,7 +23,12 @@ from uavdyn.learned.safe.config import SafeConfig, SafeSetup
 from uavdyn.learned.safe.data import WindowTensors, as_tensor
 from uavdyn.learned.safe.epochs import EpochRun, Snapshot
 from uavdyn.learned.safe.freerun import FreeRunGuard
-from uavdyn.learned.safe.scoring import ValidationReference, beats_physics_in_pitch, score
+from uavdyn.learned.safe.scoring import (
+    Predictor,
+    ValidationReference,
+    beats_physics_in_pitch,
+    score,
+)
 from uavdyn.learned.stability import StabilityReport, TrimSample, check_map_stability
 from uavdyn.learned.torch_model import TorchCorrection
 from uavdyn.learned.weights import CorrectionNet
@@ -78,6 +83,7 @@ class Checks:
     reference: ValidationReference
     guard: FreeRunGuard
     facts: RunFacts
+    predict: Predictor | None = None  # the compiled twin's free runs (None: torch's)
 
     @property
     def config(self) -> SafeConfig:
@@ -154,7 +160,8 @@ def _try_scale(checks: Checks, epoch: int, alpha: float, tried: list,
     trials = [(uniform, True)]
     for channels, is_uniform in trials:  # grows by the channel variants at most once
         checks.scale(alpha, channels)
-        sel = score(checks.model, checks.val, checks.reference, checks.setup.dt)
+        sel = score(checks.model, checks.val, checks.reference, checks.setup.dt,
+                    checks.predict)
         row = {"epoch": epoch, "scale": alpha,
                **({} if is_uniform else {"channel_scales": [float(c) for c in channels]}),
                **{k: v for k, v in sel.items() if k != "val_sortie_ratios"}}

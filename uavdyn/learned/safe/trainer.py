@@ -9,7 +9,7 @@ import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
-from uavdyn.integrate import StateLayout
+from uavdyn.integrate import StateLayout, find_compiler
 from uavdyn.learned.safe.config import SafeConfig, SafeResult, SafeSetup, safe_setup
 from uavdyn.learned.safe.data import (
     loss_scales,
@@ -22,6 +22,7 @@ from uavdyn.learned.safe.epochs import StabilityTargets, TrainingData, run_epoch
 from uavdyn.learned.safe.freerun import FreeRunGuard
 from uavdyn.learned.safe.scoring import WindowLoss, fixed_windows, validation_reference
 from uavdyn.learned.safe.selection import Checks, RunFacts, fallback, search
+from uavdyn.learned.safe.twin import CompiledTwin
 from uavdyn.learned.safe.verdict import kept_reason, refusal_reason, validation_summary
 from uavdyn.learned.stability import (
     body_abscissa,
@@ -88,10 +89,12 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                             envelope=scaling.envelope)
     scales = loss_scales(tr)
     stab, skipped = _stability_targets(airframe, setup, scaling.envelope)
+    twin = (CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
+            if cfg.compiled and find_compiler() is not None else None)
     data = TrainingData(window_tensors(tr, scales), window_tensors(va, scales),
                         fixed_windows(cfg, len(tr.z0), len(va.z0)),
                         WindowLoss.of(scales, cfg, dt),
-                        validation_reference(va, val_sorties, setup.horizon_sel))
+                        validation_reference(va, val_sorties, setup.horizon_sel), twin)
     run = run_epochs(model, data, stab, cfg, rng, start, airframe.name)
     ref, horizon_s = data.reference, setup.selection_horizon_s
     checks = Checks(model, layout, model.out_scale.clone(), airframe, setup, stab.trims,
@@ -101,7 +104,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                     RunFacts(cfg, airframe.name, ref.physics_rmse, horizon_s,
                              len(run.history) - 1, len(train_sorties), len(val_sorties),
                              [t.describe() for t in stab.trims], skipped, setup.memory_tau,
-                             start))
+                             start), data.predict)
     found = search(checks, run)
     chosen, tried = found.chosen, found.tried
     if chosen is None:
@@ -117,8 +120,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         reason = kept_reason(final, ref.physics_rmse, alpha, channels, tried[-1], report,
                              horizon_s)
         return SafeResult(chosen.net, True, reason, run.history, cfg, epoch, seconds,
-                          validation, report)
+                          validation, report, run.stopped)
     reason = refusal_reason(tried, cfg, ref.physics_rmse, run.best.selection, report,
                             horizon_s)
     return SafeResult(None, False, reason, run.history, cfg, epoch, seconds, validation,
-                      report)
+                      report, run.stopped)
