@@ -5,7 +5,7 @@ preset; the QP-solver measurement behind the RTI's choice; controller start-up w
 a warm compile cache; machine load before and after. Prints JSON.
 
 Usage: ``python analysis/bench_mpc.py [--airframe aerosonde f450] [--out FILE]
-[--markdown FILE]``.
+[--markdown FILE]`` (or ``--from-json FILE --markdown FILE``: the tables of an earlier run).
 """
 
 from __future__ import annotations
@@ -66,15 +66,10 @@ def record_qps(model, plant, plant_trim, horizon: int) -> tuple[list, ca.Functio
     """The condensed QPs an RTI controller solves flying the pitch step (its arguments)."""
     mpc = model.controller(MPCConfig(horizon=horizon, mode="rti"))
     assert isinstance(mpc, RTIController)
-    qps = []
-    real = mpc._solve_qp
-
-    def keep(Ub, X, qp_args):
-        qps.append([ca.DM(a) for a in qp_args[:7]])
-        return real(Ub, X, qp_args)
-
-    mpc._solve_qp = keep
+    step = _Recorded(mpc._step)
+    mpc._step = step
     run_scenario(scenario(plant.kind, "pitch-step"), mpc, plant, plant_trim)
+    qps = [[ca.DM(a) for a in mpc.qp_data.call(args)[:7]] for args in step.calls]
     return qps, mpc.qp_data
 
 
@@ -130,6 +125,69 @@ def startup(model, horizon: int) -> dict:
             else:
                 os.environ[codegen.CACHE_ENV] = old
     return {"cold_cache_s": t1 - t0, "warm_cache_s": t2 - t1}
+
+
+class _Recorded:
+    """A Function (or conic) whose calls are recorded and forwarded."""
+
+    def __init__(self, function):
+        self.function, self.calls = function, []
+
+    def call(self, args):
+        self.calls.append(list(args))
+        return self.function.call(args)
+
+    def __getattr__(self, name):
+        return getattr(self.function, name)
+
+
+def _replay_seconds(calls, call, repeats: int = 5) -> float:
+    """Median over ``repeats`` of the time of ``call`` on every recorded argument list."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for args in calls:
+            call(args)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def rti_split(model, plant, plant_trim, horizon: int = 20) -> dict:
+    """Where an RTI solve's time goes, in one harness: the pitch step flown once with the
+    solves recorded, then replayed (the controller reset, every solve in order, median of 5
+    replays): the whole ``solve`` per call, the compiled QP-data call alone and the QP
+    solver alone on the recorded arguments; the glue is the rest (conversions, the call
+    into the solver, warm start, carried states, policy)."""
+    mpc = model.controller(MPCConfig(horizon=horizon, mode="rti"))
+    solves, step = [], _Recorded(mpc._step)
+    real_solve = mpc.solve
+
+    def keep(*args, **kwargs):
+        solves.append((args, kwargs))
+        return real_solve(*args, **kwargs)
+
+    mpc.solve = keep
+    run_scenario(scenario(plant.kind, "pitch-step"), mpc, plant, plant_trim)
+    mpc.solve, mpc._step = real_solve, step
+
+    def replay(_):
+        mpc.reset()
+        for args, kwargs in solves:
+            real_solve(*args, **kwargs)
+
+    replay(None)  # once with the recorder in place, then timed without it
+    mpc._step = step.function
+    whole = _replay_seconds([None], replay)
+    n = len(solves)
+    packed = step.calls[:n]
+    qps = [list(mpc.qp_data.call(args)[:7]) + mpc._defaults for args in packed]
+    data_s = _replay_seconds(packed, mpc.qp_data.call)
+    qp_s = _replay_seconds(qps, mpc.qp.call)
+    per = 1e6 / n
+    return {"solves": n, "solve_us": round(whole * per, 1), "qp_data_us": round(data_s * per, 1),
+            "qp_solve_us": round(qp_s * per, 1),
+            "glue_us": round((whole - data_s - qp_s) * per, 1),
+            "what": "pitch-step solves replayed in order, median of 5 replays, per solve"}
 
 
 def bench_airframe(name: str, log) -> dict:
@@ -209,6 +267,8 @@ def bench_airframe(name: str, log) -> dict:
         qps, func = record_qps(first, plant, setups["rti"].plant_trim, horizon)
         result["qp_solvers"][f"h{horizon}"] = {"qps": len(qps),
                                                **measure_qp_solvers(qps, func)}
+    log(f"{name}: where an RTI h20 solve's time goes")
+    result["rti_h20_split"] = rti_split(first, plant, setups["rti"].plant_trim)
     log(f"{name}: start-up with a cold and a warm cache")
     result[f"startup_rti_h20_{first.name}"] = startup(first, 20)
     return result
@@ -247,7 +307,47 @@ def markdown(results: list[dict]) -> str:
                   + f" ({diag['success_rate']:.1%} solved).", "",
                   f"Load average before/after: {r.get('load_before')} / "
                   f"{r.get('load_after')}", ""]
+        lines += _split_lines(r) + _solver_lines(r)
     return "\n".join(lines) + "\n"
+
+
+def _split_lines(r: dict) -> list[str]:
+    split = r.get("rti_h20_split")
+    if not split:
+        return []
+    return [f"Where an RTI h20 solve's time goes ({split['what']}): whole solve "
+            f"{split['solve_us']:.0f} us = QP data {split['qp_data_us']:.0f} us + QP solve "
+            f"{split['qp_solve_us']:.0f} us + glue {split['glue_us']:.0f} us.", ""]
+
+
+def _solver_lines(r: dict) -> list[str]:
+    """The QP solvers on the recorded RTI QPs: median / max us per horizon."""
+    found = r.get("qp_solvers")
+    if not found:
+        return []
+    horizons = [k for k in found if k.startswith("h")]
+    lines = [f"QP solvers on the recorded RTI QPs ({found['prediction']} prediction):", "",
+             "| solver | " + " | ".join(f"{h} median / max (us)" for h in horizons) + " |",
+             "|---" * (1 + len(horizons)) + "|"]
+    for name in found[horizons[0]]:
+        if name == "qps":
+            continue
+        cells = []
+        for h in horizons:
+            e = found[h].get(name, {})
+            if "error" in e:
+                cells.append("refused (its message is in the JSON)")
+                continue
+            cell = f"{e['median_us']:.0f} / {e['max_us']:.0f}"
+            if e.get("success_rate", 1.0) < 1.0:
+                cell += f" ({e['success_rate']:.0%} solved)"
+            if (e.get("max_abs_diff_from_daqp") or 0.0) > 1e-6:
+                cell += f" (off by {e['max_abs_diff_from_daqp']:.1g})"
+            if e.get("measured", found[h]["qps"]) < found[h]["qps"]:
+                cell += f" [{e['measured']} QPs]"
+            cells.append(cell)
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines + [""]
 
 
 def main() -> None:
@@ -255,7 +355,13 @@ def main() -> None:
     parser.add_argument("--airframe", nargs="+", default=["aerosonde", "f450"])
     parser.add_argument("--out", default=None, help="JSON file")
     parser.add_argument("--markdown", default=None, help="Markdown table file")
+    parser.add_argument("--from-json", default=None,
+                        help="write --markdown from this JSON of an earlier run (no run)")
     args = parser.parse_args()
+    if args.from_json:
+        results = list(json.loads(Path(args.from_json).read_text())["presets"].values())
+        Path(args.markdown or "/dev/stdout").write_text(markdown(results))
+        return
 
     def log(msg):
         print(msg, file=sys.stderr, flush=True)

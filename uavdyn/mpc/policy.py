@@ -122,9 +122,9 @@ class Controller:
 
     def references(self, theta_ref, h_ref, speed_ref) -> np.ndarray:
         """``3 x N`` references (scalars held over the horizon)."""
-        N = self.N
-        return np.vstack([np.broadcast_to(np.asarray(r, float), (N,))
-                          for r in (theta_ref, h_ref, speed_ref)])
+        refs = np.empty((3, self.N))
+        refs[0], refs[1], refs[2] = theta_ref, h_ref, speed_ref  # scalars broadcast
+        return refs
 
     # ---- one MPC step --------------------------------------------------------------------
     def solve(self, x0, u_prev, theta_ref, h_ref, speed_ref,

@@ -7,7 +7,9 @@ the Gauss-Newton QP onto the control increments (plus one slack per soft state b
 returns its matrices; a CasADi ``conic`` solver with the fixed sparsity solves it. The Function
 is generated as C, compiled with ``-O3`` and cached on disk by the hash of its source
 (:func:`uavdyn.integrate.compile_function`), so a second construction loads the library instead
-of compiling it.
+of compiling it. From Python a step is one call (:func:`packed_qp_function`'s one input vector,
+the QP matrices passed to the solver inside CasADi): each crossing of CasADi's Python layer
+costs conversions that added up to about a third of a solve.
 
 With the shift switched off, repeated calls at one state are Gauss-Newton SQP iterations with
 full steps, which converge to the optimum of the full SQP (:class:`uavdyn.mpc.TrackingMPC`) on
@@ -23,6 +25,7 @@ from uavdyn.integrate import compile_function
 from uavdyn.mpc.policy import Controller, SolveOutcome
 from uavdyn.mpc.problem import TrackingProblem
 
+SOLVED_STATUS = "solved"  # the status of a solve the strict solver returned from
 QP_SOLVERS = ("daqp", "qrqp", "osqp", "highs", "qpoases", "proxqp", "piqp", "hpipm")
 _QUIET = {
     "qrqp": {"print_iter": False, "print_header": False, "print_info": False,
@@ -96,6 +99,23 @@ def qp_function(problem: TrackingProblem, name: str = "mpc_rti_qp") -> ca.Functi
                        ["H", "g", "A", "lba", "uba", "lbx", "ubx", "X", "check"])
 
 
+def packed_qp_function(func: ca.Function) -> ca.Function:
+    """:func:`qp_function` with its inputs in one vector (``x0``, ``vec(U)``, ``u_prev``,
+    ``vec(refs)``, ``w``) and its rollout and check in one output (``vec(X)`` then
+    ``check``): a call from Python converts one array in and one out instead of five and two
+    (each conversion costs about 20 us in CasADi's Python layer, more than a QP's condensing
+    step)."""
+    sizes = [func.numel_in(i) for i in range(func.n_in())]
+    v = ca.MX.sym("v", sum(sizes))
+    cuts = np.concatenate([[0], np.cumsum(sizes)]).astype(int).tolist()
+    parts = [ca.reshape(p, func.size1_in(i), func.size2_in(i))
+             for i, p in enumerate(ca.vertsplit(v, cuts))]
+    out = func.call(parts)
+    return ca.Function(f"{func.name()}_packed", [v],
+                       [*out[:-2], ca.vertcat(ca.vec(out[-2]), out[-1])],
+                       ["v"], [*func.name_out()[:-2], "X_check"])
+
+
 class RTIController(Controller):
     """SQP real-time-iteration tracking MPC (see the module docstring).
 
@@ -118,13 +138,25 @@ class RTIController(Controller):
         cfg = problem.config
         if cfg.qp_solver not in QP_SOLVERS:
             raise ValueError(f"qp_solver must be one of {QP_SOLVERS}, got {cfg.qp_solver!r}")
-        func = qp_function(problem, f"mpc_rti_qp_{problem.kind}_n{problem.N}")
+        func = packed_qp_function(qp_function(problem, f"mpc_rti_qp_{problem.kind}_n"
+                                                       f"{problem.N}"))
         self.qp_data = compile_function(func) if cfg.compile else func
         opts = dict(_QUIET.get(cfg.qp_solver, {}))
         opts.update(cfg.solver_options)
         self.qp = ca.conic("mpc_rti_qp", cfg.qp_solver,
                            {"h": func.sparsity_out(0), "a": func.sparsity_out(2)}, opts)
         self._defaults = [ca.DM()] * (self.qp.n_in() - 7)
+        # the QP data passed straight to a solver that raises on failure, inside one Function:
+        # one conversion in, three out, instead of the QP matrices crossing into Python and
+        # back (about 75 us); a failure is solved again apart, for its status
+        strict = ca.conic("mpc_rti_qp_strict", cfg.qp_solver,
+                          {"h": func.sparsity_out(0), "a": func.sparsity_out(2)},
+                          {**opts, "error_on_fail": True})
+        packed = ca.MX.sym("v", func.size1_in(0))
+        H, g, A, lba, uba, lbx, ubx, X_check = self.qp_data(packed)
+        sol = strict(h=H, g=g, a=A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
+        self._step = ca.Function(f"{func.name()}_step", [packed],
+                                 [sol["x"], sol["cost"], X_check])
         self.shift = shift
         super().__init__(problem)
 
@@ -136,28 +168,54 @@ class RTIController(Controller):
     def _solve(self, x0, u_prev, refs, weights) -> SolveOutcome:
         return self._iteration(x0, self._start_plan(u_prev), u_prev, refs, weights)[0]
 
-    def _iteration(self, x0, Ub, u_prev, refs, weights) -> tuple[SolveOutcome, float]:
+    def _iteration(self, x0, Ub, u_prev, refs, weights) -> tuple[SolveOutcome, ca.DM | float]:
         """One real-time iteration about the plan ``Ub``: the outcome (plan ``Ub + dU``) and
-        the QP's objective (the predicted change of the Gauss-Newton cost)."""
-        H, g, A, lba, uba, lbx, ubx, X, check = self.qp_data.call(
-            [x0, Ub, u_prev, refs, weights])
-        X = X.full()
-        if not np.isfinite(float(check)):
+        the QP's objective (the predicted change of the Gauss-Newton cost; a 1 x 1 ``DM``,
+        converted by the caller that needs it). One call of the QP data and the solver; where
+        it raises (non-finite data the solver refuses), the two apart say what failed."""
+        packed = np.concatenate([x0, Ub.ravel(order="F"), u_prev, refs.ravel(order="F"),
+                                 weights])
+        try:
+            v, cost, X_check = self._step.call([packed])
+        except RuntimeError:  # the solver failed or refused the data
+            return self._iteration_apart(packed, Ub)
+        X_check = X_check.full().ravel()
+        X = X_check[:-1].reshape((len(x0), self.N + 1), order="F")
+        if not np.isfinite(X_check[-1]):
+            return SolveOutcome(Ub, X, False, "non-finite linearisation", 0), 0.0
+        return self._outcome(Ub, X, v, SOLVED_STATUS), cost
+
+    def _iteration_apart(self, packed: np.ndarray, Ub: np.ndarray
+                         ) -> tuple[SolveOutcome, ca.DM | float]:
+        """:meth:`_iteration` with the QP data checked before the solver sees them."""
+        H, g, A, lba, uba, lbx, ubx, X_check = self.qp_data.call([packed])
+        X_check = X_check.full().ravel()
+        X = X_check[:-1].reshape((self.nx, self.N + 1), order="F")
+        if not np.isfinite(X_check[-1]):
             return SolveOutcome(Ub, X, False, "non-finite linearisation", 0), 0.0
         return self._solve_qp(Ub, X, [H, g, A, lba, uba, lbx, ubx] + self._defaults)
 
+    def _outcome(self, Ub: np.ndarray, X: np.ndarray, v: ca.DM,
+                 solved: str | None = None) -> SolveOutcome:
+        """The plan ``Ub + dU`` from the solver's variables ``v``; its status is ``solved``
+        (the strict solver returned) or the solver's own (:attr:`qp`'s statistics)."""
+        v = v.full().ravel()
+        if solved is None:
+            stats = self.qp.stats()
+            success, status = bool(stats.get("success", False)), str(stats.get("return_status",
+                                                                                  ""))
+        else:
+            success, status = True, solved
+        nU = self.nu * self.N
+        U = Ub + v[:nU].reshape((self.nu, self.N), order="F")
+        return SolveOutcome(U, X, success, status, 1, v[nU:])
+
     def _solve_qp(self, Ub: np.ndarray, X: np.ndarray, qp_args: list
-                  ) -> tuple[SolveOutcome, float]:
+                  ) -> tuple[SolveOutcome, ca.DM]:
         """Solve the condensed QP (``conic`` inputs in order: h, g, a, lba, uba, lbx, ubx,
         then defaults) and return the new plan ``Ub + dU`` and the QP objective."""
         out = self.qp.call(qp_args)
-        v = out[0].full().ravel()
-        stats = self.qp.stats()
-        nU = self.nu * self.N
-        U = Ub + v[:nU].reshape((self.nu, self.N), order="F")
-        return (SolveOutcome(U, X, bool(stats.get("success", False)),
-                             str(stats.get("return_status", "")), 1, v[nU:]),
-                float(out[1]))
+        return self._outcome(Ub, X, out[0]), out[1]
 
     def iterate(self, x0, u_prev, theta_ref, h_ref, speed_ref, weights=None,
                 iterations: int = 20, tol: float = 1e-9):
@@ -219,7 +277,7 @@ class SQPController(RTIController):
             dU = out.U - U
             if np.max(np.abs(dU)) < cfg.sqp_tol:
                 return SolveOutcome(out.U, out.X, True, "converged", it, out.slack)
-            decrease = max(-qp_obj, 0.0)
+            decrease = max(-float(qp_obj), 0.0)
             if decrease <= self.STATIONARY * (1.0 + abs(m0)):  # no descent left to find
                 return SolveOutcome(U, out.X, True, "converged (stationary)", it, out.slack)
             alpha = 1.0
