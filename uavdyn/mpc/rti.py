@@ -9,7 +9,7 @@ is generated as C, compiled with ``-O3`` and cached on disk by the hash of its s
 (:func:`uavdyn.integrate.compile_function`), so a second construction loads the library instead
 of compiling it. From Python a step is one call (:func:`packed_qp_function`'s one input vector,
 the QP matrices passed to the solver inside CasADi): each crossing of CasADi's Python layer
-costs conversions that added up to about a third of a solve.
+costs conversions that added up to about a quarter of a solve.
 
 With the shift switched off, repeated calls at one state are Gauss-Newton SQP iterations with
 full steps, which converge to the optimum of the full SQP (:class:`uavdyn.mpc.TrackingMPC`) on
