@@ -14,7 +14,11 @@ Per sample in microseconds, the median of ``--repeats`` calls each; the ratios a
 loop of the same run. The states of the two library routes are compared too (max abs
 difference). Prints JSON; ``--out`` also writes it.
 
-Usage: ``python analysis/bench_rollout.py [--samples 100000] [--repeats 7] [--out FILE]``.
+With ``--jsbsim`` (the ``jsbsim`` package installed) JSBSim's bundled Cessna 172 is timed per
+simulated second beside them (:func:`jsbsim_anchor`), the anchor a user would pick otherwise.
+
+Usage: ``python analysis/bench_rollout.py [--samples 100000] [--repeats 7] [--jsbsim]
+[--out FILE]``.
 """
 
 from __future__ import annotations
@@ -101,6 +105,32 @@ def library_us(call, args, n: int, repeats: int) -> tuple[float, np.ndarray]:
     return statistics.median(times), out
 
 
+def jsbsim_anchor(simulated_s: float, repeats: int) -> dict:
+    """JSBSim's bare ``run()`` loop (the Python binding, one call per step) on its bundled
+    Cessna 172 (``c172x``: full six degrees of freedom, engine, gear, systems) at its default
+    step, trimmed in level flight, for ``simulated_s`` simulated seconds: median us per
+    simulated second. An anchor per simulated second, not a like-for-like model; JSBSim is an
+    optional tool here (``pip install jsbsim``), never a dependency."""
+    import jsbsim
+
+    fdm = jsbsim.FGFDMExec(None)
+    fdm.set_debug_level(0)
+    fdm.load_model("c172x")
+    fdm["ic/h-sl-ft"], fdm["ic/vc-kts"], fdm["ic/gamma-deg"] = 3000, 100, 0
+    fdm.run_ic()
+    fdm["propulsion/set-running"] = -1
+    steps = int(round(simulated_s / fdm.get_delta_t()))
+    times = []
+    for _ in range(repeats):
+        fdm.run_ic()
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            fdm.run()
+        times.append((time.perf_counter() - t0) / (steps * fdm.get_delta_t()) * 1e6)
+    return {"model": "c172x", "version": jsbsim.__version__, "dt": fdm.get_delta_t(),
+            "us_per_simulated_second": statistics.median(times)}
+
+
 def _cpu_model() -> str:
     """The CPU's model name (Linux), else what the platform module says."""
     try:
@@ -117,6 +147,8 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=100_000)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--out", help="also write the JSON here")
+    ap.add_argument("--jsbsim", action="store_true",
+                    help="also time JSBSim's c172x per simulated second (needs jsbsim)")
     args = ap.parse_args()
 
     from uavdyn.integrate import compile_function, compiled_rollout, physics_step, rollout
@@ -151,11 +183,20 @@ def main() -> None:
             "compiled_rollout_over_c_loop": t_native / floor,
             "mapaccum_over_c_loop": t_old / floor,
             "max_abs_difference": float(np.max(np.abs(x_native - x_old)))}
+    anchor = None
+    if args.jsbsim:
+        anchor = jsbsim_anchor(n * dt, 3)
+        for r in results.values():  # uavdyn per simulated second: per sample / dt
+            r["compiled_rollout_us_per_simulated_second"] = r[
+                "compiled_rollout_us_per_sample"] / dt
+            r["jsbsim_over_compiled_rollout_per_simulated_second"] = (
+                anchor["us_per_simulated_second"] / r["compiled_rollout_us_per_simulated_second"])
     out = {"airframe": "aerosonde (shipped identified)", "samples": n, "dt": dt,
+           "jsbsim": anchor,
            "repeats": args.repeats, "results": results,
            "machine": {"platform": platform.platform(), "cpu": _cpu_model(),
                        "cpus": os.cpu_count(), "load_1min_after": os.getloadavg()[0]},
-           "command": "python analysis/bench_rollout.py"}
+           "command": "python analysis/bench_rollout.py" + (" --jsbsim" if args.jsbsim else "")}
     print(json.dumps(out, indent=2))
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=2) + "\n")

@@ -6,12 +6,14 @@
   wing with gusts and dispersed initial states, a non-preset quadrotor in closed loop and the
   shipped hybrid correction, with a run count that leaves lanes empty, on 1 and 2 threads;
 * runs that diverge at different times keep their own statistics and divergence times;
-* a body the lanes cannot write runs through CasADi's map, with a warning.
+* a body the lanes cannot write runs through CasADi's map, with a warning;
+* one library serves every chunk size up to its capacity and every thread count.
 """
 
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import subprocess
 from pathlib import Path
 
@@ -133,18 +135,17 @@ def _dispersions(folder: Path, text: str, airframe):
     return load_dispersions(path, airframe)
 
 
-def _both_routes(spec, threads: int):
+def _both_routes(spec, threads: int, monkeypatch):
     """(chunk through the native loop, chunk through the compiled map of the mapaccum run)."""
     chunk_module._COMPILED.clear()
+    assert isinstance(chunk_module.compiled_batch(spec, spec.runs, threads), NativeBatch)
     native = chunk_module.evaluate_chunk(spec, 0, threads)
-    batch = chunk_module.compiled_batch(spec, spec.runs, threads)
-    assert isinstance(batch, NativeBatch)
-    chunk_module._COMPILED[(spec.model_key, spec.runs, threads)] = compile_function(
-        batch.function, FLAGS)
-    try:
+    chunk_module._COMPILED.clear()
+    with monkeypatch.context() as m:
+        m.setattr(chunk_module, "native_batch", lambda *args, **kwargs: None)
+        assert isinstance(chunk_module.compiled_batch(spec, spec.runs, threads), ca.Function)
         reference = chunk_module.evaluate_chunk(spec, 0, threads)
-    finally:
-        chunk_module._COMPILED.clear()
+    chunk_module._COMPILED.clear()
     return native, reference
 
 
@@ -154,33 +155,40 @@ def _assert_same(native, reference):
 
 
 @needs_cc
-@pytest.mark.parametrize("threads", [1, 2])
-def test_a_gusty_chunk_of_the_own_fixed_wing_equals_the_mapped_run(tmp_path, threads):
+def test_a_gusty_chunk_of_the_own_fixed_wing_equals_the_mapped_run(tmp_path, monkeypatch):
     airframe = load_airframe(EXAMPLES / "trainer.toml")
     dispersions = _dispersions(tmp_path, TRAINER_DISPERSIONS, airframe)
     spec = build_spec(airframe, dispersions, runs=7, duration=3.0, dt=0.01, mission="3211",
                       chunk_size=7, history_dt=0.1)
-    native, reference = _both_routes(spec, threads)
+    native, reference = _both_routes(spec, 1, monkeypatch)
     _assert_same(native, reference)
     assert np.all(np.isfinite(native.history)) and not np.any(native.table[:, 2])
+    # the same library on two threads, and for a chunk of fewer runs than it was built for
+    two = chunk_module.evaluate_chunk(spec, 0, 2)
+    _assert_same(two, reference)
+    fewer = dataclasses.replace(spec, runs=5)
+    part = chunk_module.evaluate_chunk(fewer, 0, 2)
+    assert part.table.shape[0] == 5
+    np.testing.assert_array_equal(part.table, reference.table[:5])
+    np.testing.assert_array_equal(part.history, reference.history[:5])
 
 
 @needs_cc
-def test_a_closed_loop_chunk_of_the_own_quadrotor_equals_the_mapped_run(tmp_path):
+def test_a_closed_loop_chunk_of_the_own_quadrotor_equals_the_mapped_run(tmp_path, monkeypatch):
     airframe = load_airframe(EXAMPLES / "x500.toml")
     dispersions = _dispersions(tmp_path, X500_DISPERSIONS, airframe)
     spec = build_spec(airframe, dispersions, runs=6, duration=2.0, dt=0.01, chunk_size=6,
                       closed_loop=True, history_dt=0.05)
-    _assert_same(*_both_routes(spec, 1))
+    _assert_same(*_both_routes(spec, 1, monkeypatch))
 
 
 @needs_cc
-def test_a_hybrid_chunk_equals_the_mapped_run(tmp_path):
+def test_a_hybrid_chunk_equals_the_mapped_run(tmp_path, monkeypatch):
     weights, airframe = shipped_correction("aerosonde")
     dispersions = _dispersions(tmp_path, X500_DISPERSIONS.replace("Jy", "C_m_q"), airframe)
     spec = build_spec(airframe, dispersions, runs=5, duration=1.5, dt=0.01, chunk_size=5,
                       weights=weights)
-    _assert_same(*_both_routes(spec, 1))
+    _assert_same(*_both_routes(spec, 1, monkeypatch))
 
 
 def _doubling(airframe):
@@ -202,8 +210,9 @@ def test_runs_diverging_at_different_times_keep_their_own_statistics(aerosonde):
     pieces = run_pieces(doubling, aerosonde, structure, False)
     runs = 6
     mapped = batch_function(run, runs, compile=False)
-    native = native_batch(pieces, mapped, n_steps, stride, False, False)
-    assert isinstance(native, NativeBatch)
+    native = native_batch(pieces, batch_function(run, runs + 3, compile=False), n_steps,
+                          stride, False, False)
+    assert isinstance(native, NativeBatch) and native.capacity == runs + 3  # fewer runs fit
     theta0 = 0.01 * 2.0 ** -np.array([0, 3, 1, 25, 2, 0])
     x0 = np.vstack([np.tile(point.x[:3, None], (1, runs)), theta0])
     args = (x0, np.tile(point.u[:, None], (1, runs)), np.tile(aerosonde.p[:, None], (1, runs)),
@@ -229,4 +238,4 @@ def test_a_body_without_lane_form_runs_through_casadis_map_with_a_warning(aeroso
     with pytest.warns(CodegenWarning, match="ERFINV"):
         batch = native_batch(run_pieces(odd, aerosonde, structure, False), mapped, 4, 2, False,
                              False)
-    assert isinstance(batch, ca.Function)
+    assert batch is None  # the caller flies CasADi's map

@@ -124,7 +124,7 @@ def test_twin_free_runs_and_gradients_equal_torchs(file, speed):
 
 
 def test_a_short_training_run_is_the_same_on_both_routes(tmp_path):
-    """Three epochs on emulated data with a pitch-moment error: the compiled route's history
+    """Two epochs on emulated data with a pitch-moment error: the compiled route's history
     (losses, validation errors, penalty) equals torch's to round-off, epoch by epoch, and both
     end the same way."""
     from emulated_data import emulated_dataset
@@ -137,12 +137,12 @@ def test_a_short_training_run_is_the_same_on_both_routes(tmp_path):
                              C_m_q=airframe.params.C_m_q * 0.8)
     sorties = load_dataset(emulated_dataset(tmp_path / "data", truth, 6, 6.0)).sorties
     results = [train_safe(sorties[:4], sorties[4:], airframe,
-                          SafeConfig(epochs=3, batches_per_epoch=3, batch_windows=8,
+                          SafeConfig(epochs=2, batches_per_epoch=2, batch_windows=6,
                                      horizon_s=1.0, progress=False, memory_tau=(0.1,),
                                      compiled=compiled))
                for compiled in (True, False)]
     compiled, torch_route = results
-    assert len(compiled.history) == len(torch_route.history) == 4
+    assert len(compiled.history) == len(torch_route.history) == 3
     for a, b in zip(compiled.history, torch_route.history):
         for key in ("val_theta_rmse", "train_loss_fixed", "val_loss_fixed", "train_loss",
                     "stability_penalty"):

@@ -54,6 +54,26 @@ def pairwise_sum(terms: list):
     return terms[0]
 
 
+def outside_distances(inp, terms, ops=NUMPY_OPS) -> list:
+    """:meth:`Envelope.outside` from its :meth:`Envelope.terms` (numbers or symbols)."""
+    mid, half, r = terms[0], terms[1], terms[2]
+    return [ops.fabs(inp[i] - mid[i]) * r[i] - half[i] * r[i] for i in range(mid.shape[0])]
+
+
+def gate_of_distances(d: list, ops=NUMPY_OPS, form: str = GUARDS[DEFAULT_GUARD][0]):
+    """:meth:`Envelope.gate` from the distances of :func:`outside_distances`."""
+    if form == "distance":
+        # ramp(d)^2 = (d + |d|)^2 / 4: the 1/4 applied once, after the sum
+        doubled = [di + ops.fabs(di) for di in d]
+        return 1.0 - smoothstep(0.25 * pairwise_sum([e * e for e in doubled]), ops)
+    if form == "product":
+        out = 1.0
+        for di in d:
+            out = out * (1.0 - smoothstep(di, ops))
+        return out
+    raise ValueError(f"unknown gate form '{form}'; expected distance or product")
+
+
 @dataclass(frozen=True)
 class Envelope:
     """Per-input range ``[low, high]`` of the training inputs and the fade width outside it.
@@ -101,32 +121,23 @@ class Envelope:
     def n_in(self) -> int:
         return len(self.low)
 
+    def terms(self) -> np.ndarray:
+        """``(3, n_in)``: each input's box centre, half width and inverse fade width, the
+        numbers :meth:`outside` uses (an input of a Function that takes them as symbols)."""
+        return np.array([[0.5 * (float(lo) + float(hi)) for lo, hi in zip(self.low, self.high)],
+                         [0.5 * (float(hi) - float(lo)) for lo, hi in zip(self.low, self.high)],
+                         [1.0 / float(f) for f in self.fade]])
+
     def outside(self, inp, ops=NUMPY_OPS) -> list:
         """Per input, the distance outside ``[low, high]`` in fade widths (negative inside),
         ``(|x - mid| - half) / fade``: one subtraction, ``fabs`` and multiply-add each."""
-        out = []
-        for i in range(self.n_in):
-            r = 1.0 / float(self.fade[i])
-            mid, half = 0.5 * (float(self.low[i]) + float(self.high[i])), \
-                0.5 * (float(self.high[i]) - float(self.low[i]))
-            out.append(ops.fabs(inp[i] - mid) * r - half * r)
-        return out
+        return outside_distances(inp, self.terms(), ops)
 
     def gate(self, inp, ops=NUMPY_OPS, form: str = GUARDS[DEFAULT_GUARD][0]):
         """The gate of a feature-first block ``inp`` (``(n_in,)`` or ``(n_in, batch)``):
         ``distance`` (one smoothstep of the squared distance to the box) or ``product`` (one
         smoothstep per input); see the module docstring."""
-        d = self.outside(inp, ops)
-        if form == "distance":
-            # ramp(d)^2 = (d + |d|)^2 / 4: the 1/4 applied once, after the sum
-            doubled = [di + ops.fabs(di) for di in d]
-            return 1.0 - smoothstep(0.25 * pairwise_sum([e * e for e in doubled]), ops)
-        if form == "product":
-            out = 1.0
-            for di in d:
-                out = out * (1.0 - smoothstep(di, ops))
-            return out
-        raise ValueError(f"unknown gate form '{form}'; expected distance or product")
+        return gate_of_distances(self.outside(inp, ops), ops, form)
 
     def fraction_outside(self, inputs: np.ndarray) -> float:
         """Share of rows of ``inputs (N, n_in)`` outside ``[low, high]`` in any input (where the

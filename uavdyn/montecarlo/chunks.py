@@ -57,7 +57,8 @@ RESULT_COLUMNS = ("run", "trim_ok", "diverged", "t_diverged_s", "max_abs_pitch_d
                   "time_pitch_over_s", "time_alpha_over_s", "time_airspeed_under_s",
                   "time_load_over_s", "trim_airspeed_mps")
 _STAT_INDEX = {name: i for i, name in enumerate(STAT_NAMES)}
-_COMPILED: dict[tuple, NativeBatch | ca.Function] = {}  # per-process cache of built batch Functions
+# per-process cache of built chunk loops and batch Functions
+_COMPILED: dict[tuple, NativeBatch | ca.Function | None] = {}
 _COMPILED_MAX = 8  # oldest dropped beyond this (a notebook may run many studies)
 # CasADi graph construction and the trim are not thread-safe: one chunk at a time per process
 # (a Dask worker with several threads runs its chunks one after the other; a chunk's own
@@ -105,22 +106,38 @@ class ChunkResult:
 
 
 def compiled_batch(spec: StudySpec, n_runs: int, threads: int) -> NativeBatch | ca.Function:
-    """The compiled chunk of ``n_runs`` runs on ``threads`` threads
-    (:func:`uavdyn.montecarlo.native.native_batch`; built once per process and study model,
-    the compiled library cached on disk)."""
-    key = (spec.model_key, n_runs, threads)
+    """The compiled chunk of ``n_runs`` runs on ``threads`` threads: the chunk loop of
+    :func:`uavdyn.montecarlo.native.native_batch`, one library for every chunk of the study
+    (up to ``spec.chunk_size`` runs, any thread count); else CasADi's map of the run (built once
+    per process and study model; compiled libraries are cached on disk)."""
+    capacity = max(n_runs, spec.chunk_size)
+    native = _cached(("native", spec.model_key, capacity),
+                     lambda: native_batch(_pieces(spec), batch_function(
+                         _run(spec), capacity, 1, False), spec.n_steps, spec.stride,
+                         spec.gusts, spec.feedback is not None))
+    if native is not None:
+        return native.on_threads(threads)
+    return _cached(("mapped", spec.model_key, n_runs, threads),
+                   lambda: batch_function(_run(spec), n_runs, threads))
+
+
+def _cached(key: tuple, build):
+    """``_COMPILED[key]``, built once (the oldest dropped beyond :data:`_COMPILED_MAX`)."""
     if key not in _COMPILED:
-        name, step = f"mc_{spec.model_key[:10]}", spec.step()
-        run = run_function(step, spec.airframe, spec.structure, spec.n_steps, spec.stride,
-                           spec.gusts, name=name, feedback=spec.feedback)
-        pieces = run_pieces(step, spec.airframe, spec.structure, spec.gusts, name,
-                            spec.feedback)
         while len(_COMPILED) >= _COMPILED_MAX:
             _COMPILED.pop(next(iter(_COMPILED)))
-        _COMPILED[key] = native_batch(pieces, batch_function(run, n_runs, threads, False),
-                                      spec.n_steps, spec.stride, spec.gusts,
-                                      spec.feedback is not None, threads)
+        _COMPILED[key] = build()
     return _COMPILED[key]
+
+
+def _run(spec: StudySpec) -> ca.Function:
+    return run_function(spec.step(), spec.airframe, spec.structure, spec.n_steps, spec.stride,
+                        spec.gusts, name=f"mc_{spec.model_key[:10]}", feedback=spec.feedback)
+
+
+def _pieces(spec: StudySpec):
+    return run_pieces(spec.step(), spec.airframe, spec.structure, spec.gusts,
+                      f"mc_{spec.model_key[:10]}", spec.feedback)
 
 
 def _initial(spec: StudySpec, layout: StateLayout, point, p: np.ndarray, offsets: dict

@@ -20,6 +20,7 @@ runs, which :class:`NativeBatch` calls on NumPy buffers from as many threads as 
 
 from __future__ import annotations
 
+import copy
 import ctypes
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -106,35 +107,57 @@ def write_batch_source(pieces: RunPieces, n_runs: int, n_steps: int, stride: int
     return source
 
 
+_PER_RUN = ("x0", "u0", "p", "g", "xref")  # inputs with one block of columns per run
+
+
 class NativeBatch:
     """The compiled chunk loop called on NumPy buffers: ``batch(*inputs)`` returns ``(stats,
-    hist)`` like the mapped run it replaces (``function``), the runs split over ``threads``
-    threads (each run is independent: the same numbers on any thread count)."""
+    hist)`` like the mapped run it replaces (``function``, for ``capacity`` runs), for any
+    number of runs up to ``capacity`` (every run's inputs and outputs are a block of its own,
+    so a smaller chunk is the first blocks), split over ``threads`` threads (each run is
+    independent: the same numbers on any thread count)."""
 
-    def __init__(self, library: ctypes.CDLL, name: str, function: ca.Function, threads: int):
+    def __init__(self, library: ctypes.CDLL, name: str, function: ca.Function,
+                 threads: int = 1):
         self._library, self.function, self.threads = library, function, threads
         self._runs = getattr(library, f"{name}_runs")
         self._runs.restype = ctypes.c_int
         self._runs.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_longlong] * 2
         self._sz_arg, self._sz_res, self._sz_iw, self._sz_w = work_sizes(library, name)
-        self.n_runs = function.size2_in(0)
+        self.capacity = function.size2_in(0)
+
+    def on_threads(self, threads: int) -> NativeBatch:
+        """The same compiled loop, its runs split over ``threads`` threads."""
+        view = copy.copy(self)
+        view.threads = threads
+        return view
 
     def _range(self, arg, res, r0: int, r1: int) -> int:
         iw = np.zeros(max(self._sz_iw, 1), dtype=np.int64)
         w = np.zeros(max(self._sz_w, 1))
         return self._runs(arg, res, iw.ctypes.data, w.ctypes.data, r0, r1)
 
+    def _shape(self, i: int, side: str, n: int) -> tuple[int, int]:
+        """Input or output ``i``'s shape for ``n`` runs."""
+        f = self.function
+        rows, cols = f.size_in(i) if side == "in" else f.size_out(i)
+        per_run = f.name_in(i) in _PER_RUN if side == "in" else True
+        return (rows, cols // self.capacity * n) if per_run else (rows, cols)
+
     def __call__(self, *args) -> tuple[np.ndarray, np.ndarray]:
         f = self.function
         if len(args) != f.n_in():
             raise TypeError(f"the batch takes {f.n_in()} inputs ({', '.join(f.name_in())}), "
                             f"got {len(args)}")
-        buffers = column_major_buffers(args, [f.size_in(i) for i in range(f.n_in())],
+        n = np.asarray(args[0]).size // f.size1_in(0)
+        if not 1 <= n <= self.capacity:
+            raise ValueError(f"the batch flies 1 to {self.capacity} runs, got {n}")
+        buffers = column_major_buffers(args, [self._shape(i, "in", n) for i in range(f.n_in())],
                                        "Monte-Carlo batch")
-        outputs = [np.empty(f.size_out(i), order="F") for i in range(f.n_out())]
+        outputs = [np.empty(self._shape(i, "out", n), order="F") for i in range(f.n_out())]
         arg = (ctypes.c_void_p * self._sz_arg)(*(b.ctypes.data for b in buffers))
         res = (ctypes.c_void_p * self._sz_res)(*(o.ctypes.data for o in outputs))
-        bounds = np.linspace(0, self.n_runs, min(self.threads, self.n_runs) + 1).astype(int)
+        bounds = np.linspace(0, n, min(self.threads, n) + 1).astype(int)
         ranges = list(zip(bounds[:-1], bounds[1:]))
         if len(ranges) == 1:
             codes = [self._range(arg, res, *ranges[0])]
@@ -147,22 +170,23 @@ class NativeBatch:
 
 
 def native_batch(pieces: RunPieces, mapped: ca.Function, n_steps: int, stride: int,
-                 gusts: bool, feedback: bool, threads: int = 1) -> NativeBatch | ca.Function:
-    """The chunk of ``mapped`` (the uncompiled mapped run of :func:`batch_function`) as a
-    :class:`NativeBatch`, compiled and cached like every compiled Function. Without a compiler
-    ``mapped`` itself (the CasADi VM); a body with an operation that has no lane form
-    (:class:`~uavdyn.integrate.lanes.LanesError`, said in a :class:`CodegenWarning`) the
-    compiled ``mapped``."""
+                 gusts: bool, feedback: bool) -> NativeBatch | None:
+    """The chunk loop for up to ``mapped``'s runs (``mapped``: the uncompiled serial map of the
+    run, :func:`batch_function`, whose inputs and outputs the library is checked against),
+    compiled and cached like every compiled Function; None without a compiler or for a body
+    with an operation that has no lane form (:class:`~uavdyn.integrate.lanes.LanesError`,
+    said in a :class:`CodegenWarning`): the caller then flies CasADi's map."""
     try:
         lanes_c(loop_step(pieces.body, "check"), "check", LANES)
     except LanesError as exc:
         warnings.warn(f"Monte-Carlo runs one at a time through CasADi's map: {exc}",
                       CodegenWarning, stacklevel=2)
-        return compile_function(mapped, FLAGS)
-    return compile_function(
-        mapped, FLAGS, opener=lambda n, path: NativeBatch(ctypes.CDLL(path), n, mapped, threads),
+        return None
+    batch = compile_function(
+        mapped, FLAGS, warn=False, opener=lambda n, path: NativeBatch(ctypes.CDLL(path), n, mapped),
         source=lambda folder, n: write_batch_source(pieces, mapped.size2_in(0), n_steps, stride,
                                                     gusts, feedback, n, folder))
+    return batch if isinstance(batch, NativeBatch) else None
 
 
 _RUNS = """

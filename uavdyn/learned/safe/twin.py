@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import partial
 
 import casadi as ca
 import numpy as np
@@ -22,6 +23,7 @@ import scipy.linalg
 import torch
 
 from uavdyn.integrate import compile_function, rollout
+from uavdyn.learned.envelope import GUARDS, gate_of_distances, outside_distances
 from uavdyn.learned.mlp import mlp_forward
 from uavdyn.learned.safe.data import WindowTensors
 from uavdyn.learned.stability import TrimSample
@@ -68,6 +70,11 @@ def _unpack(vector, shapes: _Shapes) -> tuple[list, list]:
     return blocks, buffers
 
 
+def _gate(inp, ops, terms: tuple, form: str):
+    """The envelope's gate with its numbers as symbols (:func:`gate_of_distances`)."""
+    return gate_of_distances(outside_distances(inp, terms, ops), ops, form)
+
+
 class CompiledTwin:
     """Compiled window rollouts of ``model``'s hybrid step (its current weights read at each
     call): :meth:`predict` and :meth:`loss_and_grad` over ``horizon`` samples of step
@@ -86,17 +93,26 @@ class CompiledTwin:
             raise ValueError("the compiled twin covers the safe trainer's improved step")
         layout = model.layout
         structure = layout.structure or as_structure(model.kind)
+        # the envelope's numbers are inputs too: the compiled code depends on the network's
+        # shape, the physics structure, the horizon and the step, so it is reused across data
+        self._gate_terms = layout.gate is not None and model.envelope is not None
         self.shapes = _Shapes(structure.np, tuple(tuple(q.shape) for q in model.parameters()),
                               tuple(len(b) for b in self._buffers(model)))
         n_physics = structure.np
         self.horizon, self.dt = horizon, float(dt)
+        self.state_scale = np.asarray(state_scale, float)
+        self.growth = np.asarray(growth, float)
         nz, nu = layout.n_state, 2
         z, u = ca.SX.sym("z", nz), ca.SX.sym("u", nu)
         pe, h = ca.SX.sym("p", self.shapes.size), ca.SX.sym("dt")
         blocks, buffers = _unpack(pe, self.shapes)
         in_mean, in_scale, out_mean, out_scale = buffers[:4]
+        rest = buffers[4:]
         if layout.bound is not None:  # the final checks scale it: an input, like the weights
-            layout = replace(layout, bound=buffers[4])
+            layout, rest = replace(layout, bound=rest[0]), rest[1:]
+        if self._gate_terms:
+            form = GUARDS[layout.guard][0]
+            layout = replace(layout, gate=partial(_gate, terms=tuple(rest[:3]), form=form))
 
         def net(inp):
             return mlp_forward(blocks[0::2], blocks[1::2], in_mean, in_scale, out_mean,
@@ -109,10 +125,10 @@ class CompiledTwin:
         sim = rollout(step, horizon, name="twin_rollout")
         z0, U = ca.MX.sym("z0", nz), ca.MX.sym("u", nu, horizon)
         P, Y = ca.MX.sym("p", self.shapes.size), ca.MX.sym("y", BODY, horizon)
+        scale, grow = ca.MX.sym("state_scale", BODY), ca.MX.sym("growth", 1, horizon)
         pred = sim(z0, U, P, self.dt)[:BODY, :]
-        scale = ca.DM(np.asarray(state_scale, float))
         sq = ((pred - Y) / ca.repmat(scale, 1, horizon)) ** 2
-        e = ca.sum2(ca.sum1(sq) / BODY / ca.DM(np.asarray(growth, float)).T) / horizon
+        e = ca.sum2(ca.sum1(sq) / BODY / grow) / horizon
         grad = ca.gradient(e, P)[theta.start:theta.stop]
         # the stability penalty's map Jacobian at a trim (body block) and its derivative
         jac = ca.jacobian(z_next[:BODY], z)[:, :BODY]
@@ -120,18 +136,19 @@ class CompiledTwin:
         self._jacobian = compile_function(ca.Function("twin_jacobian", [z, u, pe, h],
                                                       [jac, djac]), FLAGS)
         self._predict = compile_function(ca.Function("twin_predict", [z0, U, P], [pred]), FLAGS)
-        self._grad = compile_function(ca.Function("twin_grad", [z0, U, P, Y], [e, grad]),
-                                      FLAGS)
+        self._grad = compile_function(ca.Function("twin_grad", [z0, U, P, Y, scale, grow],
+                                                  [e, grad]), FLAGS)
         self._mapped: dict = {}
         self.size = self.shapes.size
 
-    @staticmethod
-    def _buffers(model: TorchCorrection) -> list[np.ndarray]:
-        """The normalisation and (where there is one) the output bound, as they are now."""
+    def _buffers(self, model: TorchCorrection) -> list[np.ndarray]:
+        """The normalisation, the output bound (where there is one) and the envelope's
+        centres, half widths and inverse fades (where it gates), as they are now."""
         arrays = [b.detach().numpy().ravel() for b in (model.in_mean, model.in_scale,
                                                        model.out_mean, model.out_scale)]
         bound = model.layout.bound
-        return arrays + ([] if bound is None else [np.asarray(bound, float).ravel()])
+        arrays += [] if bound is None else [np.asarray(bound, float).ravel()]
+        return arrays + (list(model.envelope.terms()) if self._gate_terms else [])
 
     def _shared(self, model: TorchCorrection) -> np.ndarray:
         """The weights (``model.parameters()`` order, row-major) and buffers, as they are."""
@@ -176,7 +193,8 @@ class CompiledTwin:
         W = D.count
         U = D.u.detach().numpy()[:, :self.horizon].transpose(2, 0, 1).reshape(2, -1)
         Y = D.y.detach().numpy()[:, :self.horizon].transpose(2, 0, 1).reshape(BODY, -1)
-        e, g = self._map("grad", W)(D.z0.detach().numpy().T, U, self._extended(model, D.p), Y)
+        e, g = self._map("grad", W)(D.z0.detach().numpy().T, U, self._extended(model, D.p), Y,
+                                    self.state_scale, self.growth[None, :self.horizon])
         e, g = np.asarray(e).ravel(), np.asarray(g)
         c = ((1.0 - pooled_weight) * D.weight.detach().numpy() + pooled_weight) / W
         return float(np.sum(c * e)), g @ c
