@@ -116,6 +116,7 @@ def jsbsim_anchor(simulated_s: float, repeats: int) -> dict:
     fdm = jsbsim.FGFDMExec(None)
     fdm.set_debug_level(0)
     fdm.load_model("c172x")
+    fdm.disable_output()  # the model's own output directive would write a CSV into the cwd
     fdm["ic/h-sl-ft"], fdm["ic/vc-kts"], fdm["ic/gamma-deg"] = 3000, 100, 0
     fdm.run_ic()
     fdm["propulsion/set-running"] = -1
