@@ -27,6 +27,7 @@ import argparse
 import json
 import os
 import platform
+import shutil
 import statistics
 import subprocess
 import tempfile
@@ -115,20 +116,25 @@ def jsbsim_anchor(simulated_s: float, repeats: int) -> dict:
 
     fdm = jsbsim.FGFDMExec(None)
     fdm.set_debug_level(0)
+    scratch = tempfile.mkdtemp()  # the model's own output directive writes a CSV there
+    fdm.set_output_path(scratch)
     fdm.load_model("c172x")
-    fdm.disable_output()  # the model's own output directive would write a CSV into the cwd
+    fdm.disable_output()
     fdm["ic/h-sl-ft"], fdm["ic/vc-kts"], fdm["ic/gamma-deg"] = 3000, 100, 0
     fdm.run_ic()
     fdm["propulsion/set-running"] = -1
-    steps = int(round(simulated_s / fdm.get_delta_t()))
+    dt = fdm.get_delta_t()
+    steps = int(round(simulated_s / dt))
     times = []
     for _ in range(repeats):
         fdm.run_ic()
         t0 = time.perf_counter()
         for _ in range(steps):
             fdm.run()
-        times.append((time.perf_counter() - t0) / (steps * fdm.get_delta_t()) * 1e6)
-    return {"model": "c172x", "version": jsbsim.__version__, "dt": fdm.get_delta_t(),
+        times.append((time.perf_counter() - t0) / (steps * dt) * 1e6)
+    del fdm
+    shutil.rmtree(scratch, ignore_errors=True)
+    return {"model": "c172x", "version": jsbsim.__version__, "dt": dt,
             "us_per_simulated_second": statistics.median(times)}
 
 
