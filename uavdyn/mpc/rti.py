@@ -103,8 +103,7 @@ def packed_qp_function(func: ca.Function) -> ca.Function:
     """:func:`qp_function` with its inputs in one vector (``x0``, ``vec(U)``, ``u_prev``,
     ``vec(refs)``, ``w``) and its rollout and check in one output (``vec(X)`` then
     ``check``): a call from Python converts one array in and one out instead of five and two
-    (each conversion costs about 20 us in CasADi's Python layer, more than a QP's condensing
-    step)."""
+    (each conversion costs about 20 us in CasADi's Python layer)."""
     sizes = [func.numel_in(i) for i in range(func.n_in())]
     v = ca.MX.sym("v", sum(sizes))
     cuts = np.concatenate([[0], np.cumsum(sizes)]).astype(int).tolist()
