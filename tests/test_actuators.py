@@ -34,6 +34,7 @@ from uavdyn.linear import (
     linearise,
     modes,
     stall_speed,
+    static_lift_coefficient,
     trim,
     trim_state,
 )
@@ -335,6 +336,25 @@ def test_stall_speed_and_trim_use_the_lift_table(aerosonde):
     xdot = np.array(build_model(af).f(point.x, point.u, af.p)).ravel()
     assert np.abs(xdot).max() < 1e-9
     assert abs(point.alpha - trim(aerosonde, 25.0).alpha) > 1e-3  # the table is really used
+
+
+def test_stall_speed_over_a_lift_table_in_airspeed_is_its_fixed_point(aerosonde):
+    """A C_L table whose maximum falls with airspeed: the stall speed is the speed at which
+    the maximum at that very speed holds the weight (the fixed point, not the nominal speed's
+    maximum)."""
+    table = {"alpha": [-0.2, 0.3, 0.6], "airspeed": [5.0, 40.0],
+             "values": [[-0.6, -0.6], [1.6, 0.8], [0.7, 0.5]]}
+    af = _with(aerosonde, {"C_L": table})
+    v_stall, alpha_max, cl_max = stall_speed(af)
+    assert alpha_max == pytest.approx(0.3, abs=1e-12)
+    alphas = np.linspace(0.0, 1.2, 2001)
+    at_stall = static_lift_coefficient(af, alphas, v_stall).max()  # the curve at that speed
+    assert cl_max == pytest.approx(at_stall, rel=1e-12)
+    P = af.params
+    assert v_stall == pytest.approx(math.sqrt(2 * P.mass * P.gravity / (P.rho * P.S_wing
+                                                                         * at_stall)), rel=1e-12)
+    at_nominal = static_lift_coefficient(af, alphas, af.nominal_airspeed).max()
+    assert abs(cl_max - at_nominal) > 0.05  # the iteration moved away from the nominal speed
 
 
 def test_isa_trim_is_the_trim_at_the_density_of_the_altitude(aerosonde):

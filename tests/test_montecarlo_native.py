@@ -1,7 +1,7 @@
 """Monte-Carlo chunks as one C loop, four runs at a time (``uavdyn.montecarlo.native``, issue 32):
 
 * every operation written in lanes gives, lane by lane, bit for bit what CasADi's own generated
-  scalar code gives (special values included);
+  scalar code gives (special values included), a sine and cosine of one operand in one call;
 * a chunk equals the compiled ``map`` of the ``mapaccum`` run bit for bit on a non-preset fixed
   wing with gusts and dispersed initial states, a non-preset quadrotor in closed loop and the
   shipped hybrid correction, with a run count that leaves lanes empty, on 1 and 2 threads;
@@ -48,7 +48,7 @@ def _every_operation() -> ca.Function:
            a != d, ca.logic_and(a, d), ca.logic_or(a, d), ca.logic_not(a),
            ca.if_else(a > d, e, f), b**d, a**3, ca.fmin(a, d), ca.fmax(a, d), ca.atan2(a, d),
            ca.fmod(a, d), ca.remainder(a, d), ca.hypot(a, d), ca.copysign(a, d), ca.sign(a),
-           a + np.inf, a * np.nan, a - np.inf]
+           a + np.inf, a * np.nan, a - np.inf, ca.cos(a * d) * ca.sin(a * d)]
     return ca.Function("every_op", [x, y], [ca.vertcat(*out)])
 
 
@@ -85,6 +85,17 @@ def test_every_operation_in_lanes_equals_casadis_scalar_code_bit_for_bit(tmp_pat
         for lane in range(LANES):
             expected = np.asarray(scalar(block[0, :, lane], block[1, :, lane])).ravel()
             np.testing.assert_array_equal(out[:, lane], expected)
+
+
+def test_a_sine_and_cosine_of_one_operand_share_one_sincos_call():
+    x = ca.SX.sym("x", 2)
+    shared = ca.Function("f", [x], [ca.vertcat(ca.sin(x[0]), ca.cos(x[0]) * ca.sin(x[1]),
+                                               ca.cos(2 * x[1]), ca.sin(x[0] + x[1]))])
+    text = lanes_c(shared, "f_lanes", LANES)
+    assert text.count("UAVDYN_SINCOS(w[") == 1  # only sin(x0) and cos(x0) share an operand
+    assert text.count("sin(w[") == 2 and text.count("cos(w[") == 1
+    alone = ca.Function("g", [x], [ca.sin(x[0]) + ca.cos(x[1])])
+    assert "UAVDYN_SINCOS" not in lanes_c(alone, "g_lanes", LANES)
 
 
 def test_lanes_refuse_an_mx_function_and_an_operation_without_c():

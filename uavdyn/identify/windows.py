@@ -22,13 +22,12 @@ from uavdyn.flightdata import make_windows as cut_windows
 from uavdyn.identify.errors import IdentifyError
 from uavdyn.integrate import StateLayout, compile_function, predict_windows, rollout
 from uavdyn.integrate.augmented import actuators_after, physics_function
-from uavdyn.integrate.compiler import HIDDEN_HELPERS
+from uavdyn.integrate.compiler import QUICK_FLAGS
 from uavdyn.model import ModelStructure, sortie_params, structure_of
 from uavdyn.model.atmosphere import isa_density_ratio
 from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS
 
-# -O1: as fast as -O3 for the fit's libraries, compiles faster
-COMPILE_FLAGS = ("-O1", "-fPIC", "-shared", *HIDDEN_HELPERS)
+COMPILE_FLAGS = QUICK_FLAGS  # the fit's libraries
 N_BODY = 4  # u, w, q, theta: the states compared with the recorded ones
 
 

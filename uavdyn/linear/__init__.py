@@ -15,11 +15,14 @@ from uavdyn.linear.trim import (
     TrimPoint,
     point_params,
     stall_speed,
+    stall_speeds,
     static_lift_coefficient,
     trim,
+    trim_many,
     trim_state,
 )
 
 __all__ = ["DiscreteModeComparison", "Mode", "discrete_map_modes", "linear_state_names",
            "linearise", "mode_table", "modes", "participation", "TrimError", "TrimPoint",
-           "point_params", "stall_speed", "static_lift_coefficient", "trim", "trim_state"]
+           "point_params", "stall_speed", "stall_speeds", "static_lift_coefficient", "trim",
+           "trim_many", "trim_state"]

@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, lru_cache
 
 import casadi as ca
 import numpy as np
@@ -129,14 +130,20 @@ def _trim_functions(structure: ModelStructure) -> tuple[ca.Function, ca.Function
     return g, solver
 
 
-def static_lift_coefficient(airframe: Airframe, alphas, airspeed: float,
-                            p: np.ndarray | None = None) -> np.ndarray:
+def static_lift_coefficient(airframe: Airframe, alphas, airspeed, p: np.ndarray | None = None
+                            ) -> np.ndarray:
     """The model's static lift coefficient (elevator 0, no pitch rate, no alpha-dot) at each
     angle of attack, from its own forces (a ``C_L`` table where the airframe has one):
-    ``C_L = ((X - T) sin(alpha) - Z cos(alpha)) / (qbar S)``, evaluated with NumPy."""
+    ``C_L = ((X - T) sin(alpha) - Z cos(alpha)) / (qbar S)``, evaluated with NumPy.
+
+    ``p`` may hold one parameter vector per column (``np x m``, ``airspeed`` one per column):
+    the result is then ``len(alphas) x m``, each column that airframe's curve (every operation
+    is element-wise)."""
     structure = dataclasses.replace(body_structure(airframe), alpha_dot=False)
     p = airframe.p if p is None else np.asarray(p, float)
     alphas = np.asarray(alphas, float)
+    if p.ndim == 2:
+        alphas = alphas[:, None]
     zeros = np.zeros_like(alphas)
     x = [airspeed * np.cos(alphas), airspeed * np.sin(alphas), zeros, zeros]
     X, Z, _, _, _, thrust = body_forces(structure, x, [0.0, 0.0], p, NUMPY_OPS)
@@ -151,20 +158,51 @@ def stall_speed(airframe: Airframe, n_grid: int = 2001, altitude_m: float | None
     """Level-flight stall speed (m/s) from the maximum of the model's static lift curve
     (:func:`static_lift_coefficient`, over alpha in [0, 1.2] rad), with the angle of attack
     (rad) and lift coefficient at that maximum. A lift table over airspeed is solved for the
-    speed at which its own maximum holds the weight (fixed-point iteration)."""
-    P = airframe.params
-    p = sortie_params(airframe, altitude_m)
-    rho = p[airframe.param_names.index("rho")]
+    speed at which its own maximum holds the weight (fixed-point iteration); any other lift
+    curve does not depend on the airspeed and is evaluated once."""
+    return tuple(float(v) for v in stall_speeds([airframe], n_grid, altitude_m)[0])
+
+
+def stall_speeds(airframes: Sequence[Airframe], n_grid: int = 2001,
+                 altitude_m: float | None = None) -> np.ndarray:
+    """:func:`stall_speed` of many fixed wings of one structure (a Monte-Carlo chunk's dispersed
+    airframes), their lift curves evaluated side by side: ``len(airframes) x 3`` rows of
+    ``(stall speed, alpha at C_L max, C_L max)``, each the same iteration as one airframe's.
+
+    Raises
+    ------
+    ValueError
+        If the airframes differ in structure (kind, tables, atmosphere).
+    """
+    first = airframes[0]
+    structure = body_structure(first)
+    if any(body_structure(a) != structure for a in airframes[1:]):
+        raise ValueError("stall_speeds needs airframes of one structure (kind, tables, "
+                         "atmosphere); call it once per structure")
+    p = np.column_stack([sortie_params(a, altitude_m) for a in airframes])
+    names = first.param_names
+    rho, S = p[names.index("rho")], p[names.index("S_wing")]
+    i_mass, i_g = names.index("mass"), names.index("gravity")
     alphas = np.linspace(0.0, 1.2, n_grid)
-    V = airframe.nominal_airspeed or 20.0
-    for _ in range(100):
-        cl = static_lift_coefficient(airframe, alphas, V, p)
-        i = int(np.argmax(cl))
-        v_stall = math.sqrt(2 * P.mass * P.gravity / (rho * P.S_wing * cl[i]))
-        if abs(v_stall - V) <= 1e-12 * V:
+    V = np.array([a.nominal_airspeed or 20.0 for a in airframes])
+    out = np.empty((len(airframes), 3))
+    active = np.arange(len(airframes))  # columns still iterating
+    lift_table = structure.table_slices().get("C_L")
+    iterations = 100 if lift_table and any(name == "airspeed" for name, _ in lift_table[0]) \
+        else 1
+    for _ in range(iterations):
+        cl = static_lift_coefficient(first, alphas, V[active], p[:, active])
+        i = np.argmax(cl, axis=0)
+        cl_max = cl[i, np.arange(len(active))]
+        v_stall = np.sqrt(2 * p[i_mass, active] * p[i_g, active]
+                          / (rho[active] * S[active] * cl_max))
+        out[active] = np.column_stack([v_stall, alphas[i], cl_max])
+        done = np.abs(v_stall - V[active]) <= 1e-12 * V[active]
+        V[active] = v_stall
+        active = active[~done]
+        if not active.size:
             break
-        V = v_stall
-    return v_stall, float(alphas[i]), float(cl[i])
+    return out
 
 
 def _initial_guess(airframe: Airframe, V: float, gamma: float, rho: float) -> np.ndarray:
@@ -200,6 +238,51 @@ def trim(airframe: Airframe, airspeed: float | None = None, gamma: float = 0.0,
     TrimError
         If no steady flight exists (the message names the limit).
     """
+    outcome = trim_many([airframe], [airspeed], gamma, altitude_m)[0]
+    if isinstance(outcome, TrimError):
+        raise outcome
+    return outcome
+
+
+def trim_many(airframes: Sequence[Airframe], airspeeds: Sequence[float | None],
+              gamma: float = 0.0, altitude_m: float | None = None
+              ) -> list[TrimPoint | TrimError]:
+    """:func:`trim` of many airframes (a Monte-Carlo chunk's dispersed airframes), the stall
+    curves and Newton solves of one structure evaluated together: per airframe its trim point
+    or the :class:`TrimError` that :func:`trim` would raise, the same numbers as one by one.
+
+    Parameters
+    ----------
+    airframes : sequence of Airframe
+        The airframes (any mix of structures: each structure is solved in one call).
+    airspeeds : sequence of float or None
+        One airspeed per airframe (m/s; None: its nominal airspeed).
+    gamma, altitude_m :
+        As for :func:`trim`, shared.
+    """
+    if len(airspeeds) != len(airframes):
+        raise ValueError(f"{len(airspeeds)} airspeeds for {len(airframes)} airframes")
+    outcomes: list[TrimPoint | TrimError | None] = [None] * len(airframes)
+    speeds = np.zeros(len(airframes))
+    groups: dict[ModelStructure, list[int]] = {}
+    for j, (airframe, airspeed) in enumerate(zip(airframes, airspeeds)):
+        try:
+            speeds[j] = _checked_request(airframe, airspeed, gamma, altitude_m)
+        except TrimError as exc:
+            outcomes[j] = exc
+            continue
+        groups.setdefault(body_structure(airframe), []).append(j)
+    for structure, members in groups.items():
+        found = _trim_group(structure, [airframes[j] for j in members], speeds[members], gamma,
+                            altitude_m)
+        for j, outcome in zip(members, found):
+            outcomes[j] = outcome
+    return outcomes
+
+
+def _checked_request(airframe: Airframe, airspeed: float | None, gamma: float,
+                     altitude_m: float | None) -> float:
+    """The airspeed of a well-formed request (TrimError for one no airframe can fly)."""
     V = airframe.nominal_airspeed if airspeed is None else float(airspeed)
     if not math.isfinite(V) or V < 0:
         raise TrimError(f"airspeed must be a finite number >= 0, got {airspeed}")
@@ -207,30 +290,72 @@ def trim(airframe: Airframe, airspeed: float | None = None, gamma: float = 0.0,
         raise TrimError(f"altitude must be a finite number of metres, got {altitude_m}")
     if not math.isfinite(gamma) or abs(gamma) >= math.pi / 2:
         raise TrimError(f"flight-path angle gamma must be in (-90, 90) deg, got {gamma} rad")
-    names = CONTROL_NAMES[airframe.kind]
-    alpha_max = None
-    if airframe.kind == "fixed_wing":
-        if V <= 0:
-            raise TrimError("a fixed wing cannot trim at zero airspeed")
-        v_stall, alpha_max, cl_max = stall_speed(airframe, altitude_m=altitude_m)
-        needed = v_stall * math.sqrt(math.cos(gamma))
-        if V < needed:
-            raise TrimError(
-                f"airspeed {V:g} m/s is below the stall speed {needed:.2f} m/s "
-                f"(C_L max {cl_max:.3f} at alpha {math.degrees(alpha_max):.1f} deg)")
-    elif gamma != 0.0 and V == 0.0:
+    if airframe.kind == "fixed_wing" and V <= 0:
+        raise TrimError("a fixed wing cannot trim at zero airspeed")
+    if airframe.kind != "fixed_wing" and gamma != 0.0 and V == 0.0:
         raise TrimError("hover has no flight-path angle: use gamma = 0 with airspeed 0")
-    if not has_pitch_authority(airframe):
-        which = "pitch_mix" if airframe.kind == "multirotor" else "C_m_delta_e"
-        raise TrimError(f"airframe '{airframe.name}': parameter '{which}' = 0 gives the pitch "
-                        "command no authority over the pitching moment; nothing can hold a "
-                        "trim (check the file)")
-    p = sortie_params(airframe, altitude_m)
-    g, solver = _trim_functions(body_structure(airframe))
-    pars = np.concatenate([[V, gamma], p])
-    guess = _initial_guess(airframe, V, gamma, float(p[airframe.param_names.index("rho")]))
-    z = np.array(solver(guess, pars)).ravel()
-    residual = float(np.max(np.abs(np.array(g(z, pars)))))
+    return V
+
+
+def _trim_group(structure: ModelStructure, airframes: list[Airframe], speeds: np.ndarray,
+                gamma: float, altitude_m: float | None) -> list[TrimPoint | TrimError]:
+    """Trim airframes of one body structure: stall limits, then one mapped Newton solve."""
+    outcomes: list[TrimPoint | TrimError | None] = [None] * len(airframes)
+    alpha_max: list[float | None] = [None] * len(airframes)
+    solve: list[int] = []
+    stall = stall_speeds(airframes, altitude_m=altitude_m) \
+        if structure.kind == "fixed_wing" else None
+    for k, airframe in enumerate(airframes):
+        try:
+            if stall is not None:
+                v_stall, alpha_max[k], cl_max = (float(v) for v in stall[k])
+                needed = v_stall * math.sqrt(math.cos(gamma))
+                if speeds[k] < needed:
+                    raise TrimError(
+                        f"airspeed {speeds[k]:g} m/s is below the stall speed {needed:.2f} "
+                        f"m/s (C_L max {cl_max:.3f} at alpha "
+                        f"{math.degrees(alpha_max[k]):.1f} deg)")
+            if not has_pitch_authority(airframe):
+                which = "pitch_mix" if airframe.kind == "multirotor" else "C_m_delta_e"
+                raise TrimError(
+                    f"airframe '{airframe.name}': parameter '{which}' = 0 gives the pitch "
+                    "command no authority over the pitching moment; nothing can hold a trim "
+                    "(check the file)")
+        except TrimError as exc:
+            outcomes[k] = exc
+            continue
+        solve.append(k)
+    if not solve:
+        return outcomes
+    p = np.column_stack([sortie_params(airframes[k], altitude_m) for k in solve])
+    pars = np.vstack([speeds[solve], np.full(len(solve), gamma), p])
+    rho = p[airframes[0].param_names.index("rho")]
+    guess = np.column_stack([_initial_guess(airframes[k], speeds[k], gamma, float(rho[i]))
+                             for i, k in enumerate(solve)])
+    g, solver = _mapped_trim_functions(structure, len(solve))
+    z = np.array(solver(guess, pars)).reshape(3, len(solve))
+    residuals = np.max(np.abs(np.array(g(z, pars)).reshape(3, len(solve))), axis=0)
+    for i, k in enumerate(solve):
+        try:
+            outcomes[k] = _point(airframes[k], speeds[k], gamma, altitude_m, z[:, i],
+                                          float(residuals[i]), alpha_max[k])
+        except TrimError as exc:
+            outcomes[k] = exc
+    return outcomes
+
+
+@lru_cache(maxsize=32)
+def _mapped_trim_functions(structure: ModelStructure, n: int
+                           ) -> tuple[ca.Function, ca.Function]:
+    """:func:`_trim_functions` over ``n`` columns (each column the single call's numbers)."""
+    g, solver = _trim_functions(structure)
+    return (g, solver) if n == 1 else (g.map(n), solver.map(n))
+
+
+def _point(airframe: Airframe, V: float, gamma: float, altitude_m: float | None,
+           z: np.ndarray, residual: float, alpha_max: float | None) -> TrimPoint:
+    """The trim point of a Newton solution, or TrimError for one outside the envelope."""
+    names = CONTROL_NAMES[airframe.kind]
     if not np.all(np.isfinite(z)) or residual > RESIDUAL_TOL:
         raise TrimError(f"no trim found at airspeed {V:g} m/s, gamma {gamma:g} rad "
                         f"(Newton residual {residual:.2e}): the request is outside the envelope")
@@ -247,6 +372,6 @@ def trim(airframe: Airframe, airspeed: float | None = None, gamma: float = 0.0,
             raise TrimError(f"trim at {V:g} m/s, gamma {gamma:g} rad needs {names[i]} = "
                             f"{value:.4g}, outside [{lo:g}, {hi:g}] ({limit})")
     x = np.array([V * math.cos(alpha), V * math.sin(alpha), 0.0, alpha + gamma])
-    return TrimPoint(airframe=airframe.name, kind=airframe.kind, airspeed=V, gamma=float(gamma),
-                     x=x, u=z[1:].copy(), residual=residual,
+    return TrimPoint(airframe=airframe.name, kind=airframe.kind, airspeed=float(V),
+                     gamma=float(gamma), x=x, u=np.array(z[1:], float), residual=residual,
                      altitude_m=None if altitude_m is None else float(altitude_m))

@@ -140,10 +140,16 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
         state feedback such as :func:`uavdyn.montecarlo.spec.lqr_gain`), ``xref`` the run's
         trim body state; None flies the commands open loop.
     """
+    return pieces_run(run_pieces(step, airframe, structure, gusts, name, feedback), n_steps,
+                      stride, gusts, name, feedback is not None)
+
+
+def pieces_run(pieces: RunPieces, n_steps: int, stride: int, gusts: bool, name: str,
+               feedback: bool) -> ca.Function:
+    """:func:`run_function` of a run's pieces (built once, shared with the native loop)."""
     if n_steps < 1 or stride < 1:
         raise ValueError(f"n_steps and stride must be >= 1, got {n_steps}, {stride}")
     stride = min(stride, n_steps)
-    pieces = run_pieces(step, airframe, structure, gusts, name, feedback)
     start, body = pieces.start, pieces.body
     nx, nu, n_p, n_in = pieces.nx, pieces.nu, pieces.np, pieces.n_in
 
@@ -154,7 +160,7 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
     G = ca.MX.sym("g", N_GUST, n_steps) if gusts else None
     IN = ca.vertcat(DU, G) if gusts else DU
     a0, sig0 = start(X0, U0, P, DU[:, 0], G[:, 0] if gusts else ca.DM.zeros(N_GUST), DT, LIM,
-                     XR if feedback is not None else ca.DM.zeros(4))
+                     XR if feedback else ca.DM.zeros(4))
     n_int = n_steps // stride
     if stride > 1:
         inner = body.mapaccum(f"{name}_inner", stride)
@@ -174,7 +180,7 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
     stats = ca.vertcat(*(a_end[i] for i in pieces.stat_rows))
     inputs = [X0, U0, P, DU] + ([G] if gusts else []) + [DT, LIM]
     in_names = ["x0", "u0", "p", "du"] + (["g"] if gusts else []) + ["dt", "limits"]
-    if feedback is not None:
+    if feedback:
         inputs, in_names = [*inputs, XR], [*in_names, "xref"]
     return ca.Function(name, inputs, [stats, hist], in_names, ["stats", "hist"])
 

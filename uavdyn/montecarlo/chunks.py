@@ -34,13 +34,14 @@ import numpy as np
 
 from uavdyn.airframes import AirframeError
 from uavdyn.integrate import StateLayout
-from uavdyn.linear import TrimError, point_params, trim
+from uavdyn.linear import TrimError, point_params, trim, trim_many
 from uavdyn.montecarlo.batch import (
     N_GUST,
     SIGNALS,
     STAT_NAMES,
+    RunPieces,
     batch_function,
-    run_function,
+    pieces_run,
     run_pieces,
 )
 from uavdyn.montecarlo.dispersions import STATE_KEYS
@@ -111,10 +112,7 @@ def compiled_batch(spec: StudySpec, n_runs: int, threads: int) -> NativeBatch | 
     (up to ``spec.chunk_size`` runs, any thread count); else CasADi's map of the run (built once
     per process and study model; compiled libraries are cached on disk)."""
     capacity = max(n_runs, spec.chunk_size)
-    native = _cached(("native", spec.model_key, capacity),
-                     lambda: native_batch(_pieces(spec), batch_function(
-                         _run(spec), capacity, 1, False), spec.n_steps, spec.stride,
-                         spec.gusts, spec.feedback is not None))
+    native = _cached(("native", spec.model_key, capacity), lambda: _native(spec, capacity))
     if native is not None:
         return native.on_threads(threads)
     return _cached(("mapped", spec.model_key, n_runs, threads),
@@ -130,14 +128,21 @@ def _cached(key: tuple, build):
     return _COMPILED[key]
 
 
-def _run(spec: StudySpec) -> ca.Function:
-    return run_function(spec.step(), spec.airframe, spec.structure, spec.n_steps, spec.stride,
-                        spec.gusts, name=f"mc_{spec.model_key[:10]}", feedback=spec.feedback)
-
-
-def _pieces(spec: StudySpec):
+def _pieces(spec: StudySpec) -> RunPieces:
     return run_pieces(spec.step(), spec.airframe, spec.structure, spec.gusts,
                       f"mc_{spec.model_key[:10]}", spec.feedback)
+
+
+def _run(spec: StudySpec, pieces: RunPieces | None = None) -> ca.Function:
+    return pieces_run(pieces or _pieces(spec), spec.n_steps, spec.stride, spec.gusts,
+                      f"mc_{spec.model_key[:10]}", spec.feedback is not None)
+
+
+def _native(spec: StudySpec, capacity: int) -> NativeBatch | None:
+    """The chunk loop of the study (its run's pieces built once for the loop and its check)."""
+    pieces = _pieces(spec)
+    return native_batch(pieces, batch_function(_run(spec, pieces), capacity, 1, False),
+                        spec.n_steps, spec.stride, spec.gusts, spec.feedback is not None)
 
 
 def _initial(spec: StudySpec, layout: StateLayout, point, p: np.ndarray, offsets: dict
@@ -194,47 +199,22 @@ def _evaluate_chunk(spec: StudySpec, index: int, threads: int) -> ChunkResult:
     G = np.zeros((N_GUST, spec.n_steps * n)) if spec.gusts else None
     columns = table_columns(spec)
     table = np.full((n, len(columns)), np.nan)
-    draw_columns = spec.dispersions.column_names()
+    airframes, speeds, draws = _draw_runs(spec, start, stop, table)
     trimmed = np.zeros(n, bool)
-    for j, run in enumerate(range(start, stop)):
-        draw = spec.dispersions.sample(spec.seed, run)
-        try:
-            airframe = nominal.replace(**draw.params(spec.dispersions, nominal)) \
-                if spec.dispersions.params else nominal
-        except AirframeError as exc:
-            raise MonteCarloError(f"run {run} drew an impossible airframe ({exc}); bound that "
-                                  "dispersion (uniform or truncnormal)") from None
-        values = dict(draw.offsets)  # parameters are shown by their dispersed value
-        drawn_p = dict(zip(airframe.param_names, airframe.p))
-        values.update({f"params.{name}": float(drawn_p[name]) for name in spec.dispersions.params})
-        speed = spec.airspeed
-        if "airspeed" in spec.dispersions.trim:
-            speed = spec.dispersions.trim["airspeed"].apply(speed, draw.offsets["trim.airspeed"])
-        table[j, columns.index("run")] = run
-        table[j, columns.index("trim_airspeed_mps")] = speed
-        table[j, [columns.index(c) for c in draw_columns]] = [values[c] for c in draw_columns]
-        try:
-            point = trim(airframe, speed)
-        except TrimError:
+    for j, (run, point) in enumerate(zip(range(start, stop), trim_many(airframes, speeds))):
+        if isinstance(point, TrimError):
             table[j, columns.index("trim_ok")] = 0.0
             continue
         trimmed[j] = True
         table[j, columns.index("trim_ok")] = 1.0
-        p = point_params(airframe, point)
-        x0[:, j] = _initial(spec, layout, point, p, draw.offsets)
+        p = point_params(airframes[j], point)
+        x0[:, j] = _initial(spec, layout, point, p, draws[j].offsets)
         u0[:, j] = point.u
         x_ref[:, j] = point.x[:4]
         P[:, j] = p
-        if spec.gusts and draw.gust_intensity > 0:
-            from uavdyn.emulation import dryden_gusts, gust_span  # only for gusty studies
-
-            rng = np.random.default_rng([spec.seed, run, 1])
-            m = spec.gust_stride
-            gusts = dryden_gusts(rng, -(-spec.n_steps // m), m * spec.dt,
-                                 max(speed, GUST_SPEED_FLOOR), draw.gust_intensity,
-                                 wingspan=gust_span(airframe), **spec.dispersions.gust_scales)
-            G[:, j * spec.n_steps:(j + 1) * spec.n_steps] = np.repeat(gusts, m, 0)[
-                :spec.n_steps].T
+        if spec.gusts and draws[j].gust_intensity > 0:
+            G[:, j * spec.n_steps:(j + 1) * spec.n_steps] = _gusts(spec, run, speeds[j],
+                                                                  draws[j], airframes[j])
     batch = compiled_batch(spec, n, threads)
     args = [x0, u0, P, spec.deviations.T] + ([G] if spec.gusts else []) + \
         [spec.dt, np.asarray(spec.limits, float)] + ([x_ref] if spec.feedback is not None
@@ -265,6 +245,49 @@ def _evaluate_chunk(spec: StudySpec, index: int, threads: int) -> ChunkResult:
         history[j, :, times >= t_div[j] - 1e-9 * spec.dt] = np.nan
     return ChunkResult(index, start, stop, table, history.astype(np.float32),
                        time.perf_counter() - start_time, time.process_time() - start_cpu)
+
+
+def _draw_runs(spec: StudySpec, start: int, stop: int, table: np.ndarray
+               ) -> tuple[list, list[float], list]:
+    """Each run's draw, dispersed airframe and trim airspeed, its identity and drawn values
+    written into its row of ``table``."""
+    columns = table_columns(spec)
+    draw_columns = [columns.index(c) for c in spec.dispersions.column_names()]
+    nominal = spec.airframe
+    airframes, speeds, draws = [], [], []
+    for j, run in enumerate(range(start, stop)):
+        draw = spec.dispersions.sample(spec.seed, run)
+        try:
+            airframe = nominal.replace(**draw.params(spec.dispersions, nominal)) \
+                if spec.dispersions.params else nominal
+        except AirframeError as exc:
+            raise MonteCarloError(f"run {run} drew an impossible airframe ({exc}); bound that "
+                                  "dispersion (uniform or truncnormal)") from None
+        values = dict(draw.offsets)  # parameters are shown by their dispersed value
+        drawn_p = dict(zip(airframe.param_names, airframe.p))
+        values.update({f"params.{name}": float(drawn_p[name]) for name in spec.dispersions.params})
+        speed = spec.airspeed
+        if "airspeed" in spec.dispersions.trim:
+            speed = spec.dispersions.trim["airspeed"].apply(speed, draw.offsets["trim.airspeed"])
+        table[j, columns.index("run")] = run
+        table[j, columns.index("trim_airspeed_mps")] = speed
+        table[j, draw_columns] = [values[c] for c in spec.dispersions.column_names()]
+        airframes.append(airframe)
+        speeds.append(speed)
+        draws.append(draw)
+    return airframes, speeds, draws
+
+
+def _gusts(spec: StudySpec, run: int, speed: float, draw, airframe) -> np.ndarray:
+    """A run's Dryden gusts (``3 x n_steps``), drawn from ``(seed, run)``."""
+    from uavdyn.emulation import dryden_gusts, gust_span  # only for gusty studies
+
+    rng = np.random.default_rng([spec.seed, run, 1])
+    m = spec.gust_stride
+    gusts = dryden_gusts(rng, -(-spec.n_steps // m), m * spec.dt,
+                         max(speed, GUST_SPEED_FLOOR), draw.gust_intensity,
+                         wingspan=gust_span(airframe), **spec.dispersions.gust_scales)
+    return np.repeat(gusts, m, 0)[:spec.n_steps].T
 
 
 def _zero_offsets(spec: StudySpec) -> dict:

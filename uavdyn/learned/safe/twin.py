@@ -23,6 +23,7 @@ import scipy.linalg
 import torch
 
 from uavdyn.integrate import compile_function, rollout
+from uavdyn.integrate.compiler import QUICK_FLAGS
 from uavdyn.learned.envelope import GUARDS, gate_of_distances, outside_distances
 from uavdyn.learned.mlp import mlp_forward
 from uavdyn.learned.safe.data import WindowTensors
@@ -32,8 +33,6 @@ from uavdyn.model import CASADI_OPS, make_rhs
 from uavdyn.model.equations import as_structure
 
 BODY = 4
-FLAGS = ("-O1", "-fPIC", "-shared")  # the derivative's code is long: -O1 compiles it in
-# a fraction of -O3's time at nearly its speed
 
 
 @dataclass(frozen=True)
@@ -134,10 +133,11 @@ class CompiledTwin:
         jac = ca.jacobian(z_next[:BODY], z)[:, :BODY]
         djac = ca.jacobian(ca.vec(jac), pe)[:, theta.start:theta.stop]
         self._jacobian = compile_function(ca.Function("twin_jacobian", [z, u, pe, h],
-                                                      [jac, djac]), FLAGS)
-        self._predict = compile_function(ca.Function("twin_predict", [z0, U, P], [pred]), FLAGS)
+                                                      [jac, djac]), QUICK_FLAGS)
+        self._predict = compile_function(ca.Function("twin_predict", [z0, U, P], [pred]),
+                                         QUICK_FLAGS)
         self._grad = compile_function(ca.Function("twin_grad", [z0, U, P, Y, scale, grow],
-                                                  [e, grad]), FLAGS)
+                                                  [e, grad]), QUICK_FLAGS)
         self._mapped: dict = {}
         self.size = self.shapes.size
 
