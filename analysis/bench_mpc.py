@@ -183,11 +183,28 @@ def rti_split(model, plant, plant_trim, horizon: int = 20) -> dict:
     qps = [list(mpc.qp_data.call(args)[:7]) + mpc._defaults for args in packed]
     data_s = _replay_seconds(packed, mpc.qp_data.call)
     qp_s = _replay_seconds(qps, mpc.qp.call)
+    lin, lin_args = _linearisation_alone(mpc.problem, packed)
+    lin_s = _replay_seconds(lin_args, lin.call)
     per = 1e6 / n
     return {"solves": n, "solve_us": round(whole * per, 1), "qp_data_us": round(data_s * per, 1),
+            "of_which_linearisation_us": round(lin_s * per, 1),
             "qp_solve_us": round(qp_s * per, 1),
             "glue_us": round((whole - data_s - qp_s) * per, 1),
-            "what": "pitch-step solves replayed in order, median of 5 replays, per solve"}
+            "what": "pitch-step solves replayed in order, median of 5 replays, per solve; "
+                    "the linearisation alone: the compiled rollout with every stage "
+                    "Jacobian (the QP data's first piece, before condensing) on the same "
+                    "plans, called the same way"}
+
+
+def _linearisation_alone(problem, packed: list) -> tuple[ca.Function, list]:
+    """The QP data's stage linearisation as a compiled Function of its own (``x0`` and the
+    plan in one vector, like the QP data), with its arguments cut from the recorded calls."""
+    N, nx, nu = problem.N, problem.nx, problem.nu
+    v = ca.MX.sym("v", nx + nu * N)
+    rollout = problem.stage_jac.mapaccum("mpc_roll", N)(v[:nx], ca.reshape(v[nx:], nu, N))
+    lin = codegen.compile_function(ca.Function(f"mpc_linearisation_{problem.kind}_n{N}", [v],
+                                               list(rollout)))
+    return lin, [[a[0][:nx + nu * N]] for a in packed]
 
 
 def bench_airframe(name: str, log) -> dict:

@@ -70,6 +70,7 @@ def test_stall_speeds_and_trim_many_refuse_what_they_cannot_do(aerosonde, f450):
         stall_speeds([aerosonde, f450])
     with pytest.raises(ValueError, match="2 airspeeds for 1 airframes"):
         trim_many([aerosonde], [20.0, 25.0])
+    assert stall_speeds([]).shape == (0, 3) and trim_many([], []) == []
     out = trim_many([aerosonde, f450], [float("nan"), 0.0])
     assert isinstance(out[0], TrimError) and "finite" in str(out[0])
     assert isinstance(out[1], TrimPoint)  # hover

@@ -174,6 +174,8 @@ def stall_speeds(airframes: Sequence[Airframe], n_grid: int = 2001,
     ValueError
         If the airframes differ in structure (kind, tables, atmosphere).
     """
+    if not airframes:
+        return np.empty((0, 3))
     first = airframes[0]
     structure = body_structure(first)
     if any(body_structure(a) != structure for a in airframes[1:]):
