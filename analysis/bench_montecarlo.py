@@ -14,12 +14,15 @@ extrapolated linearly to ``--runs`` (its per-run cost does not depend on the run
 statistics are checked against the batched runs'. Each configuration also records where its
 wall time went: until the first chunk was stored, from the first to the last, and after the last
 (statistics and files). ``loop_costs`` times, in one harness, a chunk's compiled loop alone per
-run-step against the single-run C loop of the same step per step.
+run-step against the single-run C loop of the same step per step. ``vector_math`` repeats the
+studies on 1 and 2 workers with the chunk loop's maths functions in glibc's vector library
+(``--vector-math``) and records how far its table lies from the bit-for-bit route's.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -31,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from uavdyn.integrate import compiled_rollout
+from uavdyn.integrate.lanes import vector_math_unavailable
 from uavdyn.learned import hybrid_step, shipped_correction
 from uavdyn.linear import point_params, trim
 from uavdyn.model import NUMPY_OPS, body_forces
@@ -131,6 +135,29 @@ def _loop_costs(spec, n_runs: int) -> dict:
                     "single-run loop (uavdyn.integrate.compiled_rollout) the step alone"}
 
 
+def _vector_math(spec, reference, tmp: Path, model: str) -> dict:
+    """The same study with ``vector_math`` (glibc's libmvec) on 1 and 2 workers, its chunk
+    loop's cost, and how far its table lies from the bit-for-bit route's (``reference``)."""
+    why = vector_math_unavailable()
+    if why:
+        return {"available": False, "why": why}
+    vector = dataclasses.replace(spec, vector_math=True)
+    compiled_batch(vector, spec.chunk_size, 1)
+    one = _study(vector, 1, 1, tmp, f"{model}_1_vector")
+    two = _study(vector, 2, 1, tmp, f"{model}_2_vector")
+    found = one.pop("_result").table.data
+    two.pop("_result")
+    ref = reference.table.data
+    finite = np.isfinite(ref)
+    rel = np.abs(found - ref)[finite] / np.maximum(np.abs(ref[finite]), np.finfo(float).tiny)
+    return {"available": True, "one_worker": one, "two_workers": two,
+            "meets_target_on_two_workers": two["wall_s"] <= TARGETS_S[model],
+            "loop_costs": _loop_costs(vector, spec.chunk_size),
+            "table_max_relative_difference_to_bitwise_route": float(rel.max()),
+            "same_runs_trimmed_and_diverged": bool(np.array_equal(np.isnan(found),
+                                                                  np.isnan(ref)))}
+
+
 def _sequential_loop(spec, runs: int, step) -> tuple[float, np.ndarray]:
     """What a user would write: per run, draw, trim, one call of the compiled single-run
     rollout, NumPy statistics. Returns (wall s, max |pitch| in deg per run)."""
@@ -172,6 +199,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--skip-hybrid", action="store_true")
     parser.add_argument("--no-threads", dest="threads", action="store_false",
                         help="skip the 1-worker, 2-thread configuration")
+    parser.add_argument("--no-vector-math", dest="vector_math", action="store_false",
+                        help="skip the vector-math configurations")
     parser.add_argument("--out", default=None, help="also write the JSON here")
     parser.add_argument("--shared", action="store_true",
                         help="say in the JSON that another job shared the machine")
@@ -235,6 +264,8 @@ def main(argv: list[str] | None = None) -> int:
                           "best_wall_s": min(e["wall_s"] for e in (one, threads, two) if e)})
             entry["meets_target_on_two_workers"] = two["wall_s"] <= TARGETS_S[model]
             entry["loop_costs"] = _loop_costs(spec, args.chunk_size)
+            entry["vector_math"] = _vector_math(spec, reference, tmp, model) \
+                if args.vector_math else None
             loop_runs = min(args.loop_runs, args.runs)
             step = spec.discrete_model()
             loop_wall, loop_pitch = _sequential_loop(spec, loop_runs, step)

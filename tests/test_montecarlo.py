@@ -469,6 +469,7 @@ def test_the_study_key_covers_every_field_that_changes_a_run(tmp_path, aerosonde
         "seed": spec(seed=7),
         "airspeed": spec(airspeed=22.0),
         "chunk size": spec(chunk_size=2),
+        "vector math": dataclasses.replace(base, vector_math=True),
     }
     keys = {name: v.key for name, v in variants.items()}
     assert all(k != base.key for k in keys.values()), keys

@@ -100,6 +100,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="fly every run with an LQR state feedback about its own trim (the "
                         "gain of the model linearised at the nominal trim, stated in the "
                         "summary); default open loop (an unstable airframe departs)")
+    p.add_argument("--vector-math", action="store_true",
+                   help="evaluate the maths functions of four runs in one call of glibc's "
+                        "vector library (x86-64 with AVX2, glibc 2.35+): about 1.5x faster, "
+                        "each run equal to the default's to round-off, not to the last bit")
     p.add_argument("--mission", default="doublet", type=mission_input,
                    help="command input: a mission or profile (fixed wing: "
                         f"{', '.join(input_names('fixed_wing'))}; multirotor adds inspection) "
@@ -178,7 +182,8 @@ def cmd_montecarlo(args: argparse.Namespace) -> int:
     spec = build_spec(airframe, dispersions, runs=args.runs, duration=args.duration,
                       dt=args.dt, mission=args.mission, weights=weights, seed=args.seed,
                       chunk_size=args.chunk_size, history_dt=args.history_dt,
-                      airspeed=args.airspeed, closed_loop=args.closed_loop)
+                      airspeed=args.airspeed, closed_loop=args.closed_loop,
+                      vector_math=args.vector_math)
     try:
         result = run_study(spec, out=args.out, workers=args.workers, threads=args.threads,
                            scheduler=args.scheduler, progress=not args.no_progress,

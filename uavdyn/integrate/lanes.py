@@ -9,7 +9,14 @@ code gives for that case (compiled without floating-point contraction, ``-ffp-co
 
 A sine and a cosine of the same operand become one ``sincos`` call where the C library is
 glibc, whose ``sincos`` returns bit for bit its ``sin`` and ``cos`` (checked on 2e7 arguments,
-glibc 2.36): a third of the step's transcendental calls, which the lanes cannot vectorise.
+glibc 2.36): a fifth of a fixed wing step's calls into the maths library, which the lanes
+cannot vectorise bit for bit.
+
+``vector_math=True`` (four lanes only) evaluates the maths library's functions four lanes in
+one call of glibc's vector library ``libmvec`` (AVX2; :func:`vector_math_unavailable` says
+whether this machine has it): about two thirds of a Monte-Carlo step's time was those scalar
+calls. ``libmvec`` is accurate to a few units in the last place, not bit for bit the scalar
+functions: results then agree with the scalar code to round-off, not to the last bit.
 """
 
 from __future__ import annotations
@@ -42,6 +49,49 @@ extern void sincos(double, double*, double*);
 """
 
 
+# glibc's vector library (2.35+, x86-64 AVX2): the lane operations it serves, by function name
+_VECTOR = {"EXP": "exp", "LOG": "log", "SIN": "sin", "COS": "cos", "TAN": "tan",
+           "ASIN": "asin", "ACOS": "acos", "ATAN": "atan", "SINH": "sinh", "COSH": "cosh",
+           "TANH": "tanh", "ASINH": "asinh", "ACOSH": "acosh", "ATANH": "atanh",
+           "ERF": "erf", "EXPM1": "expm1", "LOG1P": "log1p"}
+_VECTOR_BINARY = {"ATAN2": "atan2", "HYPOT": "hypot", "POW": "pow", "CONSTPOW": "pow"}
+# added to the compiler flags of vector-math code (linked whatever the linker's --as-needed)
+VECTOR_FLAGS = ("-mavx2", "-Wl,--no-as-needed", "-lmvec")
+GLIBC_VECTOR = (2, 35)  # the first glibc whose libmvec has atan2, tanh and hypot
+
+
+def vector_math_unavailable() -> str | None:
+    """Why ``vector_math`` cannot run here (None: it can): it needs an x86-64 CPU with AVX2,
+    glibc 2.35 or later (its ``libmvec``) and a C compiler."""
+    import platform
+
+    from uavdyn.integrate.compiler import find_compiler
+
+    if platform.machine() not in ("x86_64", "AMD64"):
+        return f"the CPU is {platform.machine()}, not x86-64"
+    libc, version = platform.libc_ver()
+    parts = tuple(int(v) for v in version.split(".")[:2] if v.isdigit())
+    if libc != "glibc" or parts < GLIBC_VECTOR:
+        return f"the C library is {libc or 'not glibc'} {version}, not glibc 2.35 or later"
+    try:
+        with open("/proc/cpuinfo") as fh:
+            flags = next((line for line in fh if line.startswith("flags")), "")
+    except OSError:
+        flags = ""
+    if "avx2" not in flags.split():
+        return "the CPU has no AVX2"
+    if find_compiler() is None:
+        return "no C compiler was found"
+    return None
+
+
+def _vector_header() -> str:
+    unary = "".join(f"__m256d _ZGVdN4v_{f}(__m256d);\n" for f in sorted(set(_VECTOR.values())))
+    binary = "".join(f"__m256d _ZGVdN4vv_{f}(__m256d, __m256d);\n"
+                     for f in sorted(set(_VECTOR_BINARY.values())))
+    return "#include <immintrin.h>\n/* glibc's libmvec, four doubles a call */\n" + unary + binary
+
+
 class LanesError(ValueError):
     """The Function cannot be written in lanes (not SX, or an operation without a C form)."""
 
@@ -54,7 +104,7 @@ def _constant(value: float) -> str:
     return repr(float(value))
 
 
-def lanes_c(func: ca.Function, name: str, lanes: int) -> str:
+def lanes_c(func: ca.Function, name: str, lanes: int, vector_math: bool = False) -> str:
     """C of ``static void <name>(const casadi_real* const* arg, casadi_real* const* res)``:
     ``func`` for ``lanes`` cases at once, every input and output dense and lane-interleaved.
 
@@ -66,6 +116,9 @@ def lanes_c(func: ca.Function, name: str, lanes: int) -> str:
         Name of the C function.
     lanes : int
         Cases per call (4 suits 128- and 256-bit vector units).
+    vector_math : bool
+        The maths library's functions through ``libmvec`` (4 lanes; compile with
+        :data:`VECTOR_FLAGS`): round-off agreement with the scalar code, not bitwise.
 
     Raises
     ------
@@ -76,10 +129,14 @@ def lanes_c(func: ca.Function, name: str, lanes: int) -> str:
         raise LanesError(f"'{func.name()}' is not an SX Function; expand it first")
     if lanes < 1:
         raise LanesError(f"lanes must be >= 1, got {lanes}")
+    if vector_math and lanes != 4:
+        raise LanesError(f"vector_math needs 4 lanes (libmvec's AVX2 width), got {lanes}")
     loop = f"  for (b = 0; b < {lanes}; ++b) "
-    pairs = _sin_cos_pairs(func)
+    pairs = {} if vector_math else _sin_cos_pairs(func)
     lines = [f"static void {name}(const casadi_real* const* arg, casadi_real* const* res) {{",
              f"  casadi_real w[{max(func.sz_w(), 1)}][{lanes}];", "  int b;"]
+    if vector_math:
+        lines.insert(0, _vector_header())
     if pairs:
         lines.insert(0, _SINCOS)
         lines.append(f"  casadi_real pair[{len(pairs) // 2}][{lanes}];")
@@ -87,6 +144,12 @@ def lanes_c(func: ca.Function, name: str, lanes: int) -> str:
         op = _NAMES.get(func.instruction_id(k), str(func.instruction_id(k)))
         ins, outs = func.instruction_input(k), func.instruction_output(k)
         operands = [f"w[{i}][b]" for i in ins]
+        if vector_math and (op in _VECTOR or op in _VECTOR_BINARY):
+            loads = ", ".join(f"_mm256_loadu_pd(w[{i}])" for i in ins)
+            kind = "v" if op in _VECTOR else "vv"
+            function = _VECTOR.get(op) or _VECTOR_BINARY[op]
+            lines.append(f"  _mm256_storeu_pd(w[{outs[0]}], _ZGVdN4{kind}_{function}({loads}));")
+            continue
         if k in pairs:
             first, slot = pairs[k]
             sin, cos = (f"&w[{outs[0]}][b]", f"&pair[{slot}][b]") if op == "SIN" else \

@@ -112,7 +112,8 @@ def compiled_batch(spec: StudySpec, n_runs: int, threads: int) -> NativeBatch | 
     (up to ``spec.chunk_size`` runs, any thread count); else CasADi's map of the run (built once
     per process and study model; compiled libraries are cached on disk)."""
     capacity = max(n_runs, spec.chunk_size)
-    native = _cached(("native", spec.model_key, capacity), lambda: _native(spec, capacity))
+    native = _cached(("native", spec.model_key, capacity, spec.vector_math),
+                     lambda: _native(spec, capacity))
     if native is not None:
         return native.on_threads(threads)
     return _cached(("mapped", spec.model_key, n_runs, threads),
@@ -142,7 +143,8 @@ def _native(spec: StudySpec, capacity: int) -> NativeBatch | None:
     """The chunk loop of the study (its run's pieces built once for the loop and its check)."""
     pieces = _pieces(spec)
     return native_batch(pieces, batch_function(_run(spec, pieces), capacity, 1, False),
-                        spec.n_steps, spec.stride, spec.gusts, spec.feedback is not None)
+                        spec.n_steps, spec.stride, spec.gusts, spec.feedback is not None,
+                        spec.vector_math)
 
 
 def _initial(spec: StudySpec, layout: StateLayout, point, p: np.ndarray, offsets: dict

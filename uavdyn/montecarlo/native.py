@@ -39,7 +39,7 @@ from uavdyn.integrate.c_loop import (
 )
 from uavdyn.integrate.compiler import DEFAULT_FLAGS, CodegenWarning
 from uavdyn.integrate.csource import generate_c
-from uavdyn.integrate.lanes import LanesError, lanes_c
+from uavdyn.integrate.lanes import VECTOR_FLAGS, LanesError, lanes_c
 from uavdyn.montecarlo.batch import N_GUST, N_LIMITS, SIGNALS, STAT_NAMES, RunPieces
 
 LANES = 4  # runs advanced together: 4 measured fastest (2-16 tried, 2-core x86-64)
@@ -61,10 +61,12 @@ def _shapes(pieces: RunPieces, n_runs: int, n_steps: int, n_hist: int, gusts: bo
 
 
 def write_batch_source(pieces: RunPieces, n_runs: int, n_steps: int, stride: int, gusts: bool,
-                       feedback: bool, name: str, folder: Path) -> Path:
+                       feedback: bool, name: str, folder: Path, vector_math: bool = False
+                       ) -> Path:
     """Write ``<name>.c``: the run's start (CasADi's code) and body (in :data:`LANES` lanes,
     :func:`uavdyn.integrate.lanes.lanes_c`), the loop over a range of runs (``<name>_runs``)
-    and the mapped run's external interface (``<name>``).
+    and the mapped run's external interface (``<name>``); ``vector_math``: the lanes' maths
+    functions through glibc's ``libmvec`` (:func:`uavdyn.integrate.lanes.lanes_c`).
 
     Raises
     ------
@@ -74,7 +76,7 @@ def write_batch_source(pieces: RunPieces, n_runs: int, n_steps: int, stride: int
     stride = min(stride, n_steps)
     n_hist = n_steps // stride + 1
     start = loop_step(pieces.start, f"{name}_start")
-    body = lanes_c(loop_step(pieces.body, f"{name}_body"), f"{name}_lanes", LANES)
+    body = lanes_c(loop_step(pieces.body, f"{name}_body"), f"{name}_lanes", LANES, vector_math)
     source = generate_c(start, folder, name)
     text = source.read_text()
     n_zero = max(pieces.nx, pieces.nu, pieces.np, N_GUST, N_LIMITS, len(SIGNALS))
@@ -170,22 +172,25 @@ class NativeBatch:
 
 
 def native_batch(pieces: RunPieces, mapped: ca.Function, n_steps: int, stride: int,
-                 gusts: bool, feedback: bool) -> NativeBatch | None:
+                 gusts: bool, feedback: bool, vector_math: bool = False) -> NativeBatch | None:
     """The chunk loop for up to ``mapped``'s runs (``mapped``: the uncompiled serial map of the
     run, :func:`batch_function`, whose inputs and outputs the library is checked against),
     compiled and cached like every compiled Function; None without a compiler or for a body
     with an operation that has no lane form (:class:`~uavdyn.integrate.lanes.LanesError`,
-    said in a :class:`CodegenWarning`): the caller then flies CasADi's map."""
+    said in a :class:`CodegenWarning`): the caller then flies CasADi's map. ``vector_math``:
+    the lanes' maths functions through ``libmvec`` (the caller checks it is available:
+    :func:`uavdyn.integrate.lanes.vector_math_unavailable`)."""
     try:
         lanes_c(loop_step(pieces.body, "check"), "check", LANES)
     except LanesError as exc:
         warnings.warn(f"Monte-Carlo runs one at a time through CasADi's map: {exc}",
                       CodegenWarning, stacklevel=2)
         return None
+    flags = (*FLAGS, *VECTOR_FLAGS) if vector_math else FLAGS
     batch = compile_function(
-        mapped, FLAGS, warn=False, opener=lambda n, path: NativeBatch(ctypes.CDLL(path), n, mapped),
+        mapped, flags, warn=False, opener=lambda n, path: NativeBatch(ctypes.CDLL(path), n, mapped),
         source=lambda folder, n: write_batch_source(pieces, mapped.size2_in(0), n_steps, stride,
-                                                    gusts, feedback, n, folder))
+                                                    gusts, feedback, n, folder, vector_math))
     return batch if isinstance(batch, NativeBatch) else None
 
 

@@ -24,6 +24,7 @@ from uavdyn import __version__
 from uavdyn.airframes import Airframe, to_toml_dict
 from uavdyn.integrate import DiscreteModel, physics_step
 from uavdyn.integrate.inputs import PROFILES, control_sequence
+from uavdyn.integrate.lanes import vector_math_unavailable
 from uavdyn.learned import CorrectionNet, hybrid_step, load_weights, shipped_weights
 from uavdyn.learned.hybrid import correction_structure
 from uavdyn.linear import TrimError, linearise, stall_speed, trim
@@ -90,6 +91,9 @@ class StudySpec:
     feedback : numpy.ndarray or None
         Closed loop: the state-feedback gain (``nu x 4``, :func:`lqr_gain`) on the body states
         about each run's trim; None: the commands are flown open loop.
+    vector_math : bool
+        The chunk loop's maths functions through glibc's vector library (faster; each run
+        equal to the scalar code to round-off instead of to the last bit).
     """
 
     airframe: Airframe
@@ -109,6 +113,7 @@ class StudySpec:
     weights_digest: str = ""
     given: DiscreteModel | None = None
     feedback: np.ndarray | None = None
+    vector_math: bool = False
     key: str = field(default="", init=False)
     model_key: str = field(default="", init=False)
 
@@ -207,6 +212,7 @@ class StudySpec:
             "limits": [repr(float(v)) for v in self.limits],
             "feedback": (None if self.feedback is None
                          else [[repr(float(v)) for v in row] for row in self.feedback]),
+            **({"vector_math": True} if self.vector_math else {}),
         }
 
     def describe(self) -> dict:
@@ -396,7 +402,8 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
                dt: float = 0.01, mission: str = "doublet", weights: str | Path | None = None,
                seed: int | None = None, chunk_size: int = 200,
                history_dt: float = DEFAULT_HISTORY_DT, airspeed: float | None = None,
-               model: DiscreteModel | None = None, closed_loop: bool = False) -> StudySpec:
+               model: DiscreteModel | None = None, closed_loop: bool = False,
+               vector_math: bool = False) -> StudySpec:
     """Check a study's settings and gather them in a :class:`StudySpec`.
 
     Parameters
@@ -430,6 +437,11 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
         instead of building one from ``weights``; it must be built for ``airframe``'s
         structure, and a study with gusts needs ``weights`` instead (the gust step rebuilds
         the physics around the network).
+    vector_math : bool
+        Evaluate the maths functions of four runs in one call of glibc's vector library
+        (``libmvec``; x86-64 with AVX2, glibc 2.35+): about 1.5x faster chunks, each run equal
+        to the scalar code's to round-off (a few units in the last place per function) instead
+        of bit for bit.
 
     Raises
     ------
@@ -448,6 +460,10 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
     if n_steps < 1 or n_steps > MAX_STEPS:
         raise MonteCarloError(f"duration {duration:g} s at dt {dt:g} s is {n_steps} steps; "
                               f"between 1 and {MAX_STEPS} are allowed")
+    unavailable = vector_math_unavailable() if vector_math else None
+    if unavailable:
+        raise MonteCarloError(f"vector math is not available here: {unavailable}; leave out "
+                              "--vector-math")
     seed = dispersions.seed if seed is None and dispersions.seed is not None else (seed or 0)
     if not (isinstance(seed, int) and 0 <= seed < 2**63):
         raise MonteCarloError(f"seed must be an integer >= 0, got {seed}")
@@ -488,4 +504,4 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
                      seed=int(seed), chunk_size=chunk_size, airspeed=speed,
                      input_name=name, deviations=np.ascontiguousarray(deviations, float),
                      limits=resolve_limits(dispersions, airframe), weights_digest=digest,
-                     given=model, feedback=feedback)
+                     given=model, feedback=feedback, vector_math=bool(vector_math))
