@@ -139,6 +139,12 @@ def test_vector_math_where_the_machine_lacks_it_is_refused_with_the_reason(monke
     with pytest.raises(MonteCarloError, match="vector math is not available here: the CPU has "
                                               "no AVX2; leave out --vector-math"):
         build_spec(aerosonde, dispersions, runs=2, duration=1.0, vector_math=True)
+    # a Dask worker unlike the client: the chunk refuses instead of running AVX2 code
+    spec = build_spec(aerosonde, dispersions, runs=2, duration=1.0, chunk_size=2)
+    monkeypatch.setattr(chunk_module, "vector_math_unavailable", lambda: "the CPU has no AVX2")
+    chunk_module._COMPILED.clear()
+    with pytest.raises(MonteCarloError, match="not available on this worker"):
+        chunk_module.evaluate_chunk(dataclasses.replace(spec, vector_math=True), 0)
     x = ca.SX.sym("x")
     with pytest.raises(LanesError, match="4 lanes"):
         lanes_c(ca.Function("e", [x], [ca.exp(x)]), "e", 2, vector_math=True)

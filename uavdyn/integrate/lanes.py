@@ -22,6 +22,7 @@ functions: results then agree with the scalar code to round-off, not to the last
 from __future__ import annotations
 
 import math
+from functools import cache
 
 import casadi as ca
 
@@ -60,6 +61,7 @@ VECTOR_FLAGS = ("-mavx2", "-Wl,--no-as-needed", "-lmvec")
 GLIBC_VECTOR = (2, 35)  # the first glibc whose libmvec has atan2, tanh and hypot
 
 
+@cache
 def vector_math_unavailable() -> str | None:
     """Why ``vector_math`` cannot run here (None: it can): it needs an x86-64 CPU with AVX2,
     glibc 2.35 or later (its ``libmvec``) and a C compiler."""

@@ -34,6 +34,7 @@ import numpy as np
 
 from uavdyn.airframes import AirframeError
 from uavdyn.integrate import StateLayout
+from uavdyn.integrate.lanes import vector_math_unavailable
 from uavdyn.linear import TrimError, point_params, trim, trim_many
 from uavdyn.montecarlo.batch import (
     N_GUST,
@@ -140,7 +141,16 @@ def _run(spec: StudySpec, pieces: RunPieces | None = None) -> ca.Function:
 
 
 def _native(spec: StudySpec, capacity: int) -> NativeBatch | None:
-    """The chunk loop of the study (its run's pieces built once for the loop and its check)."""
+    """The chunk loop of the study (its run's pieces built once for the loop and its check).
+
+    Raises
+    ------
+    MonteCarloError
+        For a vector-math study on a machine without it (a Dask worker unlike the client)."""
+    unavailable = vector_math_unavailable() if spec.vector_math else None
+    if unavailable:
+        raise MonteCarloError(f"vector math is not available on this worker ({unavailable}); "
+                              "run the study without --vector-math")
     pieces = _pieces(spec)
     return native_batch(pieces, batch_function(_run(spec, pieces), capacity, 1, False),
                         spec.n_steps, spec.stride, spec.gusts, spec.feedback is not None,
