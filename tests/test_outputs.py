@@ -120,8 +120,11 @@ def test_interrupted_train_keeps_the_old_weights_and_history(tmp_path, aerosonde
                             missions=["sysid_doublet", "sysid_3211", "sysid_chirp"],
                             split={"train": 0.5, "validation": 0.5, "test": 0.0}),
                      data, workers=1, progress=False)
+    # patience as long as the epochs: the compiled trainer would otherwise stop early, and the
+    # interrupt could land after the new outputs were committed (all three new: also correct)
     proc = _cli(["train", "--airframe", "aerosonde", "--dataset", str(data),
-                 "--epochs", "500", "--max-seconds", "120", "--out", str(weights)])
+                 "--epochs", "500", "--patience", "500", "--max-seconds", "120",
+                 "--out", str(weights)])
     started = time.monotonic()
     _interrupt_when(proc, lambda: time.monotonic() - started > 12.0)
     assert proc.returncode != 0
