@@ -5,7 +5,7 @@ workers, against a sequential Python loop over the library's single-run C loop
 (``compiled_rollout``); printed as JSON (and written with ``--out``).
 
 Usage: ``python analysis/bench_montecarlo.py [--runs 10000] [--duration 60] [--loop-runs 200]
-[--out docs/benchmarks/bench_montecarlo.json]``.
+[--no-vector-math] [--out docs/benchmarks/bench_montecarlo.json]``.
 
 Every study is timed as the command runs it (``run_study`` into a fresh output folder: chunk
 files, table, envelopes, figures, summary), with the compile cache already filled (the compile
