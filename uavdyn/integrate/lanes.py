@@ -14,9 +14,9 @@ cannot vectorise bit for bit.
 
 ``vector_math=True`` (four lanes only) evaluates the maths library's functions four lanes in
 one call of glibc's vector library ``libmvec`` (AVX2; :func:`vector_math_unavailable` says
-whether this machine has it): about two thirds of a Monte-Carlo step's time was those scalar
-calls. ``libmvec`` is accurate to a few units in the last place, not bit for bit the scalar
-functions: results then agree with the scalar code to round-off, not to the last bit.
+whether this machine has it): much of a Monte-Carlo step's time is those scalar calls.
+``libmvec`` is accurate to a few units in the last place, not bit for bit the scalar functions:
+results then agree with the scalar code to round-off, not to the last bit.
 """
 
 from __future__ import annotations
