@@ -22,9 +22,12 @@ results then agree with the scalar code to round-off, not to the last bit.
 from __future__ import annotations
 
 import math
+import platform
 from functools import cache
 
 import casadi as ca
+
+from uavdyn.integrate.compiler import find_compiler
 
 _NAMES = {getattr(ca, n): n[3:] for n in dir(ca) if n.startswith("OP_")}
 _UNARY = {"NEG": "-{0}", "SQ": "{0}*{0}", "TWICE": "2.*{0}", "INV": "1./{0}", "NOT": "!{0}",
@@ -65,10 +68,6 @@ GLIBC_VECTOR = (2, 35)  # the first glibc whose libmvec has atan2, tanh and hypo
 def vector_math_unavailable() -> str | None:
     """Why ``vector_math`` cannot run here (None: it can): it needs an x86-64 CPU with AVX2,
     glibc 2.35 or later (its ``libmvec``) and a C compiler."""
-    import platform
-
-    from uavdyn.integrate.compiler import find_compiler
-
     if platform.machine() not in ("x86_64", "AMD64"):
         return f"the CPU is {platform.machine()}, not x86-64"
     libc, version = platform.libc_ver()
