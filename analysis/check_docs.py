@@ -49,7 +49,7 @@ def documents(root: Path) -> list[Path]:
 
 def help_texts() -> dict[str, str]:
     """``uavdyn --help`` and each subcommand's ``--help``, by name."""
-    from uavdyn.cli.main import build_parser
+    from uavdyn.cli.app import build_parser
 
     parser = build_parser()
     texts = {"uavdyn --help": parser.format_help()}
@@ -61,7 +61,7 @@ def help_texts() -> dict[str, str]:
 
 def command_options() -> dict[str, set[str]]:
     """Each subcommand's option strings."""
-    from uavdyn.cli.main import build_parser
+    from uavdyn.cli.app import build_parser
 
     out = {}
     for action in build_parser()._subparsers._group_actions:

@@ -1,6 +1,6 @@
 """Probe every option of every ``uavdyn`` subcommand with values that are invalid for it.
 
-The parser of :func:`uavdyn.cli.main.build_parser` is walked, so an option added later is
+The parser of :func:`uavdyn.cli.app.build_parser` is walked, so an option added later is
 probed too (an option this file does not describe is reported as ``undescribed``, a failure).
 Each option is tried with the values that are really invalid for it (numbers: 0, -1, nan, inf,
 1e308, a non-number and, for counts, a fractional or an absurdly large integer, each only when
@@ -642,7 +642,7 @@ def markdown(runs: list[Run], info: dict) -> str:
         + (" `--before <this probe's JSON on the earlier code>`" if info.get("before") else "")
         + f" (from the repository root; {info['seconds']:g} s here). "
         "Every option of every `uavdyn` subcommand (the parser of "
-        "`uavdyn.cli.main.build_parser()`, walked) is given values that are invalid for it, "
+        "`uavdyn.cli.app.build_parser()`, walked) is given values that are invalid for it, "
         "with every other argument at its smallest valid value; each run is "
         "`uavdyn.cli.main(argv)` in a forked child with a timeout and a memory limit. The "
         "second table tries valid values that break a relation to another option or to the "
@@ -721,7 +721,7 @@ def main(argv: list[str] | None = None) -> int:
         import torch  # noqa: F401 - imported once here: the children start warm
     except ImportError:
         pass
-    from uavdyn.cli.main import build_parser
+    from uavdyn.cli.app import build_parser
 
     work = Path(tempfile.mkdtemp(prefix="uavdyn-probe-"))
     try:

@@ -31,7 +31,7 @@ PARAMS = "C_m_0,C_m_alpha,C_m_q,C_m_delta_e,C_L_0,C_D_0"
 
 def run(argv: list[str]) -> tuple[int, str]:
     """One ``uavdyn`` command in this process: its exit code and everything it printed."""
-    from uavdyn.cli.main import main
+    from uavdyn.cli.app import main
 
     buffer = io.StringIO()
     with contextlib.redirect_stdout(buffer), contextlib.redirect_stderr(buffer):

@@ -1,6 +1,6 @@
 """Build the five-minute tour: run its commands, write the page and the README's tour block.
 
-Runs the tour's ``uavdyn`` commands in this process (``uavdyn.cli.main.main``) inside a
+Runs the tour's ``uavdyn`` commands in this process (``uavdyn.cli.app.main``) inside a
 temporary folder, on small emulated data, and writes what each printed into
 ``docs/tutorials/tour.md`` and into ``README.md`` between ``<!-- tour:start -->`` and
 ``<!-- tour:end -->``. Long outputs are trimmed, with a visible ``...`` line. So the printed
@@ -103,7 +103,7 @@ STEPS = (
 
 def run(argv: tuple[str, ...]) -> tuple[int, str]:
     """One ``uavdyn`` command in this process: its exit code and everything it printed."""
-    from uavdyn.cli.main import main
+    from uavdyn.cli.app import main
 
     buffer = io.StringIO()
     with contextlib.redirect_stdout(buffer), contextlib.redirect_stderr(buffer):

@@ -166,7 +166,7 @@ def test_trainer_dataset_inside_its_envelope_limits_and_lags(tmp_path):
 def test_cli_skips_an_unflyable_mission_in_one_line_and_writes_the_rest(tmp_path, x500,
                                                                          capsys):
     from uavdyn.airframes import to_toml_dict
-    from uavdyn.cli.main import main
+    from uavdyn.cli.app import main
 
     draggy = to_toml_dict(x500.replace(drag_linear=8.0))
     path = tmp_path / "draggy.json"

@@ -315,7 +315,7 @@ def test_missing_pymavlink_gives_the_install_hint(tmp_path, monkeypatch):
 def test_import_log_cuts_a_bin_log_into_segments_with_the_same_columns(tmp_path, tr, capsys):
     """``uavdyn import-log`` on a .bin: the wings-level parts of the written flight become
     sorties whose columns are the interchange format's, values equal to the written truth."""
-    from uavdyn.cli.main import main
+    from uavdyn.cli.app import main
     from uavdyn.flightdata import csv_columns, load_dataset
 
     log = tmp_path / "plane.bin"

@@ -1,6 +1,5 @@
-"""``uavdyn mpc`` (through its own sub-parser until it is wired into ``uavdyn.cli.main``):
-writes histories, statistics and a PNG into a fresh folder, refuses a foreign non-empty
-folder and bad options with one-line errors."""
+"""``uavdyn mpc``: writes histories, statistics and a PNG into a fresh folder, refuses a foreign
+non-empty folder and bad options with one-line errors."""
 
 import argparse
 import csv
@@ -55,7 +54,7 @@ def test_mpc_command_writes_histories_stats_and_figure(tmp_path, capsys):
 def test_mpc_command_refuses_bad_options(tmp_path, argv, match, capsys):
     """Refused when parsed (or, for a relation, before any work): one line naming the option,
     exit code 2, nothing written."""
-    from uavdyn.cli.main import main
+    from uavdyn.cli.app import main
 
     assert main(["mpc", "--scenario", "climb", "--out", str(tmp_path / "x"), *argv]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -63,14 +62,11 @@ def test_mpc_command_refuses_bad_options(tmp_path, argv, match, capsys):
     assert not (tmp_path / "x").exists()
 
 
-def test_main_prints_one_line_errors_once_wired(tmp_path, capsys):
-    """Through ``uavdyn.cli.main`` (skipped until ``mpc`` is registered there): a bad option is
-    one line on stderr with exit code 2, no traceback."""
-    from uavdyn.cli.main import build_parser, main
+def test_main_prints_one_line_errors(tmp_path, capsys):
+    """Through ``uavdyn``'s own parser: a bad option is one line on stderr with exit code 2, no
+    traceback."""
+    from uavdyn.cli.app import main
 
-    actions = [a for a in build_parser()._actions if getattr(a, "choices", None)]
-    if not any("mpc" in a.choices for a in actions):
-        pytest.skip("uavdyn mpc is not wired into uavdyn.cli.main yet")
     code = main(["mpc", "--scenario", "climb", "--horizon", "0", "--out", str(tmp_path / "x")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in err and "argument --horizon: must be" in err

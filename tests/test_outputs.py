@@ -5,13 +5,10 @@ its inputs; the legacy F450 hybrid from hover stays bounded or raises with the t
 
 import json
 import os
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
+from interrupting import interrupt_when, uavdyn_child
 from test_correction import random_net
 
 from uavdyn.airframes import load_airframe
@@ -64,44 +61,22 @@ def test_output_folder_refuses_foreign_replaces_own_and_force_keeps_user_files(t
     assert not [p for p in os.listdir(tmp_path) if p.startswith(".")]  # no temp left over
 
 
-def _cli(args: list[str]) -> subprocess.Popen:
-    code = f"from uavdyn.cli import main; raise SystemExit(main({args!r}))"
-    # Ctrl-C reaches the command as at a terminal even when the tests themselves run as a
-    # background job (a non-interactive shell starts those with SIGINT ignored, the child
-    # inherits that, and Python then installs no KeyboardInterrupt handler)
-    return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-
-
-def _interrupt_when(proc: subprocess.Popen, ready, timeout: float = 120.0) -> None:
-    t0 = time.monotonic()
-    while not ready():
-        if proc.poll() is not None:
-            raise AssertionError(f"finished before it could be interrupted: {proc.stderr.read()}")
-        if time.monotonic() - t0 > timeout:
-            proc.kill()
-            raise AssertionError("never reached the point of interruption")
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)
-    proc.wait(timeout=60)
-
-
 @pytest.mark.slow
 def test_interrupted_generate_data_leaves_the_old_dataset_unchanged(tmp_path):
     out = tmp_path / "data"
     generate_dataset(Recipe(airframe="quadrotor", sorties=6, duration_s=4.0, seed=0), out,
                      workers=1, progress=False)
     before = dataset_fingerprint(out)
-    proc = _cli(["generate-data", "--airframe", "quadrotor", "--sorties", "60", "--duration",
-                 "20", "--seed", "1", "--workers", "1", "--no-progress", "--out", str(out)])
+    proc = uavdyn_child(["generate-data", "--airframe", "quadrotor", "--sorties", "60",
+                         "--duration", "20", "--seed", "1", "--workers", "1", "--no-progress",
+                         "--out", str(out)])
 
-    def some_sorties_written() -> bool:
+    def some_sorties_written(_stderr: str) -> bool:
         partial = [p for p in tmp_path.iterdir() if p.name.startswith(".data.partial")]
         return bool(partial) and len(list(partial[0].glob("*.csv"))) >= 4
 
-    _interrupt_when(proc, some_sorties_written)
-    assert proc.returncode != 0
+    _, err = interrupt_when(proc, some_sorties_written)
+    assert proc.returncode == 130 and "interrupted" in err.strip().splitlines()[-1], err[-500:]
     after = compare_fingerprints(dataset_fingerprint(out), before)
     assert after.matches(0.0), after.describe()
     assert len(load_dataset(out).sorties) == 6
@@ -122,12 +97,12 @@ def test_interrupted_train_keeps_the_old_weights_and_history(tmp_path, aerosonde
                      data, workers=1, progress=False)
     # patience as long as the epochs: the compiled trainer would otherwise stop early, and the
     # interrupt could land after the new outputs were committed (all three new: also correct)
-    proc = _cli(["train", "--airframe", "aerosonde", "--dataset", str(data),
-                 "--epochs", "500", "--patience", "500", "--max-seconds", "120",
-                 "--out", str(weights)])
-    started = time.monotonic()
-    _interrupt_when(proc, lambda: time.monotonic() - started > 12.0)
-    assert proc.returncode != 0
+    proc = uavdyn_child(["train", "--airframe", "aerosonde", "--dataset", str(data),
+                         "--epochs", "500", "--patience", "500", "--max-seconds", "120",
+                         "--out", str(weights)])
+    # Ctrl-C once a few epochs ran (their progress lines on stderr)
+    _, err = interrupt_when(proc, lambda stderr: stderr.count("epoch/s") >= 3)
+    assert proc.returncode == 130 and "interrupted" in err.strip().splitlines()[-1], err[-500:]
     assert weights.read_bytes() == old_w and history.read_text() == old_h
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "w.npz", "w_history.json"]
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from tests.reallogs import alfa_folder, ulog
-from uavdyn.cli.main import main
+from uavdyn.cli.app import main
 from uavdyn.flightdata import FlightDataError, load_dataset
 from uavdyn.flightdata.control_map import ChannelMap, override, parse_channel_map
 from uavdyn.flightdata.flightlog import FlightLog

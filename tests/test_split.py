@@ -9,7 +9,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from uavdyn.cli.main import main
+from uavdyn.cli.app import main
 from uavdyn.flightdata import FlightDataError, Sortie, load_dataset, write_csv, write_manifest
 from uavdyn.flightdata.split import SplitError, assign_split, split_dataset
 

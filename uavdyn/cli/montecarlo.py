@@ -2,7 +2,7 @@
 :mod:`uavdyn.montecarlo`.
 
 Errors are :class:`uavdyn.montecarlo.MonteCarloError` / :class:`DispersionError` (``ValueError``
-subclasses), which ``uavdyn.cli.main`` prints as one line with exit code 2.
+subclasses), which ``uavdyn.cli.app`` prints as one line with exit code 2.
 """
 
 from __future__ import annotations

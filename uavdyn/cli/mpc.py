@@ -4,7 +4,7 @@ solve-time statistics (JSON) and a figure (PNG).
 
 Option values are checked when parsed (:mod:`uavdyn.cli.common`); the relation of the options
 (a :class:`~uavdyn.cli.common.CliError`), weight-file and output-folder errors are
-``uavdyn.cli.main``'s one line with exit code 2.
+``uavdyn.cli.app``'s one line with exit code 2.
 """
 
 from __future__ import annotations

@@ -277,4 +277,4 @@ def json_default(value):
     return str(value)
 
 
-_json = json_default  # the name ``uavdyn.cli.main`` imports
+_json = json_default  # the name ``uavdyn.cli.app`` imports

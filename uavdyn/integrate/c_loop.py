@@ -21,6 +21,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.integrate.csource import generate_c
+from uavdyn.interrupts import reraise_interrupt
 
 
 def loop_step(step: ca.Function, name: str) -> ca.Function:
@@ -29,7 +30,8 @@ def loop_step(step: ca.Function, name: str) -> ca.Function:
     if not step.is_a("SXFunction"):
         try:
             step = step.expand()
-        except RuntimeError:  # not expandable: keep the MX graph
+        except RuntimeError as exc:  # not expandable: keep the MX graph
+            reraise_interrupt(exc)
             inputs = step.mx_in()
             return ca.Function(name, inputs, step.call(inputs), step.name_in(),
                                step.name_out())

@@ -31,6 +31,7 @@ from uavdyn.integrate.compiler import (
     _compiler_id,
     compile_timeout,
 )
+from uavdyn.interrupts import reraise_interrupt
 
 STALE_TEMP_SECONDS = 24 * 3600
 
@@ -210,6 +211,7 @@ def _trial_load(partial: Path, compiler: str, name: str, signature: list, err: d
     try:
         trial = ca.external(name, str(partial))
     except RuntimeError as exc:
+        reraise_interrupt(exc)
         raise CompileError(f"compiler {compiler} exited 0 but casadi.external cannot load its "
                            f"output for CasADi Function '{name}' ({_casadi_reason(exc)})",
                            returncode=0, **err) from None
@@ -243,6 +245,7 @@ def _load_verified(lib: Path, key: str, name: str, signature: list,
         try:
             loaded = (opener or ca.external)(name, str(link))
         except RuntimeError as exc:
+            reraise_interrupt(exc)
             raise CacheError(f"verified library {lib} cannot be loaded "
                              f"({_casadi_reason(exc)})", lib) from None
     finally:

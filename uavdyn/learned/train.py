@@ -288,7 +288,7 @@ def _epochs(losses: Losses, data: TrainingData, cfg: TrainConfig, rng: np.random
         elapsed = time.perf_counter() - start
         history.append(_history_row(epoch, train, (v1, v2, vt), sched.get_last_lr()[0],
                                     elapsed))
-        bar.set_postfix(val=f"{vt:.3g}", one=f"{v1:.3g}", roll=f"{v2:.3g}")
+        bar.set_postfix(val=f"{vt:.3g}", one=f"{v1:.3g}", roll=f"{v2:.3g}", refresh=False)
         if vt < best[0] and math.isfinite(vt):
             best = (vt, epoch, {k: v.clone() for k, v in model.state_dict().items()})
         elif epoch - best[1] >= cfg.patience and epoch > cfg.warmup_epochs:

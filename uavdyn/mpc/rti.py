@@ -22,6 +22,7 @@ import casadi as ca
 import numpy as np
 
 from uavdyn.integrate import compile_function
+from uavdyn.interrupts import reraise_interrupt
 from uavdyn.mpc.policy import Controller, SolveOutcome
 from uavdyn.mpc.problem import TrackingProblem
 
@@ -176,7 +177,8 @@ class RTIController(Controller):
                                  weights])
         try:
             v, cost, X_check = self._step.call([packed])
-        except RuntimeError:  # the solver failed or refused the data
+        except RuntimeError as exc:  # the solver failed or refused the data (or Ctrl-C)
+            reraise_interrupt(exc)
             return self._iteration_apart(packed, Ub)
         X_check = X_check.full().ravel()
         X = X_check[:-1].reshape((len(x0), self.N + 1), order="F")

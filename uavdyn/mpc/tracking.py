@@ -26,6 +26,7 @@ import numpy as np
 from uavdyn.airframes import Airframe
 from uavdyn.emulation import open_loop_references
 from uavdyn.integrate import DiscreteModel, physics_step
+from uavdyn.interrupts import interruptible
 from uavdyn.model import first_departure
 from uavdyn.mpc.policy import HELD, SHIFTED, SOLVED, Controller, MPCResult, SolveOutcome
 from uavdyn.mpc.problem import DEFAULT_RATE_LIMITS, MPCConfig, TrackingProblem
@@ -134,8 +135,9 @@ class TrackingMPC(Controller):
         w0 = np.concatenate([Xw.ravel(order="F"), Uw.ravel(order="F"),
                              np.zeros(self.problem.ns)])
         par = np.concatenate([x0, u_prev, refs.ravel(order="F"), weights])
-        sol = self.solver(x0=w0, p=par, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg,
-                          ubg=self.ubg)
+        with interruptible():  # Ipopt would end the solve on Ctrl-C and the loop fly on
+            sol = self.solver(x0=w0, p=par, lbx=self.lbx, ubx=self.ubx, lbg=self.lbg,
+                              ubg=self.ubg)
         stats = self.solver.stats()
         w = np.asarray(sol["x"]).ravel()
         X = w[:nx * (N + 1)].reshape((nx, N + 1), order="F")

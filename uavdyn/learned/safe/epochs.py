@@ -147,7 +147,7 @@ def run_epochs(model: TorchCorrection, data: TrainingData, stab: StabilityTarget
                         "lr": sched.get_last_lr()[0], "seconds": elapsed})
         bar.set_postfix(loss=f"{loss:.3g}", val=f"{sel['val_theta_rmse']:.3g}",
                         physics=f"{physics_val:.3g}", ratio=f"{sel['val_ratio_geomean']:.3g}",
-                        worst=f"{sel['val_ratio_worst']:.3g}")
+                        worst=f"{sel['val_ratio_worst']:.3g}", refresh=False)
         if math.isfinite(sel["val_theta_rmse"]):
             snapshots.append(Snapshot(rank(sel, cfg), epoch, _state(model), sel))
         if rank(sel, cfg) < best.rank and math.isfinite(sel["val_theta_rmse"]):

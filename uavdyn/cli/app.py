@@ -19,6 +19,7 @@ from uavdyn.cli.montecarlo import add_parser as add_montecarlo_parser
 from uavdyn.cli.mpc import add_parser as add_mpc_parser
 from uavdyn.cli.split_command import add_split
 from uavdyn.integrate import CompileError, DivergenceError
+from uavdyn.interrupts import is_casadi_interrupt
 from uavdyn.linear import TrimError
 
 # the subcommands in the order ``uavdyn --help`` lists them
@@ -78,14 +79,20 @@ def _run(args: argparse.Namespace) -> int:
         print(f"uavdyn {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"uavdyn {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted(args.command)
     except Exception as exc:  # an internal error: one line, the traceback on request
+        if is_casadi_interrupt(exc):  # Ctrl-C inside a CasADi solver
+            return _interrupted(args.command)
         if args.debug:
             raise
         print(f"uavdyn {args.command}: internal error: {type(exc).__name__}: "
               f"{_one_line(exc)} (run with --debug for the traceback)", file=sys.stderr)
         return 2
+
+
+def _interrupted(command: str) -> int:
+    print(f"uavdyn {command}: interrupted", file=sys.stderr)
+    return 130
 
 
 def _one_line(exc: BaseException | Warning | str) -> str:
