@@ -1,9 +1,10 @@
 """Ctrl-C through CasADi (``uavdyn.interrupts``) and while the command line loads.
 
 CasADi's solvers poll Python's signals and consume Ctrl-C: a Newton solve raises a
-``RuntimeError`` ending in ``KeyboardInterrupt``, an Ipopt solve just ends as failed. These tests
-press Ctrl-C on a child process in the middle of such solves; the first checks that CasADi still
-behaves as the module says (the reason it exists)."""
+``RuntimeError`` ending in ``KeyboardInterrupt``, an Ipopt solve just ends as failed; its
+conversion of NumPy arguments discards a KeyboardInterrupt raised in its Python helpers. These
+tests press Ctrl-C on child processes in the middle of such work; the first checks that CasADi
+still behaves as the module says (the reason it exists)."""
 
 import signal
 import time
@@ -12,7 +13,7 @@ import pytest
 from interrupting import interrupt_when, python_child
 
 from uavdyn.cli import main
-from uavdyn.interrupts import interruptible, is_casadi_interrupt
+from uavdyn.interrupts import ctrl_c_pending, interruptible, is_casadi_interrupt
 
 LONG_IPOPT_SOLVES = """
 import time
@@ -70,7 +71,7 @@ def test_ipopt_swallows_ctrl_c_and_interruptible_gives_it_back():
 def test_a_newton_solve_interrupted_raises_what_is_casadi_interrupt_recognises():
     out, _ = _interrupted_after_ready(NEWTON_SOLVES + """
 import time
-from uavdyn.interrupts import interruptible, is_casadi_interrupt
+from uavdyn.interrupts import ctrl_c_pending, interruptible, is_casadi_interrupt
 t0 = time.monotonic()
 try:
     while time.monotonic() - t0 < 20:
@@ -133,3 +134,56 @@ raise SystemExit(main(["trim", "--airframe", "aerosonde"]))
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 130 and err.strip() == "uavdyn: interrupted", err
     assert not out
+
+
+SWALLOWING_LOOP = """
+import time
+from uavdyn.interrupts import CheckedBar, ctrl_c_remembered
+
+def library_that_swallows_everything():
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 0.05:
+        try:
+            sum(range(1000))
+        except BaseException:
+            pass
+
+def loop():
+    for step in CheckedBar(range(400), disable=True):
+        library_that_swallows_everything()
+    print("never interrupted")
+
+print("ready", flush=True)
+try:
+    %s
+except KeyboardInterrupt:
+    print("KeyboardInterrupt")
+"""
+
+
+def test_a_swallowed_ctrl_c_is_raised_at_the_next_step_of_a_checked_loop():
+    out, _ = _interrupted_after_ready(SWALLOWING_LOOP % "loop()")
+    assert out.strip() == "never interrupted"  # what happens without the record (20 s)
+    out, _ = _interrupted_after_ready(SWALLOWING_LOOP % "with ctrl_c_remembered(): loop()")
+    assert out.strip() == "KeyboardInterrupt"
+
+
+def test_command_line_error_after_a_swallowed_ctrl_c_is_the_interrupt(monkeypatch, capsys):
+    """CasADi's NumPy conversion can turn Ctrl-C into a SystemError: with the Ctrl-C on record,
+    the command line reports it as the interrupt, not as an internal error."""
+    import uavdyn.cli.model_commands as commands
+
+    def garbled(args):
+        try:
+            signal.raise_signal(signal.SIGINT)
+        except KeyboardInterrupt:
+            raise SystemError("DM.__array__ returned a result with an exception set") from None
+
+    monkeypatch.setattr(commands, "cmd_trim", garbled)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        assert main(["trim", "--airframe", "aerosonde"]) == 130
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert capsys.readouterr().err.strip() == "uavdyn trim: interrupted"
+    assert not ctrl_c_pending()  # the record ends with the command

@@ -64,7 +64,8 @@ def test_output_folder_refuses_foreign_replaces_own_and_force_keeps_user_files(t
 @pytest.mark.slow
 def test_interrupted_generate_data_leaves_the_old_dataset_unchanged(tmp_path):
     out = tmp_path / "data"
-    generate_dataset(Recipe(airframe="quadrotor", sorties=6, duration_s=4.0, seed=0), out,
+    generate_dataset(Recipe(airframe="quadrotor", sorties=6, duration_s=4.0, seed=0,
+                            split={"train": 1.0, "validation": 0.0, "test": 0.0}), out,
                      workers=1, progress=False)
     before = dataset_fingerprint(out)
     proc = uavdyn_child(["generate-data", "--airframe", "quadrotor", "--sorties", "60",

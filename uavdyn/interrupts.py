@@ -13,6 +13,8 @@ import signal
 import threading
 from collections.abc import Iterator
 
+from tqdm import tqdm
+
 CASADI_INTERRUPT = "KeyboardInterrupt"
 
 
@@ -32,31 +34,84 @@ def reraise_interrupt(exc: BaseException) -> None:
         raise KeyboardInterrupt from None
 
 
+_pressed = False  # Ctrl-C arrived while ctrl_c_remembered() was active, not yet raised again
+
+
+def _remember_and_raise(signum, frame) -> None:
+    global _pressed
+    _pressed = True
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def ctrl_c_remembered() -> Iterator[None]:
+    """Remember every Ctrl-C during the block, so that :func:`check_interrupted` can raise one
+    that a library swallowed (CasADi's conversion of NumPy arguments calls Python helpers and
+    discards any exception raised in them, a KeyboardInterrupt included).
+
+    Only in the main thread and over Python's default handler (a program's own handler, or
+    SIGINT ignored, is left alone); nested uses share the outermost one's record.
+    """
+    global _pressed
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield
+        return
+    _pressed = False
+    previous = signal.signal(signal.SIGINT, _remember_and_raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        _pressed = False
+
+
+def ctrl_c_pending() -> bool:
+    """Whether Ctrl-C arrived under :func:`ctrl_c_remembered` and was not raised again since
+    (an error raised meanwhile may be its garbled form: CasADi's NumPy conversion turns it
+    into a ``SystemError`` or ``TypeError``)."""
+    return _pressed
+
+
+def check_interrupted() -> None:
+    """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed (under :func:`ctrl_c_remembered`)
+    and has not been raised since: called once per iteration of long loops (epochs, sorties,
+    solver iterations, control steps), it bounds how long a swallowed Ctrl-C goes unheeded."""
+    global _pressed
+    if _pressed:
+        _pressed = False
+        raise KeyboardInterrupt
+
+
 @contextlib.contextmanager
 def interruptible() -> Iterator[None]:
     """Run a CasADi solve so that Ctrl-C during it raises ``KeyboardInterrupt`` when it returns,
     even where the solver swallowed it (Ipopt).
 
-    Costs two ``sigaction`` calls (tens of microseconds): for solves of milliseconds, not for a
-    real-time loop's inner call (there, :func:`reraise_interrupt` in the error path). Outside
-    the main thread, or where the program installed its own SIGINT handler, it only converts
-    CasADi's ``RuntimeError``.
+    An error raised while a Ctrl-C is pending becomes the ``KeyboardInterrupt`` too. Costs two
+    ``sigaction`` calls (tens of microseconds) unless :func:`ctrl_c_remembered` is
+    already active (the command line): for solves of milliseconds, not for a real-time loop's
+    inner call (there, :func:`reraise_interrupt` in the error path).
     """
-    caught: list[int] = []
-    previous = None
-    if (threading.current_thread() is threading.main_thread()
-            and signal.getsignal(signal.SIGINT) is signal.default_int_handler):
-        def note_and_raise(signum, frame) -> None:
-            caught.append(signum)
-            signal.default_int_handler(signum, frame)
-        previous = signal.signal(signal.SIGINT, note_and_raise)
-    try:
-        yield
-    except RuntimeError as exc:
-        reraise_interrupt(exc)
-        raise
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
-    if caught:
-        raise KeyboardInterrupt
+    with ctrl_c_remembered():
+        try:
+            yield
+        except Exception as exc:
+            if is_casadi_interrupt(exc) or ctrl_c_pending():
+                raise KeyboardInterrupt from None
+            raise
+        check_interrupted()
+
+
+class CheckedBar(tqdm):
+    """A tqdm progress bar that calls :func:`check_interrupted` at every step (iteration or
+    ``update``), shown or not: every long loop of the package advances one."""
+
+    def update(self, n: float | None = 1) -> bool | None:
+        check_interrupted()
+        return super().update(n)
+
+    def __iter__(self):
+        for item in super().__iter__():
+            check_interrupted()
+            yield item

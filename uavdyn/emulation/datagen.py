@@ -33,7 +33,6 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from uavdyn.airframes import Airframe, load_airframe
 from uavdyn.emulation.emulator import Emulator, dryden_gusts, emulator_rollout, gust_span
@@ -47,6 +46,7 @@ from uavdyn.flightdata import (
     write_csv,
     write_manifest,
 )
+from uavdyn.interrupts import CheckedBar
 from uavdyn.outputs import output_folder
 
 SPLITS = ("train", "validation", "test")
@@ -300,7 +300,7 @@ def _generate_into(recipe: Recipe, airframe: Airframe, out: Path, workers: int |
     workers = workers or os.cpu_count() or 1
     recipe_dict = asdict(recipe)
     jobs = [(recipe_dict, item, str(out)) for item in items]
-    bar = tqdm(total=len(jobs), desc=f"generating {airframe.name} sorties", unit="sortie",
+    bar = CheckedBar(total=len(jobs), desc=f"generating {airframe.name} sorties", unit="sortie",
                disable=not progress)
     entries: list[dict] = []
     if workers == 1:

@@ -24,7 +24,6 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from uavdyn.airframes import Airframe, load_airframe
 from uavdyn.evaluation import Solver
@@ -55,6 +54,7 @@ from uavdyn.experiments.tables import (
 )
 from uavdyn.flightdata import Dataset, Sortie
 from uavdyn.integrate import cache_dir
+from uavdyn.interrupts import CheckedBar
 from uavdyn.outputs import output_folder
 
 __all__ = ["PAPER", "ReproduceConfig", "run", "run_airframe", "table1_candidates",
@@ -119,7 +119,7 @@ def robustness_scenarios(airframe: Airframe, ds: Dataset, quick: bool = False
 
 
 def _bar(config: ReproduceConfig, total: int, desc: str):
-    return tqdm(total=total, desc=desc, disable=not config.progress, unit="run",
+    return CheckedBar(total=total, desc=desc, disable=not config.progress, unit="run",
                 mininterval=1.0)
 
 

@@ -14,7 +14,6 @@ import math
 import casadi as ca
 import numpy as np
 import scipy.sparse as sp
-from tqdm import tqdm
 
 from uavdyn.identify.errors import IdentifyError
 from uavdyn.identify.lm import solve_bounded
@@ -28,6 +27,7 @@ from uavdyn.identify.windows import (
 )
 from uavdyn.integrate import compile_function
 from uavdyn.integrate.augmented import physics_function
+from uavdyn.interrupts import CheckedBar
 from uavdyn.model import ModelStructure
 
 MAP_THREADS = 2
@@ -167,15 +167,11 @@ class _Problem:
     def solve(self, z0: np.ndarray, data: dict, lower: np.ndarray, upper: np.ndarray,
               max_iterations: int, progress: bool) -> tuple[np.ndarray, dict]:
         """Bounded Levenberg-Marquardt from ``z0`` (:func:`uavdyn.identify.lm.solve_bounded`)."""
-        bar = tqdm(total=max_iterations, desc="identify (iterations)", unit="it",
-                   leave=False) if progress else None
-        try:
+        with CheckedBar(total=max_iterations, desc="identify (iterations)", unit="it",
+                        leave=False, disable=not progress) as bar:
             out = solve_bounded(lambda z: self.evaluate(z, data),
                                 lambda z: self.cost(z, data), z0, lower, upper,
-                                max_iterations, bar.update if bar is not None else None)
-        finally:
-            if bar is not None:
-                bar.close()
+                                max_iterations, bar.update)
         return out.z, {"iter_count": out.iterations, "return_status": out.status}
 
 

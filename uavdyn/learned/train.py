@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie, Windows
+from uavdyn.interrupts import CheckedBar
 from uavdyn.learned.data import (
     Pairs,
     one_step_pairs,
@@ -278,7 +278,7 @@ def _epochs(losses: Losses, data: TrainingData, cfg: TrainConfig, rng: np.random
                             time.perf_counter() - start)]
     best = (val[2], 0, {k: v.clone() for k, v in model.state_dict().items()})
     stopped = "epochs"
-    bar = tqdm(range(1, cfg.epochs + 1), desc=f"train {name}", unit="epoch",
+    bar = CheckedBar(range(1, cfg.epochs + 1), desc=f"train {name}", unit="epoch",
                disable=not cfg.progress)
     for epoch in bar:
         use_roll = epoch > cfg.warmup_epochs and cfg.rollout_weight > 0

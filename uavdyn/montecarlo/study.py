@@ -33,8 +33,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
+from uavdyn.interrupts import CheckedBar
 from uavdyn.montecarlo.batch import SIGNALS
 from uavdyn.montecarlo.chunks import (
     ChunkResult,
@@ -207,7 +207,7 @@ def _run(spec: StudySpec, folder: Path | None, workers: int, threads: int,
     todo = [c for c in range(spec.n_chunks) if not have[c]]
     on_dask = bool(todo) and (workers > 1 or scheduler is not None)
     done_runs = sum(np.subtract(*reversed(spec.chunk_runs(c))) for c in reused)
-    bar = tqdm(total=spec.runs, initial=int(done_runs), unit="run", disable=not progress,
+    bar = CheckedBar(total=spec.runs, initial=int(done_runs), unit="run", disable=not progress,
                desc=f"montecarlo {spec.airframe.name}", dynamic_ncols=True)
     # with Dask, once fewer chunks are left than workers one of them is idle: matplotlib is
     # imported for the figures meanwhile

@@ -26,7 +26,7 @@ import numpy as np
 from uavdyn.airframes import Airframe
 from uavdyn.emulation import open_loop_references
 from uavdyn.integrate import DiscreteModel, physics_step
-from uavdyn.interrupts import interruptible
+from uavdyn.interrupts import check_interrupted, interruptible
 from uavdyn.model import first_departure
 from uavdyn.mpc.policy import HELD, SHIFTED, SOLVED, Controller, MPCResult, SolveOutcome
 from uavdyn.mpc.problem import DEFAULT_RATE_LIMITS, MPCConfig, TrackingProblem
@@ -253,6 +253,7 @@ def fly_closed_loop(mpc: Controller, plant_step: Callable, x0, u0, n_steps: int,
     ys, us, times, ok, src = [y], [], [], [], []
     departure = None
     for k in range(n_steps):
+        check_interrupted()  # a Ctrl-C CasADi swallowed in the last step
         t_pred = (k + 1 + np.arange(N)) * dt
         res = mpc.solve(y, u, theta_ref(t_pred), h_ref(t_pred), v_ref(t_pred), weights)
         u = res.u

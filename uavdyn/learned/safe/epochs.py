@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
+from uavdyn.interrupts import CheckedBar
 from uavdyn.learned.safe.config import SafeConfig
 from uavdyn.learned.safe.data import WindowTensors
 from uavdyn.learned.safe.scoring import (
@@ -133,7 +133,7 @@ def run_epochs(model: TorchCorrection, data: TrainingData, stab: StabilityTarget
                 "physics_val_theta_rmse": physics_val, "seconds": time.perf_counter() - start}]
     best = Snapshot((True, math.inf), 0, _state(model), sel0)
     snapshots = []
-    bar = tqdm(range(1, cfg.epochs + 1), desc=f"train {name} (safe)", unit="epoch",
+    bar = CheckedBar(range(1, cfg.epochs + 1), desc=f"train {name} (safe)", unit="epoch",
                disable=not cfg.progress)
     for epoch in bar:
         loss, penalty = train_epoch(model, opt, data, stab, cfg, rng)
