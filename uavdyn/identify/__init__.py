@@ -1,8 +1,8 @@
 """Identification of physical parameters from flight data: output-error least squares over
 windows restarted from recorded states (bounded Levenberg-Marquardt, ``identify.lm``, on the
-exact CasADi Jacobians of the windows, Gauss-Newton Hessian) on the model structure of the airframe (actuator lags, searched integer delays,
-per-sortie density, table values), standard errors and correlations, and a complete airframe
-file with provenance."""
+windows' exact CasADi Jacobians) on the model structure of the airframe (actuator lags,
+searched integer delays, per-sortie density, table values), standard errors and correlations,
+and a complete airframe file with provenance."""
 
 from uavdyn.identify.errors import IdentifyError
 from uavdyn.identify.output_error import (
