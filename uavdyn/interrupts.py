@@ -1,9 +1,11 @@
 """Ctrl-C through CasADi: a KeyboardInterrupt, never a failed solve the program carries on from.
 
-CasADi's solvers poll Python's signals while they iterate. On Ctrl-C they consume it and throw
-their own C++ exception: most calls then raise ``RuntimeError`` ending in ``KeyboardInterrupt``;
-inside Ipopt it only ends the solve (status ``NonIpopt_Exception_Thrown``) and Python never sees
-the interrupt. These helpers give it back.
+CasADi polls Python's signals and consumes Ctrl-C. Its solvers throw their own C++ exception:
+most calls then raise ``RuntimeError`` ending in ``KeyboardInterrupt``, while Ipopt only ends
+the solve (status ``NonIpopt_Exception_Thrown``). Its conversion of NumPy arguments runs a
+Python helper and discards any exception raised there (or garbles it into a ``SystemError``).
+These helpers give the interrupt back: recognised in error paths, recorded while a command runs
+and raised again at the next step of a long loop.
 """
 
 from __future__ import annotations
