@@ -94,14 +94,15 @@ def test_same_seed_same_values_and_seeds_differ(small_dataset, tmp_path):
     """Regenerating with one worker (different scheduling) gives the same values; another seed
     gives a dataset the fingerprint comparison calls different, and says where."""
     again = tmp_path / "again"
-    with pytest.warns(UserWarning, match="leave the 'validation' split empty"):
+    with pytest.warns(UserWarning) as said:
         # 14 sorties over the quadrotor's 7 missions (the CLI run of the fixture said it too)
         generate_dataset(Recipe(sorties=14, seed=0, duration_s=5.0), again, workers=1,
                          progress=False)
+    assert sorted(str(w.message).split("'")[1] for w in said) == ["test", "validation"]
     same = compare_fingerprints(dataset_fingerprint(again), dataset_fingerprint(small_dataset))
     assert same.matches() and same.max_abs_difference <= 1e-12
     other = tmp_path / "seed1"
-    with pytest.warns(UserWarning, match="leave the 'validation' split empty"):
+    with pytest.warns(UserWarning, match="split empty"):
         generate_dataset(Recipe(sorties=14, seed=1, duration_s=5.0), other, workers=2,
                          progress=False)
     diff = compare_fingerprints(dataset_fingerprint(other), dataset_fingerprint(small_dataset))
