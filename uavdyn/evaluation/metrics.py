@@ -36,6 +36,7 @@ from uavdyn.integrate import (
     sortie_free_run,
     step_states,
 )
+from uavdyn.interrupts import check_interrupted
 from uavdyn.model import ModelStructure, build_model, first_departure, structure_of
 
 METRIC_STATES = {"theta": 3, "q": 2, "u": 0}
@@ -149,6 +150,7 @@ def evaluate_trajectory(solver: Solver, time: np.ndarray, states: np.ndarray,
                 "what": departure.describe()}
 
     for mode, run in (("one_step", one_step), ("horizon_1s", horizon), ("free_run", whole)):
+        check_interrupted()  # a Ctrl-C CasADi swallowed (evaluate, reproduce: every sortie)
         try:
             run()
         except StepUseError as exc:  # outside the step's trained dt / time range: missing
