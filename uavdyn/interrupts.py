@@ -75,6 +75,11 @@ def ctrl_c_pending() -> bool:
     return _pressed
 
 
+def stands_for_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` is CasADi's rendering of Ctrl-C or was raised while one is pending."""
+    return is_casadi_interrupt(exc) or ctrl_c_pending()
+
+
 def check_interrupted() -> None:
     """Raise ``KeyboardInterrupt`` if Ctrl-C was pressed (under :func:`ctrl_c_remembered`)
     and has not been raised since: called once per iteration of long loops (epochs, sorties,
@@ -99,7 +104,7 @@ def interruptible() -> Iterator[None]:
         try:
             yield
         except Exception as exc:
-            if is_casadi_interrupt(exc) or ctrl_c_pending():
+            if stands_for_interrupt(exc):
                 raise KeyboardInterrupt from None
             raise
         check_interrupted()

@@ -19,7 +19,7 @@ from uavdyn.cli.montecarlo import add_parser as add_montecarlo_parser
 from uavdyn.cli.mpc import add_parser as add_mpc_parser
 from uavdyn.cli.split_command import add_split
 from uavdyn.integrate import CompileError, DivergenceError
-from uavdyn.interrupts import ctrl_c_pending, ctrl_c_remembered, is_casadi_interrupt
+from uavdyn.interrupts import ctrl_c_remembered, stands_for_interrupt
 from uavdyn.linear import TrimError
 
 # the subcommands in the order ``uavdyn --help`` lists them
@@ -73,23 +73,19 @@ def _run(args: argparse.Namespace) -> int:
     with ctrl_c_remembered():  # long loops re-raise a Ctrl-C that a library swallowed
         try:
             return int(args.func(args) or 0)
-        except (CliError, AirframeError, TrimError, FileNotFoundError, ValueError,
-                DivergenceError, CompileError) as exc:
-            if ctrl_c_pending():  # the error is a garbled Ctrl-C (see uavdyn.interrupts)
-                return _interrupted(args.command)
-            if args.debug:
-                raise
-            print(f"uavdyn {args.command}: error: {_one_line(exc)}", file=sys.stderr)
-            return 2
         except KeyboardInterrupt:
             return _interrupted(args.command)
-        except Exception as exc:  # an internal error: one line, the traceback on request
-            if is_casadi_interrupt(exc) or ctrl_c_pending():
+        except Exception as exc:
+            if stands_for_interrupt(exc):  # Ctrl-C as CasADi renders or garbles it
                 return _interrupted(args.command)
             if args.debug:
                 raise
-            print(f"uavdyn {args.command}: internal error: {type(exc).__name__}: "
-                  f"{_one_line(exc)} (run with --debug for the traceback)", file=sys.stderr)
+            if isinstance(exc, (CliError, AirframeError, TrimError, FileNotFoundError,
+                                ValueError, DivergenceError, CompileError)):
+                print(f"uavdyn {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+            else:  # an internal error: one line, the traceback on request
+                print(f"uavdyn {args.command}: internal error: {type(exc).__name__}: "
+                      f"{_one_line(exc)} (run with --debug for the traceback)", file=sys.stderr)
             return 2
 
 

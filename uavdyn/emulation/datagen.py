@@ -300,8 +300,8 @@ def _generate_into(recipe: Recipe, airframe: Airframe, out: Path, workers: int |
     workers = workers or os.cpu_count() or 1
     recipe_dict = asdict(recipe)
     jobs = [(recipe_dict, item, str(out)) for item in items]
-    bar = CheckedBar(total=len(jobs), desc=f"generating {airframe.name} sorties", unit="sortie",
-               disable=not progress)
+    bar = CheckedBar(total=len(jobs), desc=f"generating {airframe.name} sorties",
+                     unit="sortie", disable=not progress)
     entries: list[dict] = []
     if workers == 1:
         for job in jobs:

@@ -120,7 +120,7 @@ def robustness_scenarios(airframe: Airframe, ds: Dataset, quick: bool = False
 
 def _bar(config: ReproduceConfig, total: int, desc: str):
     return CheckedBar(total=total, desc=desc, disable=not config.progress, unit="run",
-                mininterval=1.0)
+                      mininterval=1.0)
 
 
 def _cost(airframe: Airframe, test: list[Sortie], rungs: list[Candidate], legacy: dict,

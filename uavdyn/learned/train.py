@@ -279,7 +279,7 @@ def _epochs(losses: Losses, data: TrainingData, cfg: TrainConfig, rng: np.random
     best = (val[2], 0, {k: v.clone() for k, v in model.state_dict().items()})
     stopped = "epochs"
     bar = CheckedBar(range(1, cfg.epochs + 1), desc=f"train {name}", unit="epoch",
-               disable=not cfg.progress)
+                     disable=not cfg.progress)
     for epoch in bar:
         use_roll = epoch > cfg.warmup_epochs and cfg.rollout_weight > 0
         train = _train_epoch(losses, opt, P_tr, W_tr, use_roll, cfg, rng)

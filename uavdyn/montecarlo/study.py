@@ -207,8 +207,9 @@ def _run(spec: StudySpec, folder: Path | None, workers: int, threads: int,
     todo = [c for c in range(spec.n_chunks) if not have[c]]
     on_dask = bool(todo) and (workers > 1 or scheduler is not None)
     done_runs = sum(np.subtract(*reversed(spec.chunk_runs(c))) for c in reused)
-    bar = CheckedBar(total=spec.runs, initial=int(done_runs), unit="run", disable=not progress,
-               desc=f"montecarlo {spec.airframe.name}", dynamic_ncols=True)
+    bar = CheckedBar(total=spec.runs, initial=int(done_runs), unit="run",
+                     disable=not progress, desc=f"montecarlo {spec.airframe.name}",
+                     dynamic_ncols=True)
     # with Dask, once fewer chunks are left than workers one of them is idle: matplotlib is
     # imported for the figures meanwhile
     preload = threading.Thread(target=prepare_figures, name="uavdyn-matplotlib", daemon=True)

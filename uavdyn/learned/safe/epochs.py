@@ -134,7 +134,7 @@ def run_epochs(model: TorchCorrection, data: TrainingData, stab: StabilityTarget
     best = Snapshot((True, math.inf), 0, _state(model), sel0)
     snapshots = []
     bar = CheckedBar(range(1, cfg.epochs + 1), desc=f"train {name} (safe)", unit="epoch",
-               disable=not cfg.progress)
+                     disable=not cfg.progress)
     for epoch in bar:
         loss, penalty = train_epoch(model, opt, data, stab, cfg, rng)
         sched.step()
