@@ -60,11 +60,13 @@ def test_presets_hash_and_trim_unchanged(name):
 def test_presets_default_to_zero_and_modes_unchanged(aerosonde, aerosonde_trim):
     assert OPTIONAL_PARAMS["fixed_wing"] == {"C_L_alpha_dot": 0.0, "C_m_alpha_dot": 0.0,
                                              "tau_elevator": 0.0, "tau_throttle": 0.0,
-                                             "slew_elevator": 0.0, "slew_throttle": 0.0}
+                                             "slew_elevator": 0.0, "slew_throttle": 0.0,
+                                             "eta_slipstream": 0.0, "C_D_Re": 0.0,
+                                             "C_m_Re": 0.0}
     assert aerosonde.params.C_L_alpha_dot == 0.0 and aerosonde.params.C_m_alpha_dot == 0.0
     assert "default" in aerosonde.sources["C_m_alpha_dot"]
-    assert len(aerosonde.p) == N_CORE_FIXED_WING + 6
-    assert param_names("fixed_wing")[-6:-4] == ("C_L_alpha_dot", "C_m_alpha_dot")
+    assert len(aerosonde.p) == N_CORE_FIXED_WING + 9
+    assert param_names("fixed_wing")[-9:-7] == ("C_L_alpha_dot", "C_m_alpha_dot")
     found = {m.name: m for m in modes(linearise(aerosonde, aerosonde_trim)[0], "fixed_wing")}
     for name, (wn, zeta) in PRESET_MODES.items():
         assert found[name].natural_frequency == pytest.approx(wn, rel=1e-12)

@@ -88,6 +88,15 @@ BOUNDS: dict[str, dict[str, Bound]] = {
         "C_L_alpha_dot": _ALPHA_DOT, "C_m_alpha_dot": _ALPHA_DOT,
         "tau_elevator": _TAU, "tau_throttle": _TAU,
         "slew_elevator": _SLEW, "slew_throttle": _SLEW,
+        "eta_slipstream": _b(0, 3, "", "share of the tail in the propeller slipstream (adds "
+                                       "eta T/A_disk to the elevator's qbar); 0 = none, 0.5-1 "
+                                       "for a tractor with the tail in it", low_open=False),
+        "C_D_Re": _b(0, 2, "(m/s)^0.5", "Reynolds drag, Delta C_D = C_D_Re/sqrt(V) (laminar "
+                                        "skin friction ~ Re^-1/2): >= 0, ~0.05 for a small "
+                                        "UAV", low_open=False),
+        "C_m_Re": _b(-2, 2, "(m/s)^0.5", "Reynolds pitching moment, Delta C_m = C_m_Re/sqrt(V)"
+                                         ": either sign, |x| ~ 0.05 for a small UAV",
+                     low_open=False),
     },
     "multirotor": {
         "mass": _MASS, "Jy": _JY, "arm": _LENGTH,

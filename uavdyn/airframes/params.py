@@ -55,6 +55,9 @@ class FixedWingParams:
     tau_throttle: float = 0.0
     slew_elevator: float = 0.0
     slew_throttle: float = 0.0
+    eta_slipstream: float = 0.0
+    C_D_Re: float = 0.0
+    C_m_Re: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import asdict
 from pathlib import Path
 
@@ -30,6 +31,7 @@ from uavdyn.cli.common import (
 )
 from uavdyn.cli.split_command import add_split_options, split_options_from
 from uavdyn.emulation.datagen import Recipe, generate_dataset
+from uavdyn.emulation.emulator import TRUTH_DEFAULTS
 from uavdyn.emulation.fingerprint import (
     DEFAULT_TOLERANCE,
     compare_fingerprints,
@@ -68,6 +70,32 @@ def control_map(text: str):
     return m
 
 
+def truth_values(text: str) -> dict[str, float]:
+    """``--truth`` value: ``KEY=VALUE[,KEY=VALUE...]``, each key a truth-model parameter of
+    some airframe kind (:data:`~uavdyn.emulation.truth.TRUTH_DEFAULTS`), each once, each value a
+    finite number (the kind is checked once the airframe is known)."""
+    known = tuple(dict.fromkeys(k for table in TRUTH_DEFAULTS.values() for k in table))
+    out: dict[str, float] = {}
+    for item in text.split(","):
+        key, sep, value = (part.strip() for part in item.partition("="))
+        if not sep or not key:
+            raise argparse.ArgumentTypeError(f"must be KEY=VALUE[,KEY=VALUE...], got {text!r}")
+        if key not in known:
+            raise argparse.ArgumentTypeError(f"unknown truth parameter {key!r}; known: "
+                                             f"{', '.join(known)}")
+        if key in out:
+            raise argparse.ArgumentTypeError(f"names truth parameter {key!r} twice")
+        try:
+            parsed = float(value)
+        except ValueError:
+            parsed = math.nan
+        if not math.isfinite(parsed):
+            raise argparse.ArgumentTypeError(f"truth parameter {key!r} must be a finite "
+                                             f"number, got {value!r}")
+        out[key] = parsed
+    return out
+
+
 def cmd_generate_data(args: argparse.Namespace) -> int:
     """Generate an emulated flight-data set (manifest.json + CSVs) from a recipe and options."""
     refuse_unused(args, ("--tolerance",), args.verify is not None, "with --verify")
@@ -81,6 +109,13 @@ def cmd_generate_data(args: argparse.Namespace) -> int:
                  "noise_scale": args.noise_scale, "missions": args.missions}
     values = asdict(recipe)
     values.update({k: v for k, v in overrides.items() if v is not None})
+    if args.truth:
+        kind = load_airframe(values["airframe"]).kind
+        wrong = [k for k in args.truth if k not in TRUTH_DEFAULTS[kind]]
+        if wrong:
+            raise CliError(f"--truth: {', '.join(wrong)} is not a truth parameter of {kind} "
+                           f"(known: {', '.join(TRUTH_DEFAULTS[kind])})")
+        values["truth"] = {**values["truth"], **args.truth}
     recipe = Recipe(**values)
     _check_recipe(recipe)
     tolerance = DEFAULT_TOLERANCE if args.tolerance is None else args.tolerance
@@ -212,6 +247,10 @@ def add_generate_data(sub) -> None:
                    help="fraction of turbulent sorties, 0..1 (default 0.5)")
     p.add_argument("--noise-scale", type=number(0.0, 100.0, name="scale"), default=None,
                    help="sensor-noise multiplier, 0..100 (default 1, 0 = noise-free logs)")
+    p.add_argument("--truth", type=truth_values, default=None, metavar="KEY=VALUE[,...]",
+                   help="truth-model overrides added to the recipe's, e.g. "
+                        "eta_slipstream=0.8,C_D_Re=0.05,C_m_Re=-0.05 (power and Reynolds "
+                        "effects the baseline lacks; keys: uavdyn.emulation.truth.TRUTH_DEFAULTS)")
     p.add_argument("--workers", type=WORKERS, default=None,
                    help="worker processes, 1..64 (default: all cores)")
     p.add_argument("--out", required=True, type=folder_to_write, help="output folder")

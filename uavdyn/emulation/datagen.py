@@ -35,7 +35,13 @@ from pathlib import Path
 import numpy as np
 
 from uavdyn.airframes import Airframe, load_airframe
-from uavdyn.emulation.emulator import Emulator, dryden_gusts, emulator_rollout, gust_span
+from uavdyn.emulation.emulator import (
+    Emulator,
+    dryden_gusts,
+    emulator_rollout,
+    gust_span,
+    truth_param_names,
+)
 from uavdyn.emulation.envelope import envelope
 from uavdyn.emulation.missions import missions_for, plan_mission, unflyable_missions
 from uavdyn.flightdata import (
@@ -69,6 +75,17 @@ class Recipe:
     noise_scale: float = 1.0
     split: dict[str, float] = field(
         default_factory=lambda: {"train": 0.7, "validation": 0.15, "test": 0.15})
+    # Truth-model overrides (keys of uavdyn.emulation.truth.TRUTH_DEFAULTS, e.g.
+    # eta_slipstream): empty = the emulator's defaults, left out of to_dict (keys unchanged).
+    truth: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """The recipe as a plain dict (what is hashed, cached and recorded in a manifest): an
+        empty ``truth`` is left out, so recipes from before it existed keep their keys."""
+        out = asdict(self)
+        if not out["truth"]:
+            del out["truth"]
+        return out
 
     @classmethod
     def from_json(cls, path: str | Path) -> Recipe:
@@ -99,6 +116,19 @@ class Recipe:
                 or abs(sum(self.split.values()) - 1.0) > 1e-9:
             raise ValueError(f"split must give non-negative fractions of {SPLITS} summing to 1, "
                              f"got {self.split}")
+        if not isinstance(self.truth, dict):
+            raise ValueError(f"truth must map truth-parameter names to numbers, got "
+                             f"{type(self.truth).__name__}")
+        known = truth_param_names(airframe.kind)
+        unknown = [k for k in self.truth if k not in known]
+        if unknown:
+            raise ValueError(f"unknown truth parameter(s) {unknown} for {airframe.kind}; "
+                             f"known: {', '.join(known)}")
+        bad_values = {k: v for k, v in self.truth.items()
+                      if isinstance(v, bool) or not isinstance(v, (int, float))
+                      or not np.isfinite(v)}
+        if bad_values:
+            raise ValueError(f"truth value(s) must be finite numbers, got {bad_values}")
         allowed = missions_for(airframe.kind)
         bad = [m for m in self.missions if m not in allowed]
         if bad:
@@ -208,7 +238,7 @@ def _generate_one(args: tuple[dict, dict, str]) -> dict:
     recipe_dict, item, out = args
     recipe = Recipe(**recipe_dict)
     airframe = load_airframe(recipe.airframe)
-    emulator = Emulator(airframe, sample_rate_hz=recipe.sample_rate_hz,
+    emulator = Emulator(airframe, truth=recipe.truth, sample_rate_hz=recipe.sample_rate_hz,
                         internal_dt=recipe.internal_dt_s)
     i = item["index"]
     last_error = None
@@ -286,19 +316,19 @@ def flyable_recipe(recipe: Recipe, airframe: Airframe) -> tuple[Recipe, dict[str
     for reason in skipped.values():
         warnings.warn(f"{reason}; skipped (the other missions are generated)", UserWarning,
                       stacklevel=3)
-    return Recipe(**{**asdict(recipe), "missions": left}), skipped
+    return Recipe(**{**recipe.to_dict(), "missions": left}), skipped
 
 
 def _generate_into(recipe: Recipe, airframe: Airframe, out: Path, workers: int | None,
                    progress: bool, skipped: dict[str, str]) -> Path:
     items = assign_sorties(recipe, airframe.kind)
     # Compile the rollout once here so the workers only load the cached library.
-    emulator = Emulator(airframe, sample_rate_hz=recipe.sample_rate_hz,
+    emulator = Emulator(airframe, truth=recipe.truth, sample_rate_hz=recipe.sample_rate_hz,
                         internal_dt=recipe.internal_dt_s)
     n_rows = int(round(recipe.duration_s * recipe.sample_rate_hz)) + 1
     emulator_rollout(airframe.kind, n_rows, emulator.substeps, True)
     workers = workers or os.cpu_count() or 1
-    recipe_dict = asdict(recipe)
+    recipe_dict = recipe.to_dict()
     jobs = [(recipe_dict, item, str(out)) for item in items]
     bar = CheckedBar(total=len(jobs), desc=f"generating {airframe.name} sorties",
                      unit="sortie", disable=not progress)

@@ -41,6 +41,14 @@ TRUTH_DEFAULTS: dict[str, dict[str, float]] = {
         "tau_sep": 0.12,           # s, Goman-Khrabrov separation lag (tau1 ~ 15 c/V)
         "tau_hyst": 0.03,          # s, Goman-Khrabrov hysteresis delay (tau2 ~ 4 c/V)
         "C_m_stall": -0.3,         # nose-down pitch break when separated
+        # Power and Reynolds-number effects, added to the airframe's own optional keys of the
+        # same names (uavdyn.model.equations). Default 0 (absent: every existing dataset,
+        # fingerprint and reference stays bit-for-bit the same); realistic values: eta 0.5-1
+        # for a tractor with the tail in the slipstream, C_D_Re ~ 0.05 and C_m_Re ~ -0.05
+        # (m/s)^0.5 for a small UAV at 15-30 m/s.
+        "eta_slipstream": 0.0,     # share of the tail in the slipstream (extra eta T/A_disk)
+        "C_D_Re": 0.0,             # (m/s)^0.5, Delta C_D = C_D_Re / sqrt(V)
+        "C_m_Re": 0.0,             # (m/s)^0.5, Delta C_m = C_m_Re / sqrt(V)
     },
     "multirotor": {
         "tau_motor_up": 0.04,      # s, ESC + 10 in propeller spin-up
@@ -143,11 +151,13 @@ def _fixed_wing_rates(x, cmd, gust, p, e):
     # alpha0 = +-3 rad puts the baseline's own sigmoid at 0 or 1 for every |alpha| < 1.6 rad.
     # The baseline's own alpha-dot terms are switched off here and applied below with the
     # filtered air-relative alpha-dot (summed with the truth extras), so they count once.
-    no_ad = {"C_L_alpha_dot": 0.0, "C_m_alpha_dot": 0.0}
+    # The power and Reynolds terms are the baseline's, flown at the file's value + the extra.
+    base = {"C_L_alpha_dot": 0.0, "C_m_alpha_dot": 0.0,
+             **{k: getattr(P, k) + e[k] for k in ("eta_slipstream", "C_D_Re", "C_m_Re")}}
     Xa, Za, Ma, alpha, V, _ = fixed_wing_forces(
-        x_air, act, _with_param(p, "fixed_wing", alpha0=3.0, **no_ad), alpha_dot=False)
+        x_air, act, _with_param(p, "fixed_wing", alpha0=3.0, **base), alpha_dot=False)
     Xp, Zp, _, _, _, _ = fixed_wing_forces(
-        x_air, act, _with_param(p, "fixed_wing", alpha0=-3.0, **no_ad), alpha_dot=False)
+        x_air, act, _with_param(p, "fixed_wing", alpha0=-3.0, **base), alpha_dot=False)
     alpha_dot = (alpha - alpha_f) / e["tau_alpha"]
     qbar_S = 0.5 * P.rho * V**2 * P.S_wing
     c_2V = P.c / (2 * V)

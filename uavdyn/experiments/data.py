@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict
 from pathlib import Path
 
 import casadi as ca
@@ -38,7 +37,7 @@ LEGACY = {"paper": "hybrid paper"}
 
 def dataset_cache_key(recipe) -> str:
     """The cache key of a generated dataset: its recipe and the generator's code and version."""
-    return hashlib.sha256((json.dumps(asdict(recipe), sort_keys=True) +
+    return hashlib.sha256((json.dumps(recipe.to_dict(), sort_keys=True) +
                            generator_code_hash()).encode()).hexdigest()[:12]
 
 

@@ -21,6 +21,25 @@ The alpha-dot lift ``L_ad = qbar S C_L_alpha_dot c/(2V) alpha_dot`` enters ``X``
 where ``A0`` is alpha_dot from the forces without the alpha-dot terms (a linear relation solved
 in closed form; the factor does not depend on V). The moment then gets
 ``qbar S c C_m_alpha_dot (c/(2V)) alpha_dot``. At their default 0 both terms are exactly 0.0.
+
+Power effects (optional key ``eta_slipstream``, >= 0): the tail sits partly in the propeller
+slipstream, whose fully developed dynamic pressure exceeds the free stream's by ``T / A_disk``
+(momentum theory, ``A_disk = pi D_prop^2 / 4``, ``T`` the model's thrust). The elevator's lift
+and moment see ``qbar_tail = qbar + eta_slipstream T / A_disk``::
+
+    L = qbar S C_L + eta_slipstream (T / A_disk) S C_L_delta_e delta_e
+    M = qbar S c C_m + eta_slipstream (T / A_disk) S c C_m_delta_e delta_e
+
+(``C_L``, ``C_m`` the full coefficients, their ``delta_e`` terms at ``qbar``).
+
+Reynolds-number effects (optional keys ``C_D_Re``, ``C_m_Re``, units (m/s)^0.5): laminar skin
+friction scales as ``Re^-1/2``, so at fixed alpha drag and moment vary with airspeed::
+
+    Delta C_D = C_D_Re / sqrt(V_g)        Delta C_m = C_m_Re / sqrt(V_g)
+    V_g = max(V, V_RE_FLOOR)              (V_RE_FLOOR = 1 m/s: finite as V -> 0)
+
+At their default 0 all three add exactly 0.0 (the increments are appended to the sums, so the
+forces are bit-for-bit those without them).
 """
 
 from __future__ import annotations
@@ -39,6 +58,9 @@ from uavdyn.model.structure import ModelStructure
 CONTROL_NAMES = {kind: tuple(n for n, _ in ranges) for kind, ranges in CONTROL_RANGES.items()}
 CONTROL_BOUNDS = {kind: tuple(b for _, b in ranges) for kind, ranges in CONTROL_RANGES.items()}
 FORCE_NAMES = ("X", "Z", "M", "alpha", "V", "thrust")
+# Airspeed floor (m/s) of the Reynolds terms' 1/sqrt(V): keeps them finite (and their
+# derivatives bounded) as V -> 0; every flyable airspeed is far above it.
+V_RE_FLOOR = 1.0
 
 
 def symbolic_params(kind: str, p) -> SimpleNamespace:
@@ -150,20 +172,25 @@ def _fixed_wing_terms(x, u, p, ops, with_alpha_dot: bool = True,
     if CD_attached is None:
         CD_attached = P.C_D_0 + CL_attached**2 / (ops.pi * P.e * aspect)
     CD_plate = P.C_D_0 + 2 * ops.fabs(sin_a) ** 3
+    # Reynolds-number terms (module docstring), appended last: exactly + 0.0 at their default.
+    inv_sqrt_V = 1 / ops.sqrt(ops.fmax(V, V_RE_FLOOR))
     CL = (1 - sigma) * CL_attached + sigma * CL_plate + P.C_L_q * q_hat + P.C_L_delta_e * elevator
-    CD = (1 - sigma) * CD_attached + sigma * CD_plate + P.C_D_q * q_hat + P.C_D_delta_e * elevator
+    CD = ((1 - sigma) * CD_attached + sigma * CD_plate + P.C_D_q * q_hat
+          + P.C_D_delta_e * elevator + P.C_D_Re * inv_sqrt_V)
     Cm_static = _table(structure, "C_m", p, axis, ops)
     if Cm_static is None:
         Cm_static = P.C_m_0 + P.C_m_alpha * alpha
-    Cm = Cm_static + P.C_m_q * q_hat + P.C_m_delta_e * elevator
-    lift = qbar * P.S_wing * CL
-    drag = qbar * P.S_wing * CD
+    Cm = Cm_static + P.C_m_q * q_hat + P.C_m_delta_e * elevator + P.C_m_Re * inv_sqrt_V
     thrust = _table(structure, "thrust", p, axis, ops)
     if thrust is None:
         thrust = propeller_thrust(P, V, throttle, ops)
+    # Power effects: the slipstream's extra dynamic pressure on the elevator (module docstring).
+    dq_tail = P.eta_slipstream * thrust / (0.25 * ops.pi * P.D_prop**2)
+    lift = qbar * P.S_wing * CL + dq_tail * P.S_wing * P.C_L_delta_e * elevator
+    drag = qbar * P.S_wing * CD
     X0 = -drag * cos_a + lift * sin_a + thrust
     Z0 = -drag * sin_a - lift * cos_a
-    M0 = qbar * P.S_wing * P.c * Cm
+    M0 = qbar * P.S_wing * P.c * Cm + dq_tail * P.S_wing * P.c * P.C_m_delta_e * elevator
     if not with_alpha_dot:
         return X0, Z0, M0, alpha, V, thrust, None
     # Exact alpha-dot terms: A0 from the forces without them, then the closed form.
