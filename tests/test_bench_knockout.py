@@ -1,0 +1,124 @@
+"""The knockout benchmark's arithmetic and bookkeeping (``analysis/bench_knockout.py``): the
+recovered and removed shares with their bootstrap over sorties, the "not measurable" rule, the
+made-worse count, the ``--safe-config`` parser and the resume of finished cases."""
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from uavdyn.evaluation import SortieError
+
+SCRIPT = Path(__file__).resolve().parent.parent / "analysis" / "bench_knockout.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_knockout", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def errors_of(rmse: list[float], n: int = 100) -> list[SortieError]:
+    return [SortieError(f"s{i}", r * r * n, n) for i, r in enumerate(rmse)]
+
+
+def test_shares_pooled_from_per_sortie_errors(bench):
+    a = [0.020, 0.030, 0.010, 0.040]
+    b = [0.010, 0.015, 0.006, 0.020]
+    c = [0.014, 0.021, 0.0102, 0.026]   # third sortie 2 % worse than a: not "> 2 %"
+    stats = bench.share_statistics({"a": errors_of(a), "corrected": errors_of(c),
+                                    "b": errors_of(b)}, resamples=500)
+
+    def pooled(x):
+        return math.sqrt(sum(v * v for v in x) / len(x))
+
+    ea, ec, eb = pooled(a), pooled(c), pooled(b)
+    assert stats["err"]["a"] == pytest.approx(ea)
+    assert stats["recovered_share"] == pytest.approx((ea - ec) / (ea - eb))
+    assert stats["removed_share"] == pytest.approx((ea - ec) / ea)
+    low, high = stats["recovered_share_interval"]
+    assert low <= stats["recovered_share"] <= high
+    assert 0.0 < low and high < 1.0
+    assert stats["n_sorties_worse"] == 0
+    assert stats["corrected_over_a"]["s2"] == pytest.approx(1.02)
+
+
+def test_bootstrap_collapses_when_every_sortie_agrees(bench):
+    # Every sortie the same errors: every resample gives the same share.
+    stats = bench.share_statistics({"a": errors_of([0.02] * 5),
+                                    "corrected": errors_of([0.014] * 5),
+                                    "b": errors_of([0.01] * 5)}, resamples=200)
+    assert stats["recovered_share"] == pytest.approx(0.6)
+    assert stats["recovered_share_interval"] == pytest.approx([0.6, 0.6])
+
+
+def test_share_not_measurable_within_noise_and_worse_sorties_counted(bench):
+    stats = bench.share_statistics({"a": errors_of([0.020, 0.020, 0.020]),
+                                    "corrected": errors_of([0.019, 0.0205, 0.0210]),
+                                    "b": errors_of([0.0199, 0.0198, 0.0197])})
+    assert stats["recovered_share"] is None
+    assert "not measurable" in stats["recovered_share_note"]
+    assert stats["sorties_worse"] == ["s1", "s2"]    # 1.025 and 1.05 times a; 0.95 is not
+    stats2 = bench.share_statistics({"a": errors_of([0.02]), "corrected": errors_of([0.0203])})
+    assert stats2["n_sorties_worse"] == 0 and "recovered_share" not in stats2
+
+
+def test_divergence_is_left_out_of_the_pool_and_counted_worse(bench):
+    a = errors_of([0.02, 0.03])
+    c = [SortieError("s0", math.inf, 100), errors_of([0.03, 0.015])[1]]
+    stats = bench.share_statistics({"a": a, "corrected": c})
+    assert stats["diverged"]["corrected"] == ["s0"]
+    assert stats["pooled_over"] == 1
+    assert stats["sorties_worse"] == ["s0"]
+    assert stats["removed_share"] == pytest.approx(0.5)
+
+
+def test_safe_config_parsing(bench):
+    values = bench.parse_key_values('inputs="physical",horizon_s=3.0,memory_tau=[0.05,0.2],'
+                                    'output=coefficient')
+    assert values == {"inputs": "physical", "horizon_s": 3.0, "memory_tau": [0.05, 0.2],
+                      "output": "coefficient"}
+    cfg = bench.safe_config(values, quick=False)
+    assert cfg.horizon_s == 3.0 and cfg.memory_tau == (0.05, 0.2) and not cfg.progress
+    with pytest.raises(ValueError, match="unknown SafeConfig field"):
+        bench.safe_config({"feature": 1}, quick=False)
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        bench.parse_key_values("horizon_s")
+
+
+def test_finished_case_is_resumed_without_any_work(bench, tmp_path, monkeypatch):
+    """A case whose definition is unchanged is kept from the result file: no dataset is
+    generated and the entry stays as it was; --force would rerun it."""
+    args = bench.argparse.Namespace(quick=True, sorties=None, duration=None, seed=0,
+                                    identify_on="train", noise_share=bench.NOISE_SHARE,
+                                    force=False)
+    cfg = bench.safe_config({}, quick=True)
+    ref, file_hash = bench.airframe_ref("aerosonde")
+    af = bench.load_airframe(ref)
+    flown = [t for t in bench.TERMS if bench.TERMS[t]["kind"] == af.kind
+             and bench.term_status(t, af) is None]
+    truth = {k: v for t in flown for k, v in bench.TERMS[t]["truth"].items()}
+    recipe = bench.recipe_for(ref, af.kind, args, truth)
+    key = bench.case_key("aerosonde", "alpha_dot", recipe, file_hash, cfg, args)
+    out = tmp_path / "k.json"
+    marker = {"airframe": "aerosonde", "term": "alpha_dot", "case_key": key, "status": "done",
+              "marker": 1}
+    out.write_text(json.dumps({"cases": {"aerosonde/alpha_dot": marker}}))
+
+    def no_generation(*_a, **_k):
+        raise AssertionError("a finished case generated data")
+
+    monkeypatch.setattr(bench, "dataset", no_generation)
+    cache = tmp_path / "cache"
+    assert bench.main(["--quick", "--airframes", "aerosonde", "--terms", "alpha_dot",
+                       "--out", str(out), "--cache", str(cache)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["cases"]["aerosonde/alpha_dot"]["marker"] == 1
+    assert doc["machine"]["cpu_count"] >= 1 and "wall_s" in doc
+    with pytest.raises(AssertionError, match="generated data"):
+        bench.main(["--quick", "--airframes", "aerosonde", "--terms", "alpha_dot",
+                    "--out", str(out), "--cache", str(cache), "--force"])
