@@ -27,6 +27,12 @@ EXCITATION: dict[str, str] = {
                      "ones (its lag)",
     "slew_throttle": "large fast throttle steps (the engine at its rate limit) beside small "
                      "ones (its lag)",
+    "eta_slipstream": "open-loop elevator inputs flown at two or more throttle settings (the "
+                      "slipstream's share of elevator power grows with thrust)",
+    "C_D_Re": "speed changes over a wide airspeed range (its 1/sqrt(V) drag is told from "
+              "C_D_0 only by how drag varies with speed)",
+    "C_m_Re": "steady trims over a wide airspeed range (its 1/sqrt(V) moment is told from "
+              "C_m_0 only by how the trim elevator varies with speed)",
     # multirotor
     "pitch_mix": "open-loop pitch-command steps or doublets (attitude loop off or with "
                  "injected inputs)",
@@ -80,6 +86,7 @@ EXCITED_BY: dict[str, str] = {
     "C_m_delta_e": "elevator", "C_L_delta_e": "elevator", "C_D_delta_e": "elevator",
     "C_D_0": "u", "tau_elevator": "elevator", "tau_throttle": "throttle",
     "slew_elevator": "elevator", "slew_throttle": "throttle",
+    "eta_slipstream": "elevator",
     "pitch_damping": "q", "pitch_mix": "pitch_cmd", "M_u": "u", "drag_linear": "u",
     "CdA_x": "u", "CdA_z": "w", "k_inflow": "w", "c_T": "collective",
     "tau_rotor": "collective",
