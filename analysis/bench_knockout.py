@@ -84,8 +84,11 @@ NOISE_SHARE = 0.03       # err_a - err_b below this share of err_a: the share is
 BOOTSTRAP_RESAMPLES = 2000
 BOOTSTRAP_SEED = 20261124
 LEVEL = 0.95
-CODE_PACKAGES = ("uavdyn/identify", "uavdyn/learned", "uavdyn/model", "uavdyn/integrate",
-                 "uavdyn/evaluation", "uavdyn/airframes")
+# The sources an identification depends on (its cache key), and those a whole case depends on
+# (a finished case is resumed only while they are unchanged).
+IDENTIFY_CODE = ("uavdyn/identify", "uavdyn/model", "uavdyn/integrate", "uavdyn/airframes")
+CASE_CODE = (*IDENTIFY_CODE, "uavdyn/learned", "uavdyn/evaluation", "uavdyn/experiments",
+             "uavdyn/emulation")
 
 # The knocked-out terms: data, not code paths.
 #   params   : the model's parameters of the term (fitted in (b), fixed in (a))
@@ -140,7 +143,7 @@ def digest(obj) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def source_hash(packages=CODE_PACKAGES) -> str:
+def source_hash(packages=IDENTIFY_CODE) -> str:
     """A hash of the library sources that decide an identification or a training run."""
     h = hashlib.sha256(uavdyn.__version__.encode())
     base = Path(uavdyn.__file__).resolve().parent.parent
@@ -162,9 +165,12 @@ def write_atomic(path: Path, text: str) -> None:
 def machine() -> dict:
     import casadi
 
+    from uavdyn.experiments.common import provenance
+
     facts = {"platform": platform.platform(), "python": platform.python_version(),
              "cpu_count": os.cpu_count(), "load_average": list(os.getloadavg()),
-             "casadi": casadi.__version__, "uavdyn": uavdyn.__version__}
+             "casadi": casadi.__version__, "uavdyn": uavdyn.__version__,
+             "provenance": provenance()}
     try:
         import torch
         facts["torch"] = torch.__version__
@@ -403,6 +409,37 @@ def dataset(recipe: Recipe, file_hash: str, cache: Path) -> tuple[Path, float, b
     return folder, time.perf_counter() - t0, False
 
 
+def balance_conditions(ds) -> dict:
+    """Re-deal each mission's validation and test sorties so both splits hold calm and
+    turbulent sorties (in memory; the dataset folder is unchanged). The recipe's split keeps
+    its per-mission counts, but its calm/turbulent alternation runs along the same rank order
+    as the split, so with equal counts per mission every test sortie comes out turbulent and
+    every validation sortie calm. Here mission k (in order of appearance) gives its test
+    sorties from the calm ones for even k and the turbulent ones for odd k, its validation
+    sorties from the other condition where it has any; the rest train. Returns the changes."""
+    missions: dict[str, list] = {}
+    for s in ds.sorties:
+        missions.setdefault(s.mission, []).append(s)
+    before = {s.name: s.meta.get("split", "") for s in ds.sorties}
+    for k, members in enumerate(missions.values()):
+        counts = {name: sum(s.meta.get("split") == name for s in members)
+                  for name in ("validation", "test")}
+        pools = {c: [s for s in members if s.meta.get("condition") == c]
+                 for c in ("calm", "turbulent")}
+        first = "calm" if k % 2 == 0 else "turbulent"
+        second = "turbulent" if first == "calm" else "calm"
+        for s in members:
+            s.meta["split"] = "train"
+        for split, order in (("test", (first, second)), ("validation", (second, first))):
+            for _ in range(counts[split]):
+                pool = next((pools[c] for c in order if pools[c]), None)
+                if pool is None:
+                    break
+                pool.pop(-1).meta["split"] = split
+    return {s.name: [before[s.name], s.meta["split"]] for s in ds.sorties
+            if before[s.name] != s.meta["split"]}
+
+
 def identified(nominal, knock: dict, names: list[str], ds, ds_folder: Path, cache: Path,
                options: dict, fit_on: str):
     """The identified airframe (loaded back from its file, as a user would) and a summary;
@@ -418,6 +455,9 @@ def identified(nominal, knock: dict, names: list[str], ds, ds_folder: Path, cach
         summary = json.loads(summary_path.read_text())
         summary["cached"] = True
         return load_airframe(path), summary
+    say(f"{nominal.name}: identifying {', '.join(names)}"
+        + (f" with {', '.join(f'{k} = {v:g}' for k, v in knock.items())} fixed" if knock else "")
+        + f" on {len(train)} {fit_on} sorties")
     t0 = time.perf_counter()
     result = identify(start, train, ds.validation, names, progress=False, **options)
     seconds = time.perf_counter() - t0
@@ -488,7 +528,8 @@ def case_key(airframe: str, term: str, recipe: Recipe, file_hash: str, cfg, args
     return digest({"airframe": airframe, "term": term, "recipe": dataclasses.asdict(recipe),
                    "file": file_hash, "safe": dataclasses.asdict(cfg), "quick": args.quick,
                    "fit_on": args.identify_on, "spec": TERMS.get(term),
-                   "noise_share": args.noise_share})
+                   "balance_conditions": args.balance_conditions,
+                   "noise_share": args.noise_share, "code": source_hash(CASE_CODE)})
 
 
 def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
@@ -525,7 +566,10 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
         return
     folder, gen_s, reused = dataset(recipe, file_hash, cache)
     ds = load_dataset(folder)
+    moved = balance_conditions(ds) if args.balance_conditions else {}
     counts = {s: len(ds.split(s)) for s in ("train", "validation", "test")}
+    by_condition = {sp: {c: sum(s.meta.get("condition") == c for s in ds.split(sp))
+                         for c in ("calm", "turbulent")} for sp in counts}
     say(f"{nominal.name}: dataset {'reused' if reused else f'generated in {gen_s:.0f} s'} "
         f"({counts['train']}/{counts['validation']}/{counts['test']} train/validation/test)")
     quick = {"max_windows": 40, "max_iterations": 20} if args.quick else {}
@@ -540,6 +584,9 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
         entry: dict = {"airframe": name, "airframe_name": nominal.name, "kind": kind,
                        "term": term, "case_key": key, "status": "done",
                        "dataset": {"folder": str(folder), "split": counts,
+                                   "conditions": by_condition,
+                                   "resplit": {"balance_conditions": args.balance_conditions,
+                                               "moved (was, now)": moved},
                                    "recipe": dataclasses.asdict(recipe),
                                    "truth_extras": truth if truth_supported() else
                                    "Recipe has no truth field: the emulator's defaults",
@@ -591,6 +638,16 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
                 scored["free_run_rmse"]["corrected"] = scored["free_run_rmse"]["a"]
             stages["score_s"] = time.perf_counter() - t0
             stats = share_statistics(errors, noise_share=args.noise_share)
+            stats["by_condition"] = {}
+            for cond in ("calm", "turbulent"):
+                idx = [i for i, s in enumerate(test) if s.meta.get("condition") == cond]
+                if idx:
+                    sub = share_statistics({m: [e[i] for i in idx] for m, e in errors.items()},
+                                           noise_share=args.noise_share)
+                    stats["by_condition"][cond] = {
+                        k: sub.get(k) for k in ("sorties", "err", "removed_share",
+                                                "recovered_share", "recovered_share_interval",
+                                                "recovered_share_note", "n_sorties_worse")}
             stats["modes_made_unstable"] = (
                 corr["stability"]["failures"] if corr.get("stability") and net is not None
                 else 0)
@@ -675,6 +732,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--identify-on", choices=("train", "calm"), default="train",
                     help="identify on all train sorties (as `uavdyn identify`, default) or "
                          "the calm ones only (as `uavdyn reproduce`)")
+    ap.add_argument("--no-balance-conditions", dest="balance_conditions",
+                    action="store_false",
+                    help="keep the recipe's split as generated (its test sorties are all "
+                         "turbulent, its validation sorties all calm, at equal per-mission "
+                         "counts); default: re-deal them so both hold both conditions")
     ap.add_argument("--noise-share", type=float, default=NOISE_SHARE,
                     help="err_a - err_b below this share of err_a: share not measurable")
     ap.add_argument("--quick", action="store_true",

@@ -95,7 +95,7 @@ def test_finished_case_is_resumed_without_any_work(bench, tmp_path, monkeypatch)
     generated and the entry stays as it was; --force would rerun it."""
     args = bench.argparse.Namespace(quick=True, sorties=None, duration=None, seed=0,
                                     identify_on="train", noise_share=bench.NOISE_SHARE,
-                                    force=False)
+                                    force=False, balance_conditions=True)
     cfg = bench.safe_config({}, quick=True)
     ref, file_hash = bench.airframe_ref("aerosonde")
     af = bench.load_airframe(ref)
@@ -122,3 +122,30 @@ def test_finished_case_is_resumed_without_any_work(bench, tmp_path, monkeypatch)
     with pytest.raises(AssertionError, match="generated data"):
         bench.main(["--quick", "--airframes", "aerosonde", "--terms", "alpha_dot",
                     "--out", str(out), "--cache", str(cache), "--force"])
+
+
+def test_balance_conditions_gives_both_splits_both_conditions(bench):
+    """The recipe's split at equal per-mission counts puts every test sortie in turbulence;
+    the re-deal keeps each mission's counts and mixes the conditions."""
+    from types import SimpleNamespace
+
+    sorties = []
+    for m in ("m0", "m1", "m2", "m3"):
+        for i, (split, cond) in enumerate([("train", "calm"), ("train", "turbulent"),
+                                           ("validation", "calm"), ("test", "turbulent")]):
+            sorties.append(SimpleNamespace(name=f"{m}_{i}", mission=m,
+                                           meta={"split": split, "condition": cond}))
+    ds = SimpleNamespace(sorties=sorties)
+
+    def split_of(s):
+        return s.meta["split"]
+
+    moved = bench.balance_conditions(ds)
+    assert moved  # the test sorties of the even missions moved
+    for m in ("m0", "m1", "m2", "m3"):
+        mine = [split_of(s) for s in ds.sorties if s.mission == m]
+        assert sorted(mine) == ["test", "train", "train", "validation"]
+    test = [s.meta["condition"] for s in sorties if split_of(s) == "test"]
+    val = [s.meta["condition"] for s in sorties if split_of(s) == "validation"]
+    assert sorted(test) == ["calm", "calm", "turbulent", "turbulent"]
+    assert sorted(val) == ["calm", "calm", "turbulent", "turbulent"]
