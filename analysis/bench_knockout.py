@@ -513,6 +513,7 @@ def train_correction(ds, af, cfg) -> tuple[object, dict, float]:
     info = {"kept": bool(result.kept), "reason": result.reason, "best_epoch": result.best_epoch,
             "epochs_run": len(result.history) - 1, "stopped": result.stopped,
             "train_seconds": result.seconds,
+            "config_resolved": dataclasses.asdict(result.config),
             "validation": result.validation,
             "stability": None if stab is None else {
                 "ok": stab.ok, "trims": len(stab.findings), "failures": len(stab.failures),
