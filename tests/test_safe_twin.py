@@ -18,6 +18,7 @@ from uavdyn.airframes import load_airframe
 from uavdyn.integrate import find_compiler
 from uavdyn.learned import CorrectionNet
 from uavdyn.learned.envelope import Envelope
+from uavdyn.learned.formulations import CorrectionLayout, network_inputs
 from uavdyn.learned.safe.data import WindowTensors
 from uavdyn.learned.safe.scoring import WindowLoss, torch_rollout
 from uavdyn.learned.safe.twin import CompiledTwin
@@ -31,25 +32,29 @@ DT, MEMORY, H, W = 0.01, (0.05, 0.2), 40, 5
 pytestmark = pytest.mark.skipif(find_compiler() is None, reason="no C compiler")
 
 
-def _model(airframe, point, seed: int) -> TorchCorrection:
+def _model(airframe, point, seed: int, inputs: str = "state",
+           output: str = "acceleration") -> TorchCorrection:
     structure = structure_of(airframe)
     n_state = structure.nx() + 2 * len(MEMORY)
-    n_in = n_state + 2
+    layout = CorrectionLayout(structure, MEMORY, inputs=inputs, output=output)
+    n_in = layout.n_inputs
     rng = np.random.default_rng(seed)
     sizes = [n_in, 6, 6, 6, 3]
     weights = tuple(rng.normal(0, 2.0 / math.sqrt(a), (b, a))
                     for a, b in zip(sizes[:-1], sizes[1:]))
     biases = tuple(rng.normal(0, 0.3, n) for n in sizes[1:])
     z_trim = np.asarray(structure_layout_state(airframe, point), float)
-    centre = np.concatenate([z_trim, point.u])
+    centre = network_inputs(layout, z_trim[None], np.asarray(point.u)[None], airframe.p)[0][0]
     width = np.concatenate([[3.0, 1.0, 0.5, 0.2], np.full(n_in - 4, 0.1)])
+    if inputs == "physical":  # alpha, V, q c/2V, alpha-dot c/2V (, C_T): their own scales
+        width = np.concatenate([[0.1, 3.0, 0.02, 0.02], np.full(n_in - 4, 0.1)])
     net = CorrectionNet(
         formulation="improved", activation="relu", kind=airframe.kind,
         airframe_hash=airframe.param_hash(), dt=DT, weights=weights, biases=biases,
         in_mean=centre, in_scale=width, out_mean=np.zeros(3), out_scale=np.array([0.5, 2, 3]),
         n_state=n_state, memory_tau=MEMORY,
         envelope=Envelope(centre - width, centre + width, 0.5 * width),
-        out_bound=np.array([1.0, 3.0, 2.0]))
+        out_bound=np.array([1.0, 3.0, 2.0]), inputs=inputs, output=output)
     return TorchCorrection.from_net(net, structure)
 
 
@@ -72,13 +77,17 @@ def _windows(airframe, point, seed: int) -> WindowTensors:
     return WindowTensors(*t)
 
 
-@pytest.mark.parametrize("file, speed", [("trainer.toml", None), ("x500.toml", 0.0)])
-def test_twin_free_runs_and_gradients_equal_torchs(file, speed):
+@pytest.mark.parametrize("file, speed, inputs, output", [
+    ("trainer.toml", None, "state", "acceleration"),
+    ("trainer.toml", None, "physical", "coefficient"),
+    ("x500.toml", 0.0, "state", "acceleration"),
+    ("x500.toml", 0.0, "physical", "acceleration")])
+def test_twin_free_runs_and_gradients_equal_torchs(file, speed, inputs, output):
     airframe = load_airframe(EXAMPLES / file)
     if airframe.kind == "fixed_wing":  # lagged, rate-limited actuators: an augmented state
         airframe = airframe.replace(tau_elevator=0.04, tau_throttle=0.15, slew_throttle=0.5)
     point = trim(airframe, speed)
-    model = _model(airframe, point, 3)
+    model = _model(airframe, point, 3, inputs, output)
     D = _windows(airframe, point, 4)
     scale, growth = np.array([1.0, 0.5, 0.1, 0.05]), np.linspace(1.0, 3.0, H)
     twin = CompiledTwin(model, H, DT, scale, growth)

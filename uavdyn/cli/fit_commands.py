@@ -158,7 +158,8 @@ def training_module():
     return module
 
 
-SAFE_ONLY = ("--stability-weight", "--stability-margin", "--horizon", "--memory-tau")
+SAFE_ONLY = ("--stability-weight", "--stability-margin", "--horizon", "--memory-tau",
+             "--inputs", "--output")
 LEGACY_ONLY = ("--dt", "--rollout-horizon", "--rollout-weight")
 
 
@@ -291,6 +292,14 @@ def add_train(sub) -> None:
                    help="improved/data: command-memory time constants in s (0 < tau <= 10, at "
                         f"most {MAX_MEMORY_FILTERS}; default 0.05 0.2 when the airframe has no "
                         "actuator lag, none otherwise)")
+    p.add_argument("--inputs", default=None, choices=["state", "physical"],
+                   help="improved/data: what the network sees in place of the body states: "
+                        "state (u, w, q, theta) or physical (a fixed wing's alpha, V, q c/2V, "
+                        "alpha-dot c/2V, thrust coefficient; a multirotor's u, w, q, thrust "
+                        "per weight); default: see docs/learned_correction.md")
+    p.add_argument("--output", default=None, choices=["acceleration", "coefficient"],
+                   help="improved/data: the network's output: residual accelerations or (a "
+                        "fixed wing) force and moment coefficients times dynamic pressure")
     p.add_argument("--out", default=None, type=file_to_write,
                    help="weight file (default results/weights/<airframe>_<formulation>.npz)")
     p.add_argument("--history", default=None, type=file_to_write,

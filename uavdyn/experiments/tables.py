@@ -18,6 +18,8 @@ from uavdyn.evaluation import MODES, error_growth, pooled_stats
 from uavdyn.experiments.common import condition, history_path
 from uavdyn.experiments.predictions import Candidate, PredictionStore
 from uavdyn.flightdata import Sortie, pitch_noise_std
+from uavdyn.learned.formulations import network_inputs
+from uavdyn.learned.hybrid import correction_structure
 from uavdyn.learned.rules import is_worse, sortie_ratio
 from uavdyn.model import sortie_params
 
@@ -296,5 +298,7 @@ def _safety_row(cand: Candidate, physics: Candidate, s: Sortie, net,
         p = sortie_params(cand.airframe, s.altitude_m)
         z = cand.solver.model.initial_state(s.states, s.controls, p,
                                             float(np.median(np.diff(s.time))))
-        row["outside_envelope"] = net.envelope.fraction_outside(np.hstack([z, s.controls]))
+        layout = net.layout(correction_structure(cand.airframe, net.kind, net.formulation))
+        row["outside_envelope"] = net.envelope.fraction_outside(
+            network_inputs(layout, z, s.controls, p)[0])
     return row

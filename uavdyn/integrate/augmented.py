@@ -102,6 +102,19 @@ def actuators_after(structure: ModelStructure, a0: list, commands: list, p, elap
     return out
 
 
+def effective_controls(structure: ModelStructure, z, u, ops=CASADI_OPS):
+    """The actuator-side controls at the start of a step of the augmented state ``z``: each
+    lagged control's actuator state, else the command acting this call (the oldest buffered
+    one under a delay, or ``u`` itself)."""
+    buffer_start = 4 + structure.n_actuator
+    delayed, _ = _shift_buffers(structure, _rows(z, buffer_start,
+                                                 buffer_start + structure.n_buffer), u)
+    out = list(delayed)
+    for j, c in enumerate(structure.lag_indices):
+        out[c] = z[4 + j]
+    return ops.stack(*out)
+
+
 def augmented_rk_step(structure: ModelStructure, body_rhs: Callable, z, u, p, dt,
                       tableau: ButcherTableau = RK4, ops=CASADI_OPS,
                       with_position: bool = False, substeps: int = 1):

@@ -143,6 +143,8 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
              if getattr(args, k, None) is not None}
     if getattr(args, "horizon", None) is not None:
         given["horizon_s"] = args.horizon
+    given.update({k: getattr(args, k) for k in ("inputs", "output")
+                  if getattr(args, k, None) is not None})
     cfg = SafeConfig(activation=args.activation, lr=args.lr,
                      seed=args.seed, threads=args.threads, progress=not args.quiet,
                      memory_tau=(tuple(args.memory_tau) if args.memory_tau is not None

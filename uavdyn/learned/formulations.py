@@ -24,13 +24,38 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from uavdyn.integrate.augmented import augmented_rk_step, memory_state_names, memory_update
+import numpy as np
+
+from uavdyn.integrate.augmented import (
+    augmented_rk_step,
+    effective_controls,
+    memory_state_names,
+    memory_update,
+)
 from uavdyn.integrate.tableau import RK4, explicit_rk_step
 from uavdyn.learned.envelope import DEFAULT_GUARD, GUARDS, bounded
-from uavdyn.model import ModelStructure
+from uavdyn.model import (
+    NUMPY_OPS,
+    ModelStructure,
+    body_forces,
+    symbolic_params,
+    translational_accelerations,
+)
 
 HYPERSOLVER_ORDER = 5  # dt**(p+1) with p = 4 for RK4
 STATE_DIM = 4
+# What the ``improved`` network sees in place of the body states (the rest of the step's
+# state and the command follow): ``state`` the body states themselves; ``physical`` the
+# variables aerodynamics depend on, computed inside the step from the physics at the step's
+# start (:func:`correction_inputs`).
+INPUT_DESIGNS = ("state", "physical")
+PHYSICAL_INPUTS = {"fixed_wing": ("alpha", "V", "q_hat", "alpha_dot_hat", "C_thrust"),
+                   "multirotor": ("u", "w", "q", "thrust_per_weight")}
+# What its output is: ``acceleration`` [du_dot, dw_dot, dq_dot] (m/s^2, rad/s^2), or
+# ``coefficient`` [dC_X, dC_Z, dC_m] (body-axis force and moment coefficients, a fixed wing
+# only: times qbar S / m and qbar S c / Jy inside the step, so the residual grows with dynamic
+# pressure as aerodynamic forces do).
+OUTPUT_DESIGNS = ("acceleration", "coefficient")
 
 
 @dataclass(frozen=True)
@@ -89,6 +114,23 @@ class CorrectionLayout:
     gate: Callable | None = None
     bound: object = None
     guard: str = DEFAULT_GUARD
+    inputs: str = "state"
+    output: str = "acceleration"
+
+    def __post_init__(self) -> None:
+        if self.inputs not in INPUT_DESIGNS:
+            raise ValueError(f"unknown correction inputs '{self.inputs}'; expected one of "
+                             f"{INPUT_DESIGNS}")
+        if self.output not in OUTPUT_DESIGNS:
+            raise ValueError(f"unknown correction output '{self.output}'; expected one of "
+                             f"{OUTPUT_DESIGNS}")
+        kind = self.structure.kind if self.structure is not None else None
+        if (self.inputs != "state" or self.output != "acceleration") and kind is None:
+            raise ValueError("physical inputs and coefficient outputs need the physics "
+                             "structure of the step")
+        if self.output == "coefficient" and kind != "fixed_wing":
+            raise ValueError("a coefficient output needs a fixed wing: a hovering multirotor "
+                             "has no dynamic pressure to scale it by")
 
     @property
     def n_physics(self) -> int:
@@ -109,18 +151,75 @@ class CorrectionLayout:
         return physics + memory_state_names(names, self.memory_tau)
 
     def input_names(self) -> tuple[str, ...]:
+        """The network's inputs, in order (:func:`correction_inputs`)."""
         names = self.structure.control_names if self.structure is not None else ("u1", "u2")
-        return self.state_names() + tuple(names)
+        states = self.state_names()
+        if self.inputs == "physical":
+            states = PHYSICAL_INPUTS[self.structure.kind] + states[STATE_DIM:]
+        return states + tuple(names)
+
+    @property
+    def n_inputs(self) -> int:
+        return len(self.input_names())
+
+
+def correction_inputs(layout: CorrectionLayout, z, u, p, ops):
+    """The network's inputs and the gain of each output, at the step's state ``z`` and
+    command ``u`` (feature-first, any ``ops``).
+
+    ``physical`` inputs replace the body states by what the forces depend on, from the physics
+    at the start of the step with the actuator-side controls: a fixed wing's angle of attack,
+    airspeed, ``q c/2V``, ``alpha_dot c/2V`` (alpha_dot from the physics' own accelerations:
+    causal, no filter) and thrust coefficient ``T / (qbar S)``; a multirotor's body velocities,
+    pitch rate and thrust per weight (pitch attitude only enters through gravity, which the
+    physics has exactly). The gains turn a ``coefficient`` output into accelerations (1 for an
+    ``acceleration`` output)."""
+    one = z[0] * 0.0 + 1.0
+    if layout.inputs == "state" and layout.output == "acceleration":
+        return ops.concat(z, u), (one, one, one)
+    structure = layout.structure
+    body = ops.stack(*[z[i] for i in range(STATE_DIM)])
+    u_eff = effective_controls(structure, z, u, ops)
+    X, Z, _, alpha, V, thrust = body_forces(structure, body, u_eff, p, ops)
+    P = symbolic_params(structure.kind, p)
+    qbar_s = 0.5 * P.rho * V**2 * P.S_wing if structure.kind == "fixed_wing" else None
+    if layout.inputs == "state":
+        head = body
+    elif structure.kind == "fixed_wing":
+        u_dot, w_dot = translational_accelerations(body, X, Z, P.mass, P.gravity, ops)
+        c_2v = P.c / (2.0 * V)
+        alpha_dot = (z[0] * w_dot - z[1] * u_dot) / V**2
+        head = ops.stack(alpha, V, z[2] * c_2v, alpha_dot * c_2v, thrust / qbar_s)
+    else:
+        head = ops.stack(z[0], z[1], z[2], thrust / (P.mass * P.gravity))
+    rest = [z[i] for i in range(STATE_DIM, layout.n_state)]
+    inp = ops.concat(head, ops.stack(*rest), u) if rest else ops.concat(head, u)
+    if layout.output == "acceleration":
+        return inp, (one, one, one)
+    force = qbar_s / P.mass
+    return inp, (force, force, qbar_s * P.c / P.Jy)
+
+
+def network_inputs(layout: CorrectionLayout, z: np.ndarray, controls: np.ndarray,
+                   p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The network's inputs ``(N, n_in)`` and output gains ``(N, 3)`` at the states ``z``
+    ``(N, nz)`` under ``controls`` ``(N, nu)`` (the step's own :func:`correction_inputs`)."""
+    inp, gains = correction_inputs(layout, z.T, controls.T, np.asarray(p, float), NUMPY_OPS)
+    n = len(z)
+    return (np.asarray(inp, float).reshape(-1, n).T,
+            np.column_stack([np.broadcast_to(np.asarray(g, float), (n,)) for g in gains]))
 
 
 def improved_step(layout: CorrectionLayout, rhs: Callable, z, u, p, dt, net: Callable, ops):
     """The ``improved`` hybrid step on the layout's state ``z`` (see the module docstring)."""
-    inp = ops.concat(z, u)
+    inp, gains = correction_inputs(layout, z, u, p, ops)
     accel = net(inp)
     if layout.bound is not None:
         accel = bounded(accel, layout.bound, ops, GUARDS[layout.guard][1])
     if layout.gate is not None:
         accel = accel * layout.gate(inp, ops)
+    if layout.output != "acceleration":
+        accel = ops.stack(*[accel[i] * gains[i] for i in range(3)])
     extra = ops.concat(accel, ops.zeros(STATE_DIM - accel.shape[0], accel))
     n_phys = layout.n_physics
     z_phys = ops.stack(*[z[i] for i in range(n_phys)]) if layout.memory_tau else z

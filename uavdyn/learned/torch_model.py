@@ -55,7 +55,7 @@ class TorchCorrection(nn.Module):
         self.kind, self.formulation, self.activation = kind, formulation, activation
         self.dt = float(dt)
         self.layout, self.envelope = layout, envelope
-        n_in = layout.n_state + 2 if layout is not None else self.form.n_in
+        n_in = layout.n_inputs if layout is not None else self.form.n_in
         n_out = self.form.n_out
         gen = torch.Generator().manual_seed(seed)
         sizes = [n_in] + [hidden] * N_HIDDEN_LAYERS + [n_out]
@@ -112,6 +112,7 @@ class TorchCorrection(nn.Module):
         if self.layout is not None:
             extra = {"n_state": self.layout.n_state, "memory_tau": tuple(self.layout.memory_tau),
                      "envelope": self.envelope, "guard": self.layout.guard,
+                     "inputs": self.layout.inputs, "output": self.layout.output,
                      "out_bound": (None if self.layout.bound is None
                                    else np.asarray(self.layout.bound, float).copy())}
         return CorrectionNet(
@@ -130,7 +131,9 @@ class TorchCorrection(nn.Module):
         layout = None
         if net.formulation == "improved" and (structure is not None or net.n_state != 4
                                               or net.envelope is not None
-                                              or net.out_bound is not None):
+                                              or net.out_bound is not None
+                                              or net.inputs != "state"
+                                              or net.output != "acceleration"):
             layout = net.layout(structure)
         module = cls(net.kind, net.formulation, net.hidden[0], net.activation, net.in_mean,
                      net.in_scale, net.out_scale, net.dt, structure=structure, layout=layout,

@@ -29,7 +29,13 @@ from pathlib import Path
 import numpy as np
 
 from uavdyn.learned.envelope import DEFAULT_GUARD, GUARDS, LEGACY_GUARD, Envelope
-from uavdyn.learned.formulations import FORMULATIONS, CorrectionLayout, Formulation
+from uavdyn.learned.formulations import (
+    FORMULATIONS,
+    INPUT_DESIGNS,
+    OUTPUT_DESIGNS,
+    CorrectionLayout,
+    Formulation,
+)
 from uavdyn.learned.mlp import ACTIVATIONS, mlp_forward
 from uavdyn.learned.weight_archive import (
     MAX_FILE_BYTES,
@@ -45,8 +51,8 @@ from uavdyn.learned.weight_archive import (
 )
 from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS
 
-FORMAT_VERSION = 4
-READABLE_VERSIONS = (1, 2, 3, 4)
+FORMAT_VERSION = 5
+READABLE_VERSIONS = (1, 2, 3, 4, 5)
 MAX_MEMORY_FILTERS = 8
 N_HIDDEN_LAYERS = 3
 MAX_NAME_CHARS = 256
@@ -60,10 +66,15 @@ REQUIRED_KEYS = (
 # command memory), the memory filters' time constants, the training input envelope and the
 # output bound; absent (format 1-2), the correction is ungated and unbounded on 4 body states.
 # format 4: the key 'guard' names the form of gate and bound (format 3 is 'product-tanh')
+# format 5: the keys 'inputs' and 'output' name the improved network's input and output
+# designs (absent: 'state' and 'acceleration', as before)
 ENVELOPE_KEYS = ("env_low", "env_high", "env_fade")
 OPTIONAL_KEYS = ("info", "t_range", "n_state", "memory_tau", "out_bound", "guard",
-                 *ENVELOPE_KEYS)
+                 "inputs", "output", *ENVELOPE_KEYS)
 NAME_KEYS = ("formulation", "activation", "kind", "airframe_hash")
+# the extra network inputs of each input design over the step's state and command
+EXTRA_INPUTS = {("state", "fixed_wing"): 0, ("state", "multirotor"): 0,
+                ("physical", "fixed_wing"): 1, ("physical", "multirotor"): 0}
 
 # the archive's limits and error are part of this module's names
 __all__ = ["CorrectionNet", "FORMAT_VERSION", "MAX_FILE_BYTES", "MAX_MEMBERS",
@@ -98,6 +109,8 @@ class CorrectionNet:
     envelope: Envelope | None = None
     out_bound: np.ndarray | None = None
     guard: str = DEFAULT_GUARD
+    inputs: str = "state"
+    output: str = "acceleration"
 
     def __post_init__(self) -> None:
         check_consistent(self, "<in memory>")
@@ -113,8 +126,12 @@ class CorrectionNet:
         """
         gate = (partial(self.envelope.gate, form=GUARDS[self.guard][0])
                 if self.envelope is not None else None)
-        layout = CorrectionLayout(structure, tuple(self.memory_tau), gate, self.out_bound,
-                                  self.guard)
+        try:
+            layout = CorrectionLayout(structure, tuple(self.memory_tau), gate, self.out_bound,
+                                      self.guard, self.inputs, self.output)
+        except ValueError as exc:
+            raise WeightFileError(f"correction network keys 'inputs'/'output': {exc}") \
+                from None
         if layout.n_state != self.n_state:
             raise WeightFileError(
                 f"correction network key 'n_state' is {self.n_state} but the airframe's step "
@@ -128,7 +145,9 @@ class CorrectionNet:
 
     @property
     def n_in(self) -> int:
-        return self.n_state + 2 if self.formulation == "improved" else self.form.n_in
+        if self.formulation != "improved":
+            return self.form.n_in
+        return self.n_state + 2 + EXTRA_INPUTS[(self.inputs, self.kind)]
 
     @property
     def n_out(self) -> int:
@@ -179,6 +198,16 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
     if net.kind not in ("fixed_wing", "multirotor"):
         raise WeightFileError(f"{origin}: key 'kind' is {show(net.kind)}; expected 'fixed_wing' "
                               "or 'multirotor'")
+    for key, choices in (("inputs", INPUT_DESIGNS), ("output", OUTPUT_DESIGNS)):
+        if getattr(net, key) not in choices:
+            raise WeightFileError(f"{origin}: key '{key}' is {show(getattr(net, key))}; "
+                                  f"expected one of {choices}")
+    if (net.inputs, net.output) != ("state", "acceleration") and net.formulation != "improved":
+        raise WeightFileError(f"{origin}: keys 'inputs'/'output' are for the 'improved' "
+                              f"formulation, not '{net.formulation}'")
+    if net.output == "coefficient" and net.kind != "fixed_wing":
+        raise WeightFileError(f"{origin}: key 'output' is 'coefficient', which needs a fixed "
+                              "wing (a hovering multirotor has no dynamic pressure)")
     if not (np.isfinite(net.dt) and net.dt > 0):
         raise WeightFileError(f"{origin}: key 'dt' must be a positive step size, got {net.dt}")
     n_layers = N_HIDDEN_LAYERS + 1
@@ -276,7 +305,8 @@ def save_weights(net: CorrectionNet, path: str | Path) -> Path:
         "airframe_hash": np.array(net.airframe_hash), "dt": np.array(float(net.dt)),
         "in_mean": net.in_mean, "in_scale": net.in_scale, "out_mean": net.out_mean,
         "out_scale": net.out_scale, "info": np.array(json.dumps(net.info, sort_keys=True)),
-        "guard": np.array(net.guard),
+        "guard": np.array(net.guard), "inputs": np.array(net.inputs),
+        "output": np.array(net.output),
     }
     if net.t_range is not None:
         arrays["t_range"] = np.asarray(net.t_range, float)
@@ -364,6 +394,9 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
         raise WeightFileError(f"{path}: key 'guard' is missing; format {version} names the "
                               f"form of its gate and bound (one of {tuple(GUARDS)})")
     extra: dict = {"guard": guard or LEGACY_GUARD}
+    for key in ("inputs", "output"):
+        if key in content:
+            extra[key] = text_key(path, content, key)
     n_layers = N_HIDDEN_LAYERS + 1
     t_range = None
     if "t_range" in content:

@@ -23,6 +23,13 @@ THETA = 3  # index of pitch in the body state (u, w, q, theta)
 # wing's 0.8 us (analysis/bench_hybrid.py): with the same network its hybrid step cost 1.5x
 # its physics' at width 8 and 1.4x at width 6, the fixed wing's 1.3x at width 8.
 DEFAULT_HIDDEN = {"fixed_wing": 8, "multirotor": 6}
+# The network's input and output design by airframe kind, chosen by the knockout benchmark
+# (analysis/bench_knockout.py, docs/learned_correction.md): a fixed wing's correction learns
+# far more as a coefficient residual on alpha, V, q c/2V, alpha-dot c/2V and the thrust
+# coefficient; a multirotor's has no dynamic pressure to scale by and learned as much or more
+# from its body states.
+DEFAULT_DESIGN = {"fixed_wing": ("physical", "coefficient"),
+                  "multirotor": ("state", "acceleration")}
 
 
 class SafeTrainingError(ValueError):
@@ -36,6 +43,13 @@ class SafeConfig:
     hidden: int | None = None         # width of the 3 ReLU layers; None: DEFAULT_HIDDEN of
                                       # the airframe's kind (the width sets the step cost)
     activation: str = "relu"
+    inputs: str | None = None         # what the network sees in place of the body states:
+                                      # "state" or "physical" (alpha, V, q c/2V, ...;
+                                      # uavdyn.learned.formulations.correction_inputs);
+                                      # None: DEFAULT_DESIGN of the airframe's kind
+    output: str | None = None         # "acceleration" or "coefficient" (dC_X, dC_Z, dC_m
+                                      # times dynamic pressure; a fixed wing only); None:
+                                      # DEFAULT_DESIGN of the airframe's kind
     memory_tau: tuple[float, ...] | None = None  # None: (0.05, 0.2) s without actuator states
     horizon_s: float = 2.0            # rollout windows from recorded states, this long
     window_stride_s: float = 0.5
@@ -44,10 +58,10 @@ class SafeConfig:
     batches_per_epoch: int = 6
     eval_windows: int = 128           # fixed train and validation windows scored after every
                                       # epoch with the same loss (Table 2, Fig. 4)
-    epochs: int = 100                # a budget: patience ends a run that stops improving
+    epochs: int = 300                # a budget: patience ends a run that stops improving
     lr: float = 3e-3
     lr_final: float = 3e-4
-    patience: int = 8
+    patience: int = 20
     pooled_weight: float = 0.0       # share of the loss on the pooled error (rest: per window)
     stability_weight: float = 10.0
     stability_margin: float = DEFAULT_MARGIN
@@ -109,7 +123,8 @@ class SafeSetup:
     @property
     def layout(self) -> CorrectionLayout:
         """The correction's state layout, without gate or bound (they come from the data)."""
-        return CorrectionLayout(self.structure, self.memory_tau)
+        return CorrectionLayout(self.structure, self.memory_tau, inputs=self.config.inputs,
+                                output=self.config.output)
 
     @property
     def selection_horizon_s(self) -> float:
@@ -129,6 +144,8 @@ def safe_setup(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     cfg = config or SafeConfig()
     if cfg.hidden is None:
         cfg = replace(cfg, hidden=DEFAULT_HIDDEN[airframe.kind])
+    inputs, output = DEFAULT_DESIGN[airframe.kind]
+    cfg = replace(cfg, inputs=cfg.inputs or inputs, output=cfg.output or output)
     if not train_sorties or not val_sorties:
         raise SafeTrainingError("training needs train and validation sorties")
     sample_dt = float(np.median(np.diff(train_sorties[0].time)))

@@ -5,7 +5,7 @@ bound from the training data; and the loss normalisation that scores the physics
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -14,7 +14,7 @@ from uavdyn.airframes import Airframe
 from uavdyn.flightdata import FlightDataError, Sortie, Windows, make_windows
 from uavdyn.integrate import StateLayout, compile_function, rollout
 from uavdyn.learned.envelope import Envelope
-from uavdyn.learned.formulations import CorrectionLayout
+from uavdyn.learned.formulations import CorrectionLayout, network_inputs
 from uavdyn.learned.safe.config import SafeConfig, SafeSetup, SafeTrainingError
 from uavdyn.learned.torch_model import DTYPE
 from uavdyn.model import sortie_params
@@ -35,7 +35,9 @@ class TrainingWindows:
     y: np.ndarray        # (W, H, 4) recorded body states after each sample
     p: np.ndarray        # (W, np) the window's sortie parameters (density at its altitude)
     physics: np.ndarray  # (W, H, 4) physics-only prediction
-    inputs: np.ndarray   # (N, nz + nu) the network's inputs at every recorded sample
+    inputs: np.ndarray   # (N, n_in) the network's inputs at every recorded sample
+    gains: np.ndarray    # (W, 3) what turns the network's outputs into accelerations at
+                         # each window's start (1 for an acceleration output)
 
     @property
     def sortie(self) -> np.ndarray:
@@ -68,7 +70,10 @@ def training_windows(airframe: Airframe, setup: SafeSetup, sorties: list[Sortie]
     for s in sorties:
         params.append(sortie_params(airframe, s.altitude_m))
         z.append(states.states(s.states, s.controls, params[-1], setup.sample_dt))
-    inputs = np.vstack([np.hstack([zi, s.controls]) for zi, s in zip(z, sorties)])
+    features = [network_inputs(layout, zi, s.controls, pi)
+                for zi, s, pi in zip(z, sorties, params)]
+    inputs = np.vstack([f for f, _ in features])
+    gains = np.array([features[i][1][k] for i, k in windows.starts])
     z0 = np.array([z[i][k] for i, k in windows.starts])
     p = np.array([params[i] for i, _ in windows.starts])
     u = windows.u
@@ -76,7 +81,7 @@ def training_windows(airframe: Airframe, setup: SafeSetup, sorties: list[Sortie]
     pred = np.array(physics_sim.map(W)(z0[:, :layout.n_physics].T, u.reshape(W * H, -1).T,
                                        p.T, setup.sample_dt))
     return TrainingWindows(windows, z0, u, windows.y, p,
-                           pred[:4].reshape(4, W, H).transpose(1, 2, 0), inputs)
+                           pred[:4].reshape(4, W, H).transpose(1, 2, 0), inputs, gains)
 
 
 @dataclass(frozen=True)
@@ -92,8 +97,7 @@ class NetworkScaling:
 
     def layout(self, setup: SafeSetup) -> CorrectionLayout:
         """The correction's layout with this envelope's gate and this bound."""
-        return CorrectionLayout(setup.structure, setup.memory_tau, self.envelope.gate,
-                                self.bound)
+        return replace(setup.layout, gate=self.envelope.gate, bound=self.bound)
 
 
 def network_scaling(tr: TrainingWindows, cfg: SafeConfig, dt: float) -> NetworkScaling:
@@ -103,7 +107,8 @@ def network_scaling(tr: TrainingWindows, cfg: SafeConfig, dt: float) -> NetworkS
     in_scale = rows.std(axis=0)
     in_scale = np.where(in_scale > 1e-9 * (1 + np.abs(in_mean)), in_scale, 1.0)
     envelope = Envelope.from_samples(rows, cfg.envelope_quantile, cfg.envelope_fade)
-    one_step = (tr.y[:, 0, :3] - tr.physics[:, 0, :3]) / dt  # residual acceleration
+    # the residual acceleration of the first step, in the network's output units
+    one_step = (tr.y[:, 0, :3] - tr.physics[:, 0, :3]) / dt / tr.gains
     out_scale = np.sqrt(np.mean(one_step**2, axis=0))
     out_scale = np.where(out_scale > 0, out_scale, 1.0)
     bound = cfg.bound_factor * np.maximum(np.quantile(np.abs(one_step), 0.999, axis=0),
