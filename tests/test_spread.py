@@ -82,3 +82,26 @@ def test_horizon_windows_agree_with_the_one_second_mode():
     np.testing.assert_array_equal(curve[1.0][1], res["horizon_1s"][1])
     assert 0.002 not in curve and 20.0 not in curve  # below one step / beyond the sortie
     assert curve[0.5][0].shape == (len(range(0, len(t) - 50, 50)) * 50, 4)
+
+
+def test_error_share_is_the_pooled_gap_removed_with_a_sortie_bootstrap():
+    from uavdyn.evaluation import error_share
+
+    def errs(rmse):  # 100 samples per sortie: sse = 100 rmse^2
+        return [SortieError(f"s{i}", 100.0 * r**2, 100) for i, r in enumerate(rmse)]
+
+    a, b, c = errs([0.02, 0.01, 0.03]), errs([0.01, 0.01, 0.02]), errs([0.005, 0.01, 0.01])
+    pooled = [math.sqrt(sum(r**2 for r in x) / 3) for x in
+              ([0.02, 0.01, 0.03], [0.01, 0.01, 0.02], [0.005, 0.01, 0.01])]
+    removed = error_share(a, b)
+    assert removed.share == pytest.approx(1 - pooled[1] / pooled[0], rel=1e-12)
+    assert removed.low <= removed.share <= removed.high and removed.sorties == 3
+    recovered = error_share(a, b, c)
+    assert recovered.share == pytest.approx((pooled[0] - pooled[1]) / (pooled[0] - pooled[2]),
+                                            rel=1e-12)
+    # a diverged sortie in any model is left out of every model's pool
+    d = errs([0.02, 0.01, 0.03])
+    d[2] = SortieError("s2", math.inf, 100)
+    assert error_share(a, d).sorties == 2
+    with pytest.raises(ValueError, match="same sorties"):
+        error_share(a, errs([0.01, 0.02]))

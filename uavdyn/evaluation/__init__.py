@@ -15,10 +15,12 @@ from uavdyn.evaluation.metrics import (
     solver_windows,
 )
 from uavdyn.evaluation.spread import (
+    ErrorShare,
     PairedComparison,
     PooledError,
     SortieError,
     compare_paired,
+    error_share,
     pooled_rmse,
     pooled_with_interval,
     squared_error,
@@ -30,5 +32,6 @@ __all__ = ["METRIC_STATES", "MODES", "Solver", "error_growth", "error_stats",
            "evaluate_trajectory", "fine_reference", "horizon_predictions", "pitch_rmse",
            "pooled_stats",
            "solver_windows", "sortie_free_run", "sortie_p", "step_states",
-           "PairedComparison", "PooledError", "SortieError", "compare_paired", "pooled_rmse",
+           "ErrorShare", "PairedComparison", "PooledError", "SortieError", "compare_paired",
+           "error_share", "pooled_rmse",
            "pooled_with_interval", "squared_error", "Timing", "interleaved_timing", "ratio"]

@@ -19,6 +19,7 @@ from uavdyn.evaluation import (
     SortieError,
     compare_paired,
     error_growth,
+    error_share,
     pooled_with_interval,
     squared_error,
 )
@@ -172,6 +173,7 @@ def headline(rows: list[dict], conditions=None) -> list[dict]:
                 a, b = errors.get(base), errors.get(model)
                 if a and b and len(a) == len(b):
                     entry[key] = compare_paired(a, b, WORSE_TOLERANCE).to_dict()
+                    entry[key]["share_removed"] = error_share(a, b).to_dict()
             out.append(entry)
     return out
 

@@ -47,9 +47,21 @@ PAIRED_WORDS = {"identified_vs_nominal": ("identification", "the nominal physics
                 "corrected_vs_identified": ("the correction", "the identified physics")}
 
 
+def _share_sentence(share: dict | None, upper: str, lower: str) -> str:
+    """`` Identification removes 43 % [30, 55] of ...``: the share of the lower rung's pooled
+    error the upper rung removes (``error_share``'s dict), with its bootstrap interval."""
+    if not share or not math.isfinite(share["share"]):
+        return ""
+    ci = (f" [{100 * share['ci_low']:.0f}, {100 * share['ci_high']:.0f}]"
+          if math.isfinite(share["ci_low"]) else "")
+    return (f" {upper[0].upper() + upper[1:]} removes {100 * share['share']:.0f} %{ci} of "
+            f"the pooled error of {lower}.")
+
+
 def _paired_sentence(cmp: dict, upper: str, lower: str, sorties: int) -> str:
     """One sentence of a sortie-by-sortie comparison (``compare_paired``'s dict)."""
-    return (f" Against {lower}, {upper} is worse on {len(cmp['worse'])} of {sorties} "
+    return (_share_sentence(cmp.get("share_removed"), upper, lower)
+            + f" Against {lower}, {upper} is worse on {len(cmp['worse'])} of {sorties} "
             f"sorties, by more than {100 * cmp['tolerance']:.0f} % on "
             f"{len(cmp['worse_beyond_tolerance'])}"
             + (f" ({', '.join(cmp['worse_beyond_tolerance'])})"
