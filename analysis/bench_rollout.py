@@ -154,18 +154,32 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=100_000)
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--out", help="also write the JSON here")
+    ap.add_argument("--airframe", help="airframe file the weights were trained on (default: "
+                    "the shipped identified Aerosonde)")
+    ap.add_argument("--weights", help="correction weight file (default: the shipped one)")
+    ap.add_argument("--airspeed", type=float, default=None,
+                    help="trim airspeed in m/s (default 25, the Aerosonde's; the airframe's "
+                         "own nominal speed with --airframe)")
     ap.add_argument("--jsbsim", action="store_true",
                     help="also time JSBSim's c172x per simulated second (needs jsbsim)")
     args = ap.parse_args()
 
+    from uavdyn.airframes import load_airframe
     from uavdyn.integrate import compile_function, compiled_rollout, physics_step, rollout
+    from uavdyn.learned import load_weights
     from uavdyn.learned.hybrid import hybrid_step, shipped_correction, shipped_identified
     from uavdyn.linear import trim
 
-    airframe = shipped_identified("aerosonde")
-    weights, _ = shipped_correction("aerosonde")
+    if (args.airframe is None) != (args.weights is None):
+        ap.error("--airframe and --weights go together (weights are tied to an airframe)")
+    if args.airframe is None:
+        airframe = shipped_identified("aerosonde")
+        weights, _ = shipped_correction("aerosonde")
+        speed = 25.0 if args.airspeed is None else args.airspeed
+    else:
+        airframe, weights, speed = load_airframe(args.airframe), args.weights, args.airspeed
     dt, n = 0.01, args.samples
-    point = trim(airframe, 25.0)
+    point = trim(airframe, speed)
     models = {"physics": physics_step(airframe),
               "hybrid": hybrid_step(weights, airframe, compile=False)}
     results = {}
@@ -198,12 +212,22 @@ def main() -> None:
                 "compiled_rollout_us_per_sample"] / dt
             r["jsbsim_over_compiled_rollout_per_simulated_second"] = (
                 anchor["us_per_simulated_second"] / r["compiled_rollout_us_per_simulated_second"])
-    out = {"airframe": "aerosonde (shipped identified)", "samples": n, "dt": dt,
+    out = {"airframe": args.airframe or "aerosonde (shipped identified)",
+           "weights": str(args.weights or "shipped"), "samples": n, "dt": dt,
+           "hybrid_over_physics_c_loop": (results["hybrid"]["c_loop_us_per_sample"]
+                                          / results["physics"]["c_loop_us_per_sample"]),
+           "hybrid_over_physics_compiled_rollout": (
+               results["hybrid"]["compiled_rollout_us_per_sample"]
+               / results["physics"]["compiled_rollout_us_per_sample"]),
+           "network": load_weights(weights, airframe).describe(),
            "jsbsim": anchor,
            "repeats": args.repeats, "results": results,
            "machine": {"platform": platform.platform(), "cpu": _cpu_model(),
                        "cpus": os.cpu_count(), "load_1min_after": os.getloadavg()[0]},
-           "command": "python analysis/bench_rollout.py" + (" --jsbsim" if args.jsbsim else "")}
+           "command": "python analysis/bench_rollout.py"
+           + (f" --airframe {args.airframe} --weights {args.weights}" if args.airframe else "")
+           + (f" --airspeed {args.airspeed:g}" if args.airspeed is not None else "")
+           + (" --jsbsim" if args.jsbsim else "")}
     print(json.dumps(out, indent=2))
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=2) + "\n")

@@ -169,8 +169,11 @@ class CorrectionNet:
         return tuple(int(w.shape[0]) for w in self.weights[:-1])
 
     def describe(self) -> str:
+        design = (f", {self.inputs} inputs, {self.output} output"
+                  if self.formulation == "improved" else "")
         return (f"{self.formulation} MLP {self.n_in}-{'-'.join(map(str, self.hidden))}-"
-                f"{self.n_out} ({self.activation}), kind {self.kind}, trained at dt {self.dt:g} s")
+                f"{self.n_out} ({self.activation}{design}), kind {self.kind}, trained at dt "
+                f"{self.dt:g} s")
 
 
 def check_consistent(net: CorrectionNet, origin: str) -> None:
