@@ -594,8 +594,11 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
                                    "terms_flown": flown,
                                    "terms_not_flown": {t: w for t, w in status.items() if w}}}
         try:
+            names_b = full if term == "none" else full + [
+                p for p in TERMS[term]["params"] if p not in full]
             t0 = time.perf_counter()
-            af_b, id_b = identified(nominal, {}, full, ds, folder, cache, quick, args.identify_on)
+            af_b, id_b = identified(nominal, {}, names_b, ds, folder, cache, quick,
+                                    args.identify_on)
             stages["identify_with_s"] = 0.0 if id_b["cached"] else time.perf_counter() - t0
             if term == "none":
                 af_a, id_a, names_a = af_b, id_b, full
@@ -604,7 +607,7 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
             else:
                 spec = TERMS[term]
                 knock = spec["knockout"] or {p: 0.0 for p in spec["params"]}
-                names_a = [p for p in full if p not in spec["params"]]
+                names_a = [p for p in names_b if p not in spec["params"]]
                 t0 = time.perf_counter()
                 af_a, id_a = identified(nominal, knock, names_a, ds, folder, cache, quick,
                                         args.identify_on)
@@ -615,7 +618,7 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
                 if term == "stall":
                     entry["test_sorties_past_stall_onset"] = _past_stall(ds, nominal)
             entry["identify"] = {"base_list": base, "without": {**id_a, "names": names_a},
-                                 "with": {**id_b, "names": full}}
+                                 "with": {**id_b, "names": names_b}}
             say(f"{label}: training the correction on the identified model "
                 f"{'(b)' if term == 'none' else '(a)'}")
             net, corr, secs = train_correction(ds, af_a, cfg)
