@@ -262,6 +262,11 @@ def share_statistics(errors: dict[str, list[SortieError]], resamples: int = BOOT
             share = np.where(ok, (ba - bc) / np.where(ok, g, 1.0), np.nan)
             out["recovered_share_interval"] = interval(share)
             out["bootstrap_draws_gap_within_noise"] = int((~ok).sum())
+            if (~ok).mean() > 0.05:
+                out["recovered_share_interval_note"] = (
+                    f"the interval covers only the {int(ok.sum())} of {resamples} resamples "
+                    "whose gap err_a - err_b is measurable; in the others the term's effect "
+                    "is within noise, so the interval is not a reliable 95 % interval")
     # Sortie-by-sortie: corrected against a.
     if "corrected" in errors:
         ratios, worse = {}, []
