@@ -48,14 +48,17 @@ PAIRED_WORDS = {"identified_vs_nominal": ("identification", "the nominal physics
 
 
 def _share_sentence(share: dict | None, upper: str, lower: str) -> str:
-    """`` Identification removes 43 % [30, 55] of ...``: the share of the lower rung's pooled
-    error the upper rung removes (``error_share``'s dict), with its bootstrap interval."""
+    """`` Identification removes 43 % of the pooled error of ... (share removed +0.43, 95 %
+    bootstrap [+0.30, +0.55]).``: the share of the lower rung's pooled error the upper rung
+    removes (``error_share``'s dict, negative where it adds), with its bootstrap interval."""
     if not share or not math.isfinite(share["share"]):
         return ""
-    ci = (f" [{100 * share['ci_low']:.0f}, {100 * share['ci_high']:.0f}]"
+    ci = (f", 95 % bootstrap [{share['ci_low']:+.2f}, {share['ci_high']:+.2f}]"
           if math.isfinite(share["ci_low"]) else "")
-    return (f" {upper[0].upper() + upper[1:]} removes {100 * share['share']:.0f} %{ci} of "
-            f"the pooled error of {lower}.")
+    verb = "removes" if share["share"] >= 0 else "adds"
+    return (f" {upper[0].upper() + upper[1:]} {verb} {100 * abs(share['share']):.0f} % "
+            f"{'of' if share['share'] >= 0 else 'to'} the pooled error of {lower} (share "
+            f"removed {share['share']:+.2f}{ci}).")
 
 
 def _paired_sentence(cmp: dict, upper: str, lower: str, sorties: int) -> str:
