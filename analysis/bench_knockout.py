@@ -624,6 +624,13 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
                     entry["test_sorties_past_stall_onset"] = _past_stall(ds, nominal)
             entry["identify"] = {"base_list": base, "without": {**id_a, "names": names_a},
                                  "with": {**id_b, "names": names_b}}
+            if term != "none":
+                est = id_b["estimates"]
+                entry["term_estimates_in_b"] = {
+                    p: {"value": est[p]["value"], "nominal": est[p]["nominal"],
+                        "flags": est[p]["flags"]} for p in TERMS[term]["params"] if p in est}
+                entry["term_determined_in_b"] = all(
+                    not v["flags"] for v in entry["term_estimates_in_b"].values())
             say(f"{label}: training the correction on the identified model "
                 f"{'(b)' if term == 'none' else '(a)'}")
             net, corr, secs = train_correction(ds, af_a, cfg)
