@@ -100,9 +100,11 @@ CASE_CODE = (*IDENTIFY_CODE, "uavdyn/learned", "uavdyn/evaluation", "uavdyn/expe
 TERMS: dict[str, dict] = {
     "alpha_dot": {
         "kind": "fixed_wing", "params": ("C_L_alpha_dot", "C_m_alpha_dot"), "knockout": None,
-        "truth": {}, "in_full": True,
+        "truth": {"C_m_alphadot": -12.0, "C_L_alphadot": 2.0}, "in_full": True,
         "note": "lift and pitching moment from the rate of angle of attack (the emulator's "
-                "truth always flies C_L_alphadot, C_m_alphadot with a filtered alpha-dot)"},
+                "truth always flies them with a filtered alpha-dot; here at C_m_alphadot -12, "
+                "C_L_alphadot 2 per rad, mid-range for small aircraft, instead of the "
+                "emulator's mild -6 and 1.5, which C_m_q absorbs almost whole)"},
     "power": {
         "kind": "fixed_wing", "params": ("eta_slipstream",), "knockout": None,
         "truth": {"eta_slipstream": 0.8}, "in_full": True,
@@ -122,11 +124,17 @@ TERMS: dict[str, dict] = {
                 "windows past the blend's onset (of the starting airframe: none in (a)), so "
                 "(b) is fitted mostly on attached flow"},
     "inflow": {
-        "kind": "multirotor", "params": ("k_inflow", "M_u"), "knockout": None, "truth": {},
+        "kind": "multirotor", "params": ("k_inflow",), "knockout": None, "truth": {},
         "in_full": True,
-        "note": "rotor axial inflow and the blade-flapping speed-stability moment M_u (the "
-                "quadrotor truth always flies axial inflow, translational lift, "
-                "rotor-speed-dependent drag and blade flapping)"},
+        "note": "rotor thrust lost to axial inflow (the quadrotor truth always flies axial "
+                "inflow, translational lift, rotor-speed-dependent drag and blade flapping)"},
+    "flapping": {
+        "kind": "multirotor", "params": ("M_u",), "knockout": None, "truth": {},
+        "in_full": True,
+        "note": "the blade-flapping speed-stability moment M_u: with it the hover's pitch "
+                "oscillation is unstable, without it stable, so a correction that recovered "
+                "it would destabilise a mode the identified physics keeps stable, which the "
+                "safe correction's stability rule refuses"},
 }
 TERM_NAMES = (*TERMS, "none")
 

@@ -70,13 +70,15 @@ class SafeConfig:
     bound_factor: float = 2.0
     shrink: tuple[float, ...] = (1.0, 0.75, 0.5, 0.35, 0.25)  # output scales tried at the end
     candidate_epochs: int = 5        # the best epochs (by rank) the final checks go through
-    worst_sortie_ratio: float = 1.1  # every validation sortie: corrected/physics at 1 s <= this
+    worst_sortie_ratio: float = 1.02  # every validation sortie: corrected/physics at 1 s <=
+                                     # this (its measurement noise taken off both)
     state_ratio_limit: float = 1.02  # every body state (u, w, q, theta): pooled validation
                                      # error at the selection horizon, its measurement noise
                                      # taken off, corrected/physics <= this
     channel_scales: tuple[float, ...] = (0.5, 0.0)  # where an output scale beats the physics
                                      # in pitch but a state got worse: one output channel at a
                                      # time scaled by these, the others kept
+    free_run_ratio: float = 1.1      # every validation free run: corrected/physics <= this
     free_run_guard: bool = True      # ... and over its whole free run, where the physics' stays
                                      # within DEPARTURE_RAD of the data; no new departures
     seed: int = 0

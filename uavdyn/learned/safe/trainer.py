@@ -100,7 +100,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     checks = Checks(model, layout, model.out_scale.clone(), airframe, setup, stab.trims,
                     skipped, data.val, ref,
                     FreeRunGuard(setup.physics, val_sorties, airframe, setup.sample_dt,
-                                 ref.state_noise, cfg.worst_sortie_ratio),
+                                 ref.state_noise, cfg.free_run_ratio),
                     RunFacts(cfg, airframe.name, ref.physics_rmse, horizon_s,
                              len(run.history) - 1, len(train_sorties), len(val_sorties),
                              [t.describe() for t in stab.trims], skipped, setup.memory_tau,

@@ -86,9 +86,9 @@ def refusal_reason(tried: list, cfg: SafeConfig, physics_val: float, best: dict,
         r = free_fails[-1]
         why = [f"{r['free_run_new_departures']} run(s) leave the data where the physics' do "
                "not"] if r["free_run_new_departures"] else []
-        if r["free_run_worst"] is not None and r["free_run_worst"] > cfg.worst_sortie_ratio:
+        if r["free_run_worst"] is not None and r["free_run_worst"] > cfg.free_run_ratio:
             why.append(f"worst free-run ratio {r['free_run_worst']:.3g} > "
-                       f"{cfg.worst_sortie_ratio:g}")
+                       f"{cfg.free_run_ratio:g}")
         return (tally + f"every output scale that beats the physics at "
                 f"{horizon_s:g} s makes validation free runs worse (smallest, "
                 f"{r['scale']:g}: {'; '.join(why)}): the physics is kept")
