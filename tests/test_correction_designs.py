@@ -164,7 +164,7 @@ def test_a_coefficient_output_needs_a_fixed_wing(tmp_path):
     airframe = load_airframe(EXAMPLES / "x500.toml")
     with pytest.raises(ValueError, match="needs a fixed wing"):
         CorrectionLayout(structure_of(airframe), (), inputs="physical", output="coefficient")
-    with pytest.raises(ValueError, match="unknown correction inputs"):
+    with pytest.raises(ValueError, match="key .inputs. is .aero."):
         CorrectionLayout(structure_of(airframe), (), inputs="aero")
     layout = CorrectionLayout(structure_of(airframe), (), inputs="physical")
     n_in = layout.n_inputs
@@ -175,3 +175,16 @@ def test_a_coefficient_output_needs_a_fixed_wing(tmp_path):
                       biases=(np.zeros(4),) * 3 + (np.zeros(3),), in_mean=np.zeros(n_in),
                       in_scale=np.ones(n_in), out_mean=np.zeros(3), out_scale=np.ones(3),
                       inputs="physical", output="coefficient")
+
+
+def test_a_weight_file_with_an_unknown_design_is_refused_naming_file_and_key(tmp_path):
+    airframe = load_airframe(EXAMPLES / "trainer.toml")
+    layout = CorrectionLayout(structure_of(airframe), MEMORY, inputs="physical",
+                              output="coefficient")
+    path = save_weights(_net(airframe, layout, np.ones(layout.n_inputs), 4), tmp_path / "w.npz")
+    content = dict(np.load(path))
+    content["inputs"] = np.array("aero")
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, **content)
+    with pytest.raises(WeightFileError, match=r"bad\.npz: key 'inputs' is 'aero'"):
+        load_weights(bad, airframe)

@@ -101,6 +101,19 @@ class Formulation:
         return base + dt**HYPERSOLVER_ORDER * net(ops.concat(x, u))
 
 
+def design_problem(inputs: str, output: str, kind: str | None) -> str | None:
+    """What is wrong with an ``improved`` network's design (None: nothing): an unknown input or
+    output design, or a coefficient output on a multirotor."""
+    if inputs not in INPUT_DESIGNS:
+        return f"key 'inputs' is {inputs!r}; expected one of {INPUT_DESIGNS}"
+    if output not in OUTPUT_DESIGNS:
+        return f"key 'output' is {output!r}; expected one of {OUTPUT_DESIGNS}"
+    if output == "coefficient" and kind not in (None, "fixed_wing"):
+        return ("key 'output' is 'coefficient', which needs a fixed wing: a hovering "
+                "multirotor has no dynamic pressure to scale it by")
+    return None
+
+
 @dataclass(frozen=True)
 class CorrectionLayout:
     """The state the ``improved`` correction steps: the physics ``structure``'s augmented state
@@ -118,19 +131,13 @@ class CorrectionLayout:
     output: str = "acceleration"
 
     def __post_init__(self) -> None:
-        if self.inputs not in INPUT_DESIGNS:
-            raise ValueError(f"unknown correction inputs '{self.inputs}'; expected one of "
-                             f"{INPUT_DESIGNS}")
-        if self.output not in OUTPUT_DESIGNS:
-            raise ValueError(f"unknown correction output '{self.output}'; expected one of "
-                             f"{OUTPUT_DESIGNS}")
         kind = self.structure.kind if self.structure is not None else None
+        problem = design_problem(self.inputs, self.output, kind)
+        if problem:
+            raise ValueError(problem)
         if (self.inputs != "state" or self.output != "acceleration") and kind is None:
             raise ValueError("physical inputs and coefficient outputs need the physics "
                              "structure of the step")
-        if self.output == "coefficient" and kind != "fixed_wing":
-            raise ValueError("a coefficient output needs a fixed wing: a hovering multirotor "
-                             "has no dynamic pressure to scale it by")
 
     @property
     def n_physics(self) -> int:

@@ -31,10 +31,9 @@ import numpy as np
 from uavdyn.learned.envelope import DEFAULT_GUARD, GUARDS, LEGACY_GUARD, Envelope
 from uavdyn.learned.formulations import (
     FORMULATIONS,
-    INPUT_DESIGNS,
-    OUTPUT_DESIGNS,
     CorrectionLayout,
     Formulation,
+    design_problem,
 )
 from uavdyn.learned.mlp import ACTIVATIONS, mlp_forward
 from uavdyn.learned.weight_archive import (
@@ -130,8 +129,7 @@ class CorrectionNet:
             layout = CorrectionLayout(structure, tuple(self.memory_tau), gate, self.out_bound,
                                       self.guard, self.inputs, self.output)
         except ValueError as exc:
-            raise WeightFileError(f"correction network keys 'inputs'/'output': {exc}") \
-                from None
+            raise WeightFileError(f"correction network: {exc}") from None
         if layout.n_state != self.n_state:
             raise WeightFileError(
                 f"correction network key 'n_state' is {self.n_state} but the airframe's step "
@@ -201,16 +199,12 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
     if net.kind not in ("fixed_wing", "multirotor"):
         raise WeightFileError(f"{origin}: key 'kind' is {show(net.kind)}; expected 'fixed_wing' "
                               "or 'multirotor'")
-    for key, choices in (("inputs", INPUT_DESIGNS), ("output", OUTPUT_DESIGNS)):
-        if getattr(net, key) not in choices:
-            raise WeightFileError(f"{origin}: key '{key}' is {show(getattr(net, key))}; "
-                                  f"expected one of {choices}")
+    problem = design_problem(net.inputs, net.output, net.kind)
+    if problem:
+        raise WeightFileError(f"{origin}: {problem}")
     if (net.inputs, net.output) != ("state", "acceleration") and net.formulation != "improved":
         raise WeightFileError(f"{origin}: keys 'inputs'/'output' are for the 'improved' "
                               f"formulation, not '{net.formulation}'")
-    if net.output == "coefficient" and net.kind != "fixed_wing":
-        raise WeightFileError(f"{origin}: key 'output' is 'coefficient', which needs a fixed "
-                              "wing (a hovering multirotor has no dynamic pressure)")
     if not (np.isfinite(net.dt) and net.dt > 0):
         raise WeightFileError(f"{origin}: key 'dt' must be a positive step size, got {net.dt}")
     n_layers = N_HIDDEN_LAYERS + 1
