@@ -68,7 +68,15 @@ import numpy as np
 import uavdyn
 from uavdyn.airframes import load_airframe
 from uavdyn.emulation.datagen import Recipe, generate_dataset, generator_code_hash
-from uavdyn.evaluation import Solver, SortieError, squared_error
+from uavdyn.evaluation import (
+    Solver,
+    SortieError,
+    compare_paired,
+    error_share,
+    pooled_rmse,
+    pooled_with_interval,
+    squared_error,
+)
 from uavdyn.experiments.common import IDENTIFY_PARAMS
 from uavdyn.experiments.predictions import Candidate, PredictionStore
 from uavdyn.flightdata import load_dataset
@@ -205,18 +213,15 @@ def json_safe(obj):
 # the statistics (pure functions on per-sortie (sse, n))
 
 
-def pooled(sse: np.ndarray, n: np.ndarray) -> float:
-    return float(np.sqrt(np.sum(sse) / np.sum(n))) if np.sum(n) else math.nan
-
-
 def share_statistics(errors: dict[str, list[SortieError]], resamples: int = BOOTSTRAP_RESAMPLES,
                      seed: int = BOOTSTRAP_SEED, level: float = LEVEL,
                      noise_share: float = NOISE_SHARE,
                      tolerance: float = WORSE_TOLERANCE) -> dict:
     """Pooled errors of ``a`` (identified without the term), ``corrected`` and ``b``
     (identified with it; absent in the ``none`` case), the recovered and removed shares with
-    bootstrap intervals over sorties (the same draws for all models), and the sorties the
-    correction makes worse than ``a`` by more than ``tolerance``.
+    bootstrap intervals over sorties (:func:`uavdyn.evaluation.error_share`: the same draws
+    for all models), and the sorties the correction makes worse than ``a`` by more than
+    ``tolerance`` (:func:`uavdyn.evaluation.compare_paired`).
 
     Sorties where any model diverged (non-finite error) are left out of the pooled figures and
     named; a corrected divergence where ``a`` stays finite counts as made worse."""
@@ -228,68 +233,47 @@ def share_statistics(errors: dict[str, list[SortieError]], resamples: int = BOOT
     finite = [i for i in range(len(names)) if all(errors[m][i].finite for m in models)]
     diverged = {m: [names[i] for i in range(len(names)) if not errors[m][i].finite]
                 for m in models}
-    sse = {m: np.array([errors[m][i].sse for i in finite]) for m in models}
-    n = np.array([errors["a"][i].n for i in finite], float)
-    err = {m: pooled(sse[m], n) for m in models}
+    kept = {m: [errors[m][i] for i in finite] for m in models}
+    boot = {"level": level, "resamples": resamples, "seed": seed}
     out: dict = {"sorties": len(names), "pooled_over": len(finite), "diverged": diverged,
-                 "err": err, "level": level, "resamples": resamples}
-    tail = (1.0 - level) / 2.0 * 100.0
-    rng = np.random.default_rng(seed)
-    draws = rng.integers(0, len(finite), size=(resamples, len(finite))) if finite else None
-
-    def boot(m):
-        return np.sqrt(sse[m][draws].sum(axis=1) / n[draws].sum(axis=1))
-
-    def interval(values: np.ndarray) -> list[float] | None:
-        values = values[np.isfinite(values)]
-        return [float(v) for v in np.percentile(values, [tail, 100 - tail])] if len(values) \
-            else None
-
+                 "err": {m: pooled_rmse(kept[m]) for m in models}, "level": level,
+                 "resamples": resamples}
     if finite:
-        out["err_interval"] = {m: interval(boot(m)) for m in models}
-    # The share of the identified error the correction removes.
-    if "corrected" in errors and finite and err["a"] > 0:
-        out["removed_share"] = (err["a"] - err["corrected"]) / err["a"]
-        ba, bc = boot("a"), boot("corrected")
-        out["removed_share_interval"] = interval((ba - bc) / ba)
-    # The share of the term's error the correction recovers.
-    if "b" in errors and "corrected" in errors and finite:
+        out["err_interval"] = {m: [(p := pooled_with_interval(kept[m], **boot)).low, p.high]
+                               for m in models}
+    err = out["err"]
+    if "corrected" in errors and finite and err["a"] > 0:  # share of the identified error
+        removed = error_share(kept["a"], kept["corrected"], **boot)
+        out["removed_share"] = removed.share
+        out["removed_share_interval"] = [removed.low, removed.high]
+    if "b" in errors and "corrected" in errors and finite:  # share of the term's error
         gap = err["a"] - err["b"]
         out["gap"] = gap
         out["gap_share_of_a"] = gap / err["a"] if err["a"] > 0 else math.nan
-        if not (gap >= noise_share * err["a"]):
-            out["recovered_share"] = None
+        recovered = error_share(kept["a"], kept["corrected"], kept["b"], min_gap=noise_share,
+                                **boot)
+        out["recovered_share"] = recovered.share
+        if recovered.share is None:
             out["recovered_share_note"] = (
                 f"not measurable: identifying the term changes the 1 s error by "
                 f"{gap / err['a']:+.1%} of the error without it (below {noise_share:.0%}, "
                 "within noise)" if err["a"] > 0 else "not measurable: zero error")
         else:
-            out["recovered_share"] = (err["a"] - err["corrected"]) / gap
-            ba, bc, bb = boot("a"), boot("corrected"), boot("b")
-            g = ba - bb
-            ok = g >= noise_share * ba
-            share = np.where(ok, (ba - bc) / np.where(ok, g, 1.0), np.nan)
-            out["recovered_share_interval"] = interval(share)
-            out["bootstrap_draws_gap_within_noise"] = int((~ok).sum())
-            if (~ok).mean() > 0.05:
+            out["recovered_share_interval"] = [recovered.low, recovered.high]
+            out["bootstrap_draws_gap_within_noise"] = recovered.left_out
+            if recovered.left_out > 0.05 * resamples:
                 out["recovered_share_interval_note"] = (
-                    f"the interval covers only the {int(ok.sum())} of {resamples} resamples "
-                    "whose gap err_a - err_b is measurable; in the others the term's effect "
-                    "is within noise, so the interval is not a reliable 95 % interval")
-    # Sortie-by-sortie: corrected against a.
-    if "corrected" in errors:
-        ratios, worse = {}, []
-        for ea, ec in zip(errors["a"], errors["corrected"]):
-            if not ec.finite:
-                ratio = math.inf if ea.finite else math.nan
-            elif not ea.finite:
-                ratio = 0.0
-            else:
-                ratio = ec.rmse / ea.rmse if ea.rmse > 0 else (math.inf if ec.rmse else 1.0)
-            ratios[ea.sortie] = ratio
-            if ratio > 1.0 + tolerance:
-                worse.append(ea.sortie)
-        out["corrected_over_a"] = ratios
+                    f"the interval covers only the {resamples - recovered.left_out} of "
+                    f"{resamples} resamples whose gap err_a - err_b is measurable; in the "
+                    "others the term's effect is within noise, so the interval is not a "
+                    "reliable 95 % interval")
+    if "corrected" in errors:  # sortie by sortie: corrected against a
+        paired = compare_paired(errors["a"], errors["corrected"], tolerance)
+        worse = [s for s in names if s in paired.worse_beyond_tolerance
+                 or s in paired.new_divergence]
+        out["corrected_over_a"] = {  # both diverged: no ratio
+            s: paired.ratios[s] if ea.finite or ec.finite else math.nan
+            for s, ea, ec in zip(names, errors["a"], errors["corrected"])}
         out["worse_by_more_than"] = tolerance
         out["sorties_worse"] = worse
         out["n_sorties_worse"] = len(worse)

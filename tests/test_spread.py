@@ -103,5 +103,9 @@ def test_error_share_is_the_pooled_gap_removed_with_a_sortie_bootstrap():
     d = errs([0.02, 0.01, 0.03])
     d[2] = SortieError("s2", math.inf, 100)
     assert error_share(a, d).sorties == 2
+    # a gap within noise (below min_gap of A) has no share
+    near = errs([0.0199, 0.0099, 0.0299])
+    within = error_share(a, b, near, min_gap=0.03)
+    assert within.share is None and within.left_out > 0
     with pytest.raises(ValueError, match="same sorties"):
         error_share(a, errs([0.01, 0.02]))

@@ -158,26 +158,32 @@ def compare_paired(a: Sequence[SortieError], b: Sequence[SortieError], tolerance
 class ErrorShare:
     """The share of model A's pooled error that model B removes, ``(A - B) / (A - R)``, with
     its bootstrap interval over sorties: R is 0 (the share of A's error removed) or a
-    reference model's pooled error (the share of the gap from A down to R that B recovers)."""
+    reference model's pooled error (the share of the gap from A down to R that B recovers).
+    ``share`` is None where the gap is within noise (below ``min_gap`` of A); ``left_out``
+    counts the bootstrap draws whose gap was, which the interval does not cover."""
 
-    share: float
+    share: float | None
     low: float
     high: float
     sorties: int
+    left_out: int = 0
+    resamples: int = BOOTSTRAP_RESAMPLES
     level: float = 0.95
 
     def to_dict(self) -> dict:
         return {"share": self.share, "ci_low": self.low, "ci_high": self.high,
-                "sorties": self.sorties, "level": self.level}
+                "sorties": self.sorties, "draws_left_out": self.left_out,
+                "resamples": self.resamples, "level": self.level}
 
 
 def error_share(base: Sequence[SortieError], model: Sequence[SortieError],
                 reference: Sequence[SortieError] | None = None, level: float = 0.95,
-                resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED
-                ) -> ErrorShare:
+                resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED,
+                min_gap: float = 0.0) -> ErrorShare:
     """:class:`ErrorShare` of ``model`` against ``base`` (and ``reference``), over the sorties
     finite in all of them; each bootstrap draw resamples whole sorties once for every model.
-    A draw whose gap ``A - R`` is not positive has no share and is left out of the interval.
+    A gap ``A - R`` not above ``min_gap * A`` has no share (within noise): the point figure is
+    None, a draw is left out of the interval.
 
     Raises
     ------
@@ -189,16 +195,15 @@ def error_share(base: Sequence[SortieError], model: Sequence[SortieError],
         raise ValueError("an error share needs the same sorties in the same order")
     keep = [i for i in range(len(base)) if all(errs[i].finite for errs in lists)]
     if not keep:
-        return ErrorShare(math.nan, math.nan, math.nan, 0, level)
+        return ErrorShare(None, math.nan, math.nan, 0, 0, resamples, level)
     sse = np.array([[errs[i].sse for i in keep] for errs in lists])
     n = np.array([base[i].n for i in keep], float)
 
     def shares(index: np.ndarray) -> np.ndarray:
         rmse = np.sqrt(sse[:, index].sum(axis=-1) / n[index].sum(axis=-1))
-        floor = rmse[2] if reference is not None else 0.0
-        gap = rmse[0] - floor
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(gap > 0, (rmse[0] - rmse[1]) / gap, np.nan)
+        gap = rmse[0] - (rmse[2] if reference is not None else 0.0)
+        ok = (gap > min_gap * rmse[0]) & (gap > 0)
+        return np.where(ok, (rmse[0] - rmse[1]) / np.where(ok, gap, 1.0), np.nan)
 
     point = float(shares(np.arange(len(keep))))
     draws = np.random.default_rng(seed).integers(0, len(keep), size=(resamples, len(keep)))
@@ -207,4 +212,5 @@ def error_share(base: Sequence[SortieError], model: Sequence[SortieError],
     tail = (1.0 - level) / 2.0 * 100.0
     low, high = (np.percentile(boot, [tail, 100.0 - tail]) if len(boot)
                  else (math.nan, math.nan))
-    return ErrorShare(point, float(low), float(high), len(keep), level)
+    return ErrorShare(point if math.isfinite(point) else None, float(low), float(high),
+                      len(keep), resamples - len(boot), resamples, level)

@@ -51,7 +51,7 @@ def _share_sentence(share: dict | None, upper: str, lower: str) -> str:
     """`` Identification removes 43 % of the pooled error of ... (share removed +0.43, 95 %
     bootstrap [+0.30, +0.55]).``: the share of the lower rung's pooled error the upper rung
     removes (``error_share``'s dict, negative where it adds), with its bootstrap interval."""
-    if not share or not math.isfinite(share["share"]):
+    if not share or share["share"] is None:
         return ""
     ci = (f", 95 % bootstrap [{share['ci_low']:+.2f}, {share['ci_high']:+.2f}]"
           if math.isfinite(share["ci_low"]) else "")
