@@ -255,9 +255,12 @@ def share_statistics(errors: dict[str, list[SortieError]], resamples: int = BOOT
         out["recovered_share"] = recovered.share
         if recovered.share is None:
             out["recovered_share_note"] = (
-                f"not measurable: identifying the term changes the 1 s error by "
-                f"{gap / err['a']:+.1%} of the error without it (below {noise_share:.0%}, "
-                "within noise)" if err["a"] > 0 else "not measurable: zero error")
+                "not measurable: zero error" if not err["a"] > 0 else
+                f"not measurable: identifying the term makes the 1 s error "
+                f"{-gap / err['a']:.1%} worse" if gap < 0 else
+                f"not measurable: identifying the term lowers the 1 s error by "
+                f"{gap / err['a']:.1%} of the error without it (below {noise_share:.0%}, "
+                "within noise)")
         else:
             out["recovered_share_interval"] = [recovered.low, recovered.high]
             out["bootstrap_draws_gap_within_noise"] = recovered.left_out
@@ -731,6 +734,65 @@ def headline(stats: dict) -> str:
     return text + f"; worse > 2 %: {stats.get('n_sorties_worse')}"
 
 
+def merged(files: list[Path]) -> dict:
+    """One result document from runs made side by side: every case as its run wrote it, each
+    tagged with that run's command and machine (``run``); the top level lists the runs."""
+    doc: dict = {"benchmark": "knockout: the correction's recovered share of a physical "
+                              "term's error", "merged_from": [], "cases": {}}
+    for path in files:
+        run = json.loads(path.read_text())
+        facts = {k: run.get(k) for k in ("command", "machine", "safe_config",
+                                         "safe_config_overrides", "wall_s", "quick")}
+        doc["merged_from"].append({"file": path.name, **facts})
+        for key in ("metric", "definitions", "terms"):
+            doc.setdefault(key, run.get(key))
+        for label, case in run.get("cases", {}).items():
+            doc["cases"][label] = {**case, "run": {"command": facts["command"],
+                                                   "machine": facts["machine"]}}
+    return doc
+
+
+def _fmt(value, digits: int = 3) -> str:
+    return "-" if value is None or (isinstance(value, float) and not math.isfinite(value)) \
+        else f"{value:.{digits}g}"
+
+
+def markdown_table(doc: dict) -> str:
+    """The cases as one Markdown table (written by ``--markdown``; the docs quote it)."""
+    lines = ["| airframe | term knocked out | test sorties | err a (rad) | corrected | "
+             "err b | recovered share [95 %] | removed share [95 %] | sorties worse > 2 % | "
+             "modes made unstable | correction |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for _, case in sorted(doc.get("cases", {}).items()):
+        if case.get("status") != "done":
+            lines.append(f"| {case.get('airframe_name', case.get('airframe'))} | "
+                         f"{case.get('term')} | - | - | - | - | {case.get('why', 'not run')} "
+                         "| - | - | - | - |")
+            continue
+        sc, corr = case["score"], case.get("correction", {})
+        err = sc["err"]
+        rec = sc.get("recovered_share")
+        if "recovered_share" not in sc:
+            rec_text = "(nothing knocked out)"
+        elif rec is None:
+            rec_text = sc.get("recovered_share_note", "not measurable")
+        else:
+            lo, hi = sc.get("recovered_share_interval") or (None, None)
+            rec_text = f"{rec:.2f} [{_fmt(lo, 2)}, {_fmt(hi, 2)}]"
+            if sc.get("recovered_share_interval_note"):
+                rec_text += " (interval over the measurable resamples only)"
+        rem = sc.get("removed_share")
+        lo, hi = sc.get("removed_share_interval") or (None, None)
+        rem_text = "-" if rem is None else f"{rem:+.3f} [{_fmt(lo, 2)}, {_fmt(hi, 2)}]"
+        kept = "kept" if corr.get("kept") else "not kept"
+        lines.append(
+            f"| {case.get('airframe_name')} | {case['term']} | {sc['pooled_over']} | "
+            f"{_fmt(err.get('a'))} | {_fmt(err.get('corrected'))} | {_fmt(err.get('b'))} | "
+            f"{rec_text} | {rem_text} | {sc.get('n_sorties_worse')} | "
+            f"{sc.get('modes_made_unstable', '-')} | {kept} |")
+    return "\n".join(lines) + "\n"
+
+
 def save(doc: dict, out: Path) -> None:
     doc["wall_s"] = time.perf_counter() - doc["_t0"]
     text = json.dumps(json_safe({k: v for k, v in doc.items() if not k.startswith("_")}),
@@ -777,7 +839,20 @@ def main(argv: list[str] | None = None) -> int:
                     help="tiny configuration (9 x 10 s sorties, 3 missions, 3 epochs) to test "
                          "the pieces")
     ap.add_argument("--force", action="store_true", help="rerun finished cases")
+    ap.add_argument("--merge", type=Path, nargs="+", default=None, metavar="JSON",
+                    help="run nothing: gather the cases of these result files (runs made side "
+                         "by side, each case as it was measured, with the run that made it) "
+                         "into --out")
+    ap.add_argument("--markdown", type=Path, default=None,
+                    help="also write the result table as Markdown here")
     args = ap.parse_args(argv)
+    if args.merge:
+        doc = merged(args.merge)
+        write_atomic(args.out, json.dumps(json_safe(doc), indent=1) + "\n")
+        if args.markdown:
+            write_atomic(args.markdown, markdown_table(doc))
+        say(f"wrote {args.out}" + (f" and {args.markdown}" if args.markdown else ""))
+        return 0
     cfg = safe_config(parse_key_values(args.safe_config), args.quick)
     cache = args.cache or (Path(os.environ["UAVDYN_CACHE"]) / "bench_knockout"
                            if os.environ.get("UAVDYN_CACHE")
@@ -819,6 +894,8 @@ def main(argv: list[str] | None = None) -> int:
     save(doc, out)
     print(json.dumps(json_safe({k: v for k, v in doc.items() if not k.startswith("_")}),
                      indent=1))
+    if args.markdown:
+        write_atomic(args.markdown, markdown_table(doc))
     say(f"wrote {out}")
     return 0
 
