@@ -57,7 +57,8 @@ def _net(airframe, layout: CorrectionLayout, centre: np.ndarray, seed: int) -> C
         n_state=layout.n_state, memory_tau=MEMORY,
         envelope=Envelope(centre - 3 * scale, centre + 3 * scale, scale),
         out_bound=np.array([0.05, 0.1, 0.02]) if layout.output == "coefficient"
-        else np.array([2.0, 3.0, 5.0]), inputs=layout.inputs, output=layout.output)
+        else np.array([2.0, 3.0, 5.0]), inputs=layout.inputs, output=layout.output,
+        skip=rng.normal(0, 0.5, (3, layout.n_inputs)))
 
 
 def _states(airframe, point, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -80,7 +81,7 @@ def test_weight_file_keeps_the_design_and_torch_vm_and_c_agree(file, speed, outp
     centre = network_inputs(layout, Z, U, airframe.p)[0].mean(axis=0)
     net = load_weights(save_weights(_net(airframe, layout, centre, 2), tmp_path / "w.npz"),
                        airframe)
-    assert (net.inputs, net.output) == ("physical", output)
+    assert (net.inputs, net.output) == ("physical", output) and net.skip.shape == (3, net.n_in)
     assert net.n_in == layout.n_inputs == len(layout.input_names())
     vm = hybrid_step(net, airframe, compile=False)
     module = TorchCorrection.from_net(net, structure_of(airframe))

@@ -33,7 +33,7 @@ pytestmark = pytest.mark.skipif(find_compiler() is None, reason="no C compiler")
 
 
 def _model(airframe, point, seed: int, inputs: str = "state",
-           output: str = "acceleration") -> TorchCorrection:
+           output: str = "acceleration", linear: bool = False) -> TorchCorrection:
     structure = structure_of(airframe)
     n_state = structure.nx() + 2 * len(MEMORY)
     layout = CorrectionLayout(structure, MEMORY, inputs=inputs, output=output)
@@ -54,7 +54,8 @@ def _model(airframe, point, seed: int, inputs: str = "state",
         in_mean=centre, in_scale=width, out_mean=np.zeros(3), out_scale=np.array([0.5, 2, 3]),
         n_state=n_state, memory_tau=MEMORY,
         envelope=Envelope(centre - width, centre + width, 0.5 * width),
-        out_bound=np.array([1.0, 3.0, 2.0]), inputs=inputs, output=output)
+        out_bound=np.array([1.0, 3.0, 2.0]), inputs=inputs, output=output,
+        skip=rng.normal(0, 0.3, (3, n_in)) if linear else None)
     return TorchCorrection.from_net(net, structure)
 
 
@@ -77,17 +78,18 @@ def _windows(airframe, point, seed: int) -> WindowTensors:
     return WindowTensors(*t)
 
 
-@pytest.mark.parametrize("file, speed, inputs, output", [
-    ("trainer.toml", None, "state", "acceleration"),
-    ("trainer.toml", None, "physical", "coefficient"),
-    ("x500.toml", 0.0, "state", "acceleration"),
-    ("x500.toml", 0.0, "physical", "acceleration")])
-def test_twin_free_runs_and_gradients_equal_torchs(file, speed, inputs, output):
+@pytest.mark.parametrize("file, speed, inputs, output, linear", [
+    ("trainer.toml", None, "state", "acceleration", False),
+    ("trainer.toml", None, "physical", "coefficient", True),
+    ("x500.toml", 0.0, "state", "acceleration", True),
+    ("x500.toml", 0.0, "physical", "acceleration", False)])
+def test_twin_free_runs_and_gradients_equal_torchs(file, speed, inputs, output, linear):
     airframe = load_airframe(EXAMPLES / file)
     if airframe.kind == "fixed_wing":  # lagged, rate-limited actuators: an augmented state
         airframe = airframe.replace(tau_elevator=0.04, tau_throttle=0.15, slew_throttle=0.5)
     point = trim(airframe, speed)
-    model = _model(airframe, point, 3, inputs, output)
+    model = _model(airframe, point, 3, inputs, output, linear)
+    assert (model.skip is not None) == linear
     D = _windows(airframe, point, 4)
     scale, growth = np.array([1.0, 0.5, 0.1, 0.05]), np.linspace(1.0, 3.0, H)
     twin = CompiledTwin(model, H, DT, scale, growth)

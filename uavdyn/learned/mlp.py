@@ -2,7 +2,9 @@
 hybrid step), NumPy (checks) and torch (training) evaluate the same function.
 
 Layout: ``z = (input - in_mean) / in_scale``; hidden layers ``act(W z + b)``; a linear output
-de-normalised as ``y * out_scale + out_mean``. Data are feature-first (``(n_in, batch)``).
+de-normalised as ``y * out_scale + out_mean``, optionally plus a linear path ``S z`` beside the
+hidden layers (``skip``: a correction that is partly a change of the physics' derivatives is
+learned there directly). Data are feature-first (``(n_in, batch)``).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ def activation(name: str, z, ops, relu_smoothing: float | None = None):
 
 
 def mlp_forward(weights: Sequence, biases: Sequence, in_mean, in_scale, out_mean, out_scale,
-                inp, ops, act: str, relu_smoothing: float | None = None):
+                inp, ops, act: str, relu_smoothing: float | None = None, skip=None):
     """The network applied to the feature-first block ``inp`` with ``ops``.
 
     Parameters
@@ -45,9 +47,14 @@ def mlp_forward(weights: Sequence, biases: Sequence, in_mean, in_scale, out_mean
         :func:`uavdyn.model.torch_ops`.
     act : str
         Hidden activation.
+    skip : array_like, optional
+        ``(n_out, n_in)``: the linear path from the normalised input to the output.
     """
-    z = (inp - ops.col(in_mean)) / ops.col(in_scale)
+    x = (inp - ops.col(in_mean)) / ops.col(in_scale)
+    z = x
     for w, b in zip(weights[:-1], biases[:-1]):
         z = activation(act, ops.matmul(w, z) + ops.col(b), ops, relu_smoothing)
     y = ops.matmul(weights[-1], z) + ops.col(biases[-1])
+    if skip is not None:
+        y = y + ops.matmul(skip, x)
     return y * ops.col(out_scale) + ops.col(out_mean)

@@ -46,8 +46,8 @@ class TorchCorrection(nn.Module):
     def __init__(self, kind: str, formulation: str, hidden: int, activation: str,
                  in_mean: np.ndarray, in_scale: np.ndarray, out_scale: np.ndarray,
                  dt: float, seed: int = 0, structure: ModelStructure | None = None,
-                 layout: CorrectionLayout | None = None, envelope: Envelope | None = None
-                 ) -> None:
+                 layout: CorrectionLayout | None = None, envelope: Envelope | None = None,
+                 linear: bool = False) -> None:
         super().__init__()
         self.form = get_formulation(formulation)
         if activation not in ("relu", "tanh"):
@@ -71,6 +71,8 @@ class TorchCorrection(nn.Module):
                 if i == len(sizes) - 2:  # start from the physics-only step
                     layer.weight.zero_()
             self.layers.append(layer)
+        # the linear path beside the hidden layers (after them in parameters()), from zero
+        self.skip = (nn.Parameter(torch.zeros(n_out, n_in, dtype=DTYPE)) if linear else None)
         self.register_buffer("in_mean", torch.as_tensor(in_mean, dtype=DTYPE))
         self.register_buffer("in_scale", torch.as_tensor(in_scale, dtype=DTYPE))
         self.register_buffer("out_mean", torch.zeros(n_out, dtype=DTYPE))
@@ -85,7 +87,8 @@ class TorchCorrection(nn.Module):
     def _net(self, inp_t: torch.Tensor) -> torch.Tensor:
         return mlp_forward([layer.weight for layer in self.layers],
                            [layer.bias for layer in self.layers], self.in_mean, self.in_scale,
-                           self.out_mean, self.out_scale, inp_t, torch_ops(), self.activation)
+                           self.out_mean, self.out_scale, inp_t, torch_ops(), self.activation,
+                           skip=self.skip)
 
     def step(self, x: torch.Tensor, u: torch.Tensor, p: torch.Tensor, dt,
              t: torch.Tensor | None = None) -> torch.Tensor:
@@ -121,7 +124,8 @@ class TorchCorrection(nn.Module):
             weights=tuple(arr(layer.weight) for layer in self.layers),
             biases=tuple(arr(layer.bias) for layer in self.layers),
             in_mean=arr(self.in_mean), in_scale=arr(self.in_scale),
-            out_mean=arr(self.out_mean), out_scale=arr(self.out_scale), info=info or {})
+            out_mean=arr(self.out_mean), out_scale=arr(self.out_scale), info=info or {},
+            skip=None if self.skip is None else arr(self.skip))
 
     @classmethod
     def from_net(cls, net: CorrectionNet, structure: ModelStructure | None = None
@@ -137,7 +141,7 @@ class TorchCorrection(nn.Module):
             layout = net.layout(structure)
         module = cls(net.kind, net.formulation, net.hidden[0], net.activation, net.in_mean,
                      net.in_scale, net.out_scale, net.dt, structure=structure, layout=layout,
-                     envelope=net.envelope)
+                     envelope=net.envelope, linear=net.skip is not None)
         if len(set(net.hidden)) != 1:
             raise ValueError("TorchCorrection expects equal hidden widths")
         with torch.no_grad():
@@ -145,4 +149,6 @@ class TorchCorrection(nn.Module):
                 layer.weight.copy_(torch.as_tensor(w))
                 layer.bias.copy_(torch.as_tensor(b))
             module.out_mean.copy_(torch.as_tensor(net.out_mean))
+            if net.skip is not None:
+                module.skip.copy_(torch.as_tensor(net.skip))
         return module

@@ -66,10 +66,11 @@ REQUIRED_KEYS = (
 # output bound; absent (format 1-2), the correction is ungated and unbounded on 4 body states.
 # format 4: the key 'guard' names the form of gate and bound (format 3 is 'product-tanh')
 # format 5: the keys 'inputs' and 'output' name the improved network's input and output
-# designs (absent: 'state' and 'acceleration', as before)
+# designs (absent: 'state' and 'acceleration', as before); 'W_skip' (optional) is the linear
+# path beside the hidden layers
 ENVELOPE_KEYS = ("env_low", "env_high", "env_fade")
 OPTIONAL_KEYS = ("info", "t_range", "n_state", "memory_tau", "out_bound", "guard",
-                 "inputs", "output", *ENVELOPE_KEYS)
+                 "inputs", "output", "W_skip", *ENVELOPE_KEYS)
 NAME_KEYS = ("formulation", "activation", "kind", "airframe_hash")
 # the extra network inputs of each input design over the step's state and command
 EXTRA_INPUTS = {("state", "fixed_wing"): 0, ("state", "multirotor"): 0,
@@ -110,6 +111,7 @@ class CorrectionNet:
     guard: str = DEFAULT_GUARD
     inputs: str = "state"
     output: str = "acceleration"
+    skip: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         check_consistent(self, "<in memory>")
@@ -156,7 +158,7 @@ class CorrectionNet:
         ``(n_in, batch)`` array), evaluated with ``ops``."""
         return mlp_forward(self.weights, self.biases, self.in_mean, self.in_scale,
                            self.out_mean, self.out_scale, inp, ops, self.activation,
-                           relu_smoothing)
+                           relu_smoothing, self.skip)
 
     def casadi(self, inp, relu_smoothing: float | None = None):
         """The network as a CasADi expression of the column ``inp`` (SX or MX)."""
@@ -169,6 +171,7 @@ class CorrectionNet:
     def describe(self) -> str:
         design = (f", {self.inputs} inputs, {self.output} output"
                   if self.formulation == "improved" else "")
+        design += ", linear path" if self.skip is not None else ""
         return (f"{self.formulation} MLP {self.n_in}-{'-'.join(map(str, self.hidden))}-"
                 f"{self.n_out} ({self.activation}{design}), kind {self.kind}, trained at dt "
                 f"{self.dt:g} s")
@@ -242,7 +245,11 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
         if value.shape != (size,):
             raise WeightFileError(f"{origin}: key '{key}' has shape {value.shape}; expected "
                                   f"({size},) for the '{net.formulation}' formulation")
+    if net.skip is not None and np.shape(net.skip) != (n_out, n_in):
+        raise WeightFileError(f"{origin}: key 'W_skip' has shape {np.shape(net.skip)}; "
+                              f"expected ({n_out}, {n_in})")
     arrays = {**{f"W{i}": w for i, w in enumerate(net.weights)},
+              **({"W_skip": net.skip} if net.skip is not None else {}),
               **{f"b{i}": b for i, b in enumerate(net.biases)},
               "in_mean": net.in_mean, "in_scale": net.in_scale, "out_mean": net.out_mean,
               "out_scale": net.out_scale}
@@ -312,6 +319,8 @@ def save_weights(net: CorrectionNet, path: str | Path) -> Path:
         arrays["memory_tau"] = np.asarray(net.memory_tau, float)
     if net.out_bound is not None:
         arrays["out_bound"] = np.asarray(net.out_bound, float)
+    if net.skip is not None:
+        arrays["W_skip"] = np.asarray(net.skip, float)
     if net.envelope is not None:
         arrays.update(env_low=net.envelope.low, env_high=net.envelope.high,
                       env_fade=net.envelope.fade)
@@ -404,6 +413,8 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
         extra["memory_tau"] = tuple(float(v) for v in real_key(path, content, "memory_tau", 1))
     if "out_bound" in content:
         extra["out_bound"] = real_key(path, content, "out_bound", 1)
+    if "W_skip" in content:
+        extra["skip"] = real_key(path, content, "W_skip", 2)
     present = [k for k in ENVELOPE_KEYS if k in content]
     if present:
         if len(present) != len(ENVELOPE_KEYS):

@@ -86,7 +86,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     model = TorchCorrection(airframe.kind, "improved", cfg.hidden, cfg.activation,
                             scaling.in_mean, scaling.in_scale, scaling.out_scale, dt,
                             seed=cfg.seed, structure=setup.structure, layout=layout,
-                            envelope=scaling.envelope)
+                            envelope=scaling.envelope, linear=cfg.linear)
     scales = loss_scales(tr)
     stab, skipped = _stability_targets(airframe, setup, scaling.envelope)
     twin = (CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)

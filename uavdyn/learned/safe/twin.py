@@ -113,9 +113,14 @@ class CompiledTwin:
             form = GUARDS[layout.guard][0]
             layout = replace(layout, gate=partial(_gate, terms=tuple(rest[:3]), form=form))
 
+        # the linear path, where there is one, is a parameter of its own among the layers'
+        at = [i for i, q in enumerate(model.parameters()) if q is model.skip]
+        skip = blocks[at[0]] if at else None
+        layers = [b for i, b in enumerate(blocks) if i not in at]
+
         def net(inp):
-            return mlp_forward(blocks[0::2], blocks[1::2], in_mean, in_scale, out_mean,
-                               out_scale, inp, CASADI_OPS, model.activation)
+            return mlp_forward(layers[0::2], layers[1::2], in_mean, in_scale, out_mean,
+                               out_scale, inp, CASADI_OPS, model.activation, skip=skip)
 
         z_next = model.form.step(make_rhs(structure), z, u,
                                  pe[:n_physics], h, net, CASADI_OPS, None, layout)
