@@ -132,6 +132,10 @@ def run_epochs(model: TorchCorrection, data: TrainingData, stab: StabilityTarget
     history = [{"epoch": 0, **sel0, **fixed_losses(model, data),
                 "physics_val_theta_rmse": physics_val, "seconds": time.perf_counter() - start}]
     best = Snapshot((True, math.inf), 0, _state(model), sel0)
+    # patience counts epochs without progress: a better rank, or a better mean ratio over the
+    # validation sorties (an epoch that makes one sortie a little worse still learns: the
+    # final checks scale its output down until every sortie passes)
+    best_mean, progress = math.inf, 0
     snapshots = []
     bar = CheckedBar(range(1, cfg.epochs + 1), desc=f"train {name} (safe)", unit="epoch",
                      disable=not cfg.progress)
@@ -150,11 +154,14 @@ def run_epochs(model: TorchCorrection, data: TrainingData, stab: StabilityTarget
                         worst=f"{sel['val_ratio_worst']:.3g}", refresh=False)
         if math.isfinite(sel["val_theta_rmse"]):
             snapshots.append(Snapshot(rank(sel, cfg), epoch, _state(model), sel))
-        if rank(sel, cfg) < best.rank and math.isfinite(sel["val_theta_rmse"]):
-            best = snapshots[-1]
-        elif epoch - best.epoch >= cfg.patience:
-            stopped = (f"patience: no better validation rank in the {cfg.patience} epochs "
-                       f"after epoch {best.epoch}")
+        finite = math.isfinite(sel["val_theta_rmse"])
+        if rank(sel, cfg) < best.rank and finite:
+            best, progress = snapshots[-1], epoch
+        if sel["val_ratio_geomean"] < best_mean and finite:
+            best_mean, progress = sel["val_ratio_geomean"], epoch
+        if epoch - progress >= cfg.patience:
+            stopped = (f"patience: no better validation rank or mean ratio in the "
+                       f"{cfg.patience} epochs after epoch {progress}")
             break
         if elapsed > cfg.max_seconds:
             stopped = f"wall-clock budget: {elapsed:.0f} s > {cfg.max_seconds:g} s"
