@@ -123,6 +123,7 @@ class Chosen:
     net: CorrectionNet
     epoch: int
     report: StabilityReport
+    row: dict  # its row of the tried candidates (figures and verdicts)
 
 
 @dataclass(frozen=True)
@@ -147,7 +148,7 @@ def final_checks(checks: Checks, alpha: float, channels: np.ndarray, sel: dict, 
             return None, None
     report = checks.stability(step)
     row["stable"] = report.ok
-    return (Chosen(alpha, channels, sel, net, epoch, report) if report.ok else None), report
+    return (Chosen(alpha, channels, sel, net, epoch, report, row) if report.ok else None), report
 
 
 def _try_scale(checks: Checks, epoch: int, alpha: float, tried: list,
@@ -181,21 +182,32 @@ def _try_scale(checks: Checks, epoch: int, alpha: float, tried: list,
 
 
 def search(checks: Checks, run: EpochRun) -> Search:
-    """Through the best ``candidate_epochs`` snapshots of ``run`` by rank, each output scale of
-    ``config.shrink`` in turn, until one passes every check."""
+    """Through the best ``candidate_epochs`` snapshots of ``run`` by rank and as many by mean
+    validation ratio (an epoch that learned more but made one sortie a little worse may pass
+    at a smaller output scale), each output scale of ``config.shrink`` in turn until one
+    passes every check; of the candidates that pass, the one with the best mean validation
+    ratio at its scale is kept."""
     cfg = checks.config
-    candidates = (sorted(run.snapshots, key=lambda c: (c.rank, c.epoch))
-                  [:max(1, cfg.candidate_epochs)]
+    n = max(1, cfg.candidate_epochs)
+    by_rank = sorted(run.snapshots, key=lambda c: (c.rank, c.epoch))[:n]
+    by_mean = sorted(run.snapshots, key=lambda c: (c.selection["val_ratio_geomean"],
+                                                   c.epoch))[:n]
+    candidates = (list({c.epoch: c for c in by_rank + by_mean}.values())
                   or [run.best])  # no finite epoch: the untrained (zero) network, never kept
     tried: list[dict] = []
     report = None
+    passed: list[Chosen] = []
     for snapshot in candidates:
         checks.model.load_state_dict(snapshot.state)
         for alpha in cfg.shrink:
             chosen, report = _try_scale(checks, snapshot.epoch, alpha, tried, report)
             if chosen is not None:
-                return Search(chosen, tried, report)
-    return Search(None, tried, report)
+                passed.append(chosen)
+                break
+    if not passed:
+        return Search(None, tried, report)
+    best = min(passed, key=lambda c: (c.selection["val_ratio_geomean"], c.epoch))
+    return Search(best, tried, best.report)
 
 
 def fallback(checks: Checks, best: Snapshot, tried: list, report: StabilityReport | None

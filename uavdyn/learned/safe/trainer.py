@@ -117,7 +117,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     validation = validation_summary(final, ref, val_sorties, alpha, channels, tried, horizon_s)
     seconds = time.perf_counter() - start
     if chosen is not None:
-        reason = kept_reason(final, ref.physics_rmse, alpha, channels, tried[-1], report,
+        reason = kept_reason(final, ref.physics_rmse, alpha, channels, chosen.row, report,
                              horizon_s)
         return SafeResult(chosen.net, True, reason, run.history, cfg, epoch, seconds,
                           validation, report, run.stopped)
