@@ -189,3 +189,18 @@ def test_a_weight_file_with_an_unknown_design_is_refused_naming_file_and_key(tmp
     np.savez(bad, **content)
     with pytest.raises(WeightFileError, match=r"bad\.npz: key 'inputs' is 'aero'"):
         load_weights(bad, airframe)
+
+
+def test_train_refuses_a_coefficient_output_for_a_multirotor_in_one_line(tmp_path, capsys):
+    from emulated_data import emulated_dataset
+
+    from uavdyn.cli.app import main
+
+    airframe = load_airframe(EXAMPLES / "x500.toml")
+    data = emulated_dataset(tmp_path / "data", airframe, 4, 4.0)
+    out = tmp_path / "w.npz"
+    code = main(["train", "--airframe", str(EXAMPLES / "x500.toml"), "--dataset", str(data),
+                 "--output", "coefficient", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and not out.exists()
+    assert len(err) == 1 and "--output coefficient needs a fixed wing" in err[0]

@@ -145,6 +145,12 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
         given["horizon_s"] = args.horizon
     given.update({k: getattr(args, k) for k in ("inputs", "output")
                   if getattr(args, k, None) is not None})
+    if given.get("output") == "coefficient" and airframe.kind != "fixed_wing":
+        raise ValueError(f"--output coefficient needs a fixed wing; airframe '{airframe.name}' "
+                         "is a multirotor, which has no dynamic pressure to scale it by at "
+                         "hover (use --output acceleration)")
+    if getattr(args, "linear_path", None) is not None:
+        given["linear"] = args.linear_path == "on"
     cfg = SafeConfig(activation=args.activation, lr=args.lr,
                      seed=args.seed, threads=args.threads, progress=not args.quiet,
                      memory_tau=(tuple(args.memory_tau) if args.memory_tau is not None
