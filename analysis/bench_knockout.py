@@ -734,8 +734,9 @@ def headline(stats: dict) -> str:
     return text + f"; worse > 2 %: {stats.get('n_sorties_worse')}"
 
 
-def merged(files: list[Path]) -> dict:
-    """One result document from runs made side by side: every case as its run wrote it, each
+def merged(files: list[Path], keep: list[str] | None = None) -> dict:
+    """One result document from runs made side by side: every case as its run wrote it (of
+    the airframes in ``keep``, None: all; a later file's case replaces an earlier one's), each
     tagged with that run's command and machine (``run``); the top level lists the runs."""
     doc: dict = {"benchmark": "knockout: the correction's recovered share of a physical "
                               "term's error", "merged_from": [], "cases": {}}
@@ -747,6 +748,8 @@ def merged(files: list[Path]) -> dict:
         for key in ("metric", "definitions", "terms"):
             doc.setdefault(key, run.get(key))
         for label, case in run.get("cases", {}).items():
+            if keep is not None and case.get("airframe") not in keep:
+                continue
             doc["cases"][label] = {**case, "run": {"command": facts["command"],
                                                    "machine": facts["machine"]}}
     return doc
@@ -841,13 +844,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--force", action="store_true", help="rerun finished cases")
     ap.add_argument("--merge", type=Path, nargs="+", default=None, metavar="JSON",
                     help="run nothing: gather the cases of these result files (runs made side "
-                         "by side, each case as it was measured, with the run that made it) "
+                         "by side, each case as it was measured, with the run that made it; "
+                         "of the --airframes; a later file's case replaces an earlier one's) "
                          "into --out")
     ap.add_argument("--markdown", type=Path, default=None,
                     help="also write the result table as Markdown here")
     args = ap.parse_args(argv)
     if args.merge:
-        doc = merged(args.merge)
+        doc = merged(args.merge, args.airframes)
         write_atomic(args.out, json.dumps(json_safe(doc), indent=1) + "\n")
         if args.markdown:
             write_atomic(args.markdown, markdown_table(doc))

@@ -46,8 +46,10 @@ def _model(airframe, point, seed: int, inputs: str = "state",
     z_trim = np.asarray(structure_layout_state(airframe, point), float)
     centre = network_inputs(layout, z_trim[None], np.asarray(point.u)[None], airframe.p)[0][0]
     width = np.concatenate([[3.0, 1.0, 0.5, 0.2], np.full(n_in - 4, 0.1)])
-    if inputs == "physical":  # alpha, V, q c/2V, alpha-dot c/2V (, C_T): their own scales
+    if inputs == "physical" and airframe.kind == "fixed_wing":  # alpha, V, q c/2V, ...
         width = np.concatenate([[0.1, 3.0, 0.02, 0.02], np.full(n_in - 4, 0.1)])
+    elif inputs == "physical":  # u, w, q, thrust per weight, rotor speed times u and w
+        width = np.concatenate([[3.0, 1.0, 0.5, 0.2, 3.0, 1.0], np.full(n_in - 6, 0.1)])
     net = CorrectionNet(
         formulation="improved", activation="relu", kind=airframe.kind,
         airframe_hash=airframe.param_hash(), dt=DT, weights=weights, biases=biases,

@@ -296,15 +296,15 @@ def add_train(sub) -> None:
                    help="improved/data: what the network sees in place of the body states: "
                         "state (u, w, q, theta) or physical (a fixed wing's alpha, V, q c/2V, "
                         "alpha-dot c/2V, thrust coefficient; a multirotor's u, w, q, thrust "
-                        "per weight); default physical for a fixed wing, state for a "
-                        "multirotor (docs/learned_correction.md)")
+                        "per weight, rotor speed times u and w); default physical "
+                        "(docs/learned_correction.md)")
     p.add_argument("--output", default=None, choices=["acceleration", "coefficient"],
                    help="improved/data: the network's output: residual accelerations or (a "
                         "fixed wing) force and moment coefficients times dynamic pressure; "
                         "default coefficient for a fixed wing, acceleration for a multirotor")
     p.add_argument("--linear-path", default=None, choices=["on", "off"],
                    help="improved/data: a linear path from the inputs to the outputs beside "
-                        "the hidden layers; default on for a fixed wing, off for a multirotor")
+                        "the hidden layers (default on)")
     p.add_argument("--out", default=None, type=file_to_write,
                    help="weight file (default results/weights/<airframe>_<formulation>.npz)")
     p.add_argument("--history", default=None, type=file_to_write,

@@ -74,7 +74,7 @@ OPTIONAL_KEYS = ("info", "t_range", "n_state", "memory_tau", "out_bound", "guard
 NAME_KEYS = ("formulation", "activation", "kind", "airframe_hash")
 # the extra network inputs of each input design over the step's state and command
 EXTRA_INPUTS = {("state", "fixed_wing"): 0, ("state", "multirotor"): 0,
-                ("physical", "fixed_wing"): 1, ("physical", "multirotor"): 0}
+                ("physical", "fixed_wing"): 1, ("physical", "multirotor"): 2}
 
 # the archive's limits and error are part of this module's names
 __all__ = ["CorrectionNet", "FORMAT_VERSION", "MAX_FILE_BYTES", "MAX_MEMBERS",

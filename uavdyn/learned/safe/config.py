@@ -24,17 +24,12 @@ THETA = 3  # index of pitch in the body state (u, w, q, theta)
 # its physics' at width 8 and 1.4x at width 6, the fixed wing's 1.3x at width 8.
 DEFAULT_HIDDEN = {"fixed_wing": 8, "multirotor": 6}
 # The network's input and output design by airframe kind, chosen by the knockout benchmark
-# (analysis/bench_knockout.py, docs/learned_correction.md): a fixed wing's correction learns
-# far more as a coefficient residual on alpha, V, q c/2V, alpha-dot c/2V and the thrust
-# coefficient; a multirotor's has no dynamic pressure to scale by and learned as much or more
-# from its body states.
+# (analysis/bench_knockout.py, docs/learned_correction.md): physical inputs for both (a fixed
+# wing's alpha, V, q c/2V, alpha-dot c/2V and thrust coefficient; a multirotor's u, w, q,
+# thrust per weight and rotor speed times u and w), a fixed wing's output as coefficients
+# scaled by dynamic pressure (a hovering multirotor has none to scale by).
 DEFAULT_DESIGN = {"fixed_wing": ("physical", "coefficient"),
-                  "multirotor": ("state", "acceleration")}
-# The linear path beside the hidden layers, by kind (the same benchmark): on the trainer's
-# alpha-dot case it recovered 0.45 of the term's error against 0.11 without; on the
-# quadrotors it recovered a little more of the inflow term but made test sorties worse by more
-# than 2 % where the network alone made none worse.
-DEFAULT_LINEAR = {"fixed_wing": True, "multirotor": False}
+                  "multirotor": ("physical", "acceleration")}
 
 
 class SafeTrainingError(ValueError):
@@ -55,9 +50,11 @@ class SafeConfig:
     output: str | None = None         # "acceleration" or "coefficient" (dC_X, dC_Z, dC_m
                                       # times dynamic pressure; a fixed wing only); None:
                                       # DEFAULT_DESIGN of the airframe's kind
-    linear: bool | None = None        # a linear path from the inputs to the outputs beside the
-                                      # hidden layers (uavdyn.learned.mlp); None:
-                                      # DEFAULT_LINEAR of the airframe's kind
+    linear: bool = True               # a linear path from the inputs to the outputs beside the
+                                      # hidden layers (uavdyn.learned.mlp): on the knockout
+                                      # benchmark it recovered 0.45 of the trainer's alpha-dot
+                                      # term against 0.11 without, 0.56 of the F450's inflow
+                                      # term against 0.27
     memory_tau: tuple[float, ...] | None = None  # None: (0.05, 0.2) s without actuator states
     horizon_s: float = 2.0            # rollout windows from recorded states, this long
     window_stride_s: float = 0.5
@@ -155,8 +152,7 @@ def safe_setup(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     if cfg.hidden is None:
         cfg = replace(cfg, hidden=DEFAULT_HIDDEN[airframe.kind])
     inputs, output = DEFAULT_DESIGN[airframe.kind]
-    cfg = replace(cfg, inputs=cfg.inputs or inputs, output=cfg.output or output,
-                  linear=DEFAULT_LINEAR[airframe.kind] if cfg.linear is None else cfg.linear)
+    cfg = replace(cfg, inputs=cfg.inputs or inputs, output=cfg.output or output)
     if not train_sorties or not val_sorties:
         raise SafeTrainingError("training needs train and validation sorties")
     sample_dt = float(np.median(np.diff(train_sorties[0].time)))
