@@ -203,4 +203,5 @@ def test_train_refuses_a_coefficient_output_for_a_multirotor_in_one_line(tmp_pat
                  "--output", "coefficient", "--out", str(out), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and not out.exists()
-    assert len(err) == 1 and "--output coefficient needs a fixed wing" in err[0]
+    assert len(err) == 1 and "--output coefficient on multirotor airframe" in err[0]
+    assert "needs a fixed wing" in err[0]

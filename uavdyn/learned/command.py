@@ -135,6 +135,7 @@ def run(args: argparse.Namespace, airframe: Airframe | None = None) -> dict:
 
 def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist: Path) -> dict:
     """``uavdyn train`` of the safe correction (improved formulation on flight data)."""
+    from uavdyn.learned.formulations import design_problem
     from uavdyn.learned.safe import SafeConfig, train_safe
     from uavdyn.learned.safe.history import write_safe_history_files
 
@@ -145,10 +146,11 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
         given["horizon_s"] = args.horizon
     given.update({k: getattr(args, k) for k in ("inputs", "output")
                   if getattr(args, k, None) is not None})
-    if given.get("output") == "coefficient" and airframe.kind != "fixed_wing":
-        raise ValueError(f"--output coefficient needs a fixed wing; airframe '{airframe.name}' "
-                         "is a multirotor, which has no dynamic pressure to scale it by at "
-                         "hover (use --output acceleration)")
+    if "output" in given:  # the design rule, said in terms of the option
+        problem = design_problem(given.get("inputs", "state"), given["output"], airframe.kind)
+        if problem:
+            raise ValueError(f"--output {given['output']} on {airframe.kind} airframe "
+                             f"'{airframe.name}': {problem}")
     if getattr(args, "linear_path", None) is not None:
         given["linear"] = args.linear_path == "on"
     cfg = SafeConfig(activation=args.activation, lr=args.lr,
