@@ -404,22 +404,40 @@ def test_free_run_rule_counts_new_departures_and_ratios_only_where_the_physics_f
 def test_free_run_rule_compares_errors_with_the_measurement_noise_taken_off():
     """Against records with white pitch noise sigma a prediction's expected squared error is
     its squared error against the truth plus sigma^2. Built from known errors against the truth
-    (physics 1.3 mrad, corrected 1.6 mrad: 1.23x worse) and sigma = 2 mrad, the raw ratio is
-    1.07x and passes 1.1; with the noise given the rule sees the 1.23x and refuses. A sortie the
-    physics follows to within the noise is not scored."""
+    (physics 1.3 mrad, corrected 2.6 mrad: 2x worse, 1.3 mrad more) and sigma = 2 mrad, the raw
+    ratio is 1.29x; with the noise given the rule sees the 2x and refuses. A sortie the physics
+    follows to within the noise is not scored."""
     from uavdyn.flightdata import excess_rmse
     from uavdyn.learned.rules import free_run_verdict
 
-    sigma, truth_p, truth_c = 0.002, 0.0013, 0.0016
+    sigma, truth_p, truth_c = 0.002, 0.0013, 0.0026
     physics = [(math.hypot(truth_p, sigma), False), (0.0019, False)]
     corrected = [(math.hypot(truth_c, sigma), False), (0.0021, False)]
     assert excess_rmse(physics[0][0], sigma) == pytest.approx(truth_p)
     assert excess_rmse(0.0019, sigma) == 0.0 and excess_rmse(math.inf, sigma) == math.inf
     raw = free_run_verdict(physics[:1], corrected[:1], 1.1)
-    assert raw["free_run_ok"] and raw["free_run_worst"] == pytest.approx(1.0738, abs=1e-4)
+    assert raw["free_run_worst"] == pytest.approx(
+        math.hypot(truth_c, sigma) / math.hypot(truth_p, sigma))
     seen = free_run_verdict(physics, corrected, 1.1, [sigma, sigma])
     assert not seen["free_run_ok"] and seen["free_run_scored"] == 1
     assert seen["free_run_worst"] == pytest.approx(truth_c / truth_p)
+
+
+def test_free_run_rule_does_not_refuse_a_noise_level_difference():
+    """A physics free run that follows the data to a fraction of the noise makes a tiny growth
+    a large ratio: 1.3 -> 1.6 mrad against the truth (1.23x) with 2 mrad of noise grows by
+    0.3 mrad, under FREE_RUN_NOISE_FLOOR x sigma = 1 mrad: not worse, and said so. The same
+    runs on noise-free records (no floor) are refused by the ratio."""
+    from uavdyn.learned.rules import FREE_RUN_NOISE_FLOOR, free_run_verdict
+
+    sigma, truth_p, truth_c = 0.002, 0.0013, 0.0016
+    assert truth_c - truth_p < FREE_RUN_NOISE_FLOOR * sigma
+    noisy = free_run_verdict([(math.hypot(truth_p, sigma), False)],
+                             [(math.hypot(truth_c, sigma), False)], 1.1, [sigma])
+    assert noisy["free_run_ok"] and noisy["free_run_noise_level"] == 1
+    assert noisy["free_run_worst"] == pytest.approx(truth_c / truth_p)
+    clean = free_run_verdict([(truth_p, False)], [(truth_c, False)], 1.1, [0.0])
+    assert not clean["free_run_ok"] and clean["free_run_noise_level"] == 0
 
 
 @pytest.mark.parametrize("name", ["aerosonde", "f450"])

@@ -53,6 +53,11 @@ def fitted_start(phys: DiscreteModel, sortie: Sortie, airframe: Airframe, sample
                           scale)[:4]
 
 
+def _finite(rmse: float) -> float | None:
+    """An RMSE for a JSON record (None for a run that diverged)."""
+    return float(rmse) if math.isfinite(rmse) else None
+
+
 @dataclass
 class FreeRunGuard:
     """The free-run rule over the validation ``sorties``; the physics' runs are flown once,
@@ -80,6 +85,11 @@ class FreeRunGuard:
     def verdict(self, step: DiscreteModel) -> dict:
         """:func:`uavdyn.learned.rules.free_run_verdict` of ``step`` against the physics."""
         physics = self.physics_runs
-        return free_run_verdict(physics, free_run_errors(
-            step, self.sorties, self.airframe, self.sample_dt, self.starts),
-            self.worst_ratio, [float(n) for n in self.state_noise[:, THETA]])
+        corrected = free_run_errors(step, self.sorties, self.airframe, self.sample_dt,
+                                    self.starts)
+        verdict = free_run_verdict(physics, corrected, self.worst_ratio,
+                                   [float(n) for n in self.state_noise[:, THETA]])
+        # the figures behind it, per sortie: pitch RMSE of each free run (rad)
+        verdict["free_run_rmse"] = {s.name: [_finite(p[0]), _finite(c[0])] for s, p, c in
+                                    zip(self.sorties, physics, corrected)}
+        return verdict

@@ -9,6 +9,7 @@ import math
 import numpy as np
 
 from uavdyn.flightdata import Sortie
+from uavdyn.learned.rules import FREE_RUN_NOISE_FLOOR
 from uavdyn.learned.safe.config import SafeConfig
 from uavdyn.learned.safe.scoring import ValidationReference, beats_physics_in_pitch
 from uavdyn.learned.stability import StabilityReport
@@ -35,6 +36,13 @@ def validation_summary(final: dict, ref: ValidationReference, val_sorties: list[
             "shrink_tried": tried}
 
 
+def _noise_level_text(row: dict) -> str:
+    """The free-run sorties above the ratio by a noise-level difference, said (or nothing)."""
+    n = row.get("free_run_noise_level", 0)
+    return (f" ({n} above the ratio by less than {FREE_RUN_NOISE_FLOOR:g} x its pitch "
+            "noise, a noise-level difference)") if n else ""
+
+
 def kept_reason(final: dict, physics_val: float, alpha: float, channels: np.ndarray,
                 chosen_row: dict, report: StabilityReport, horizon_s: float) -> str:
     """Why the correction is kept: its gains, scale, free runs and stability."""
@@ -43,8 +51,8 @@ def kept_reason(final: dict, physics_val: float, alpha: float, channels: np.ndar
         worst_free = chosen_row["free_run_worst"]
         free_text = (f"; free runs: worst ratio "
                      f"{'n/a' if worst_free is None else f'{worst_free:.3g}'} over "
-                     f"{chosen_row['free_run_scored']} sorties the physics follows, no new "
-                     "departure")
+                     f"{chosen_row['free_run_scored']} sorties the physics follows"
+                     + _noise_level_text(chosen_row) + ", no new departure")
     return (f"validation pitch RMSE at {horizon_s:g} s "
             f"{physics_val:.4g} -> {final['val_theta_rmse']:.4g} rad (per-sortie "
             f"ratio geometric mean {final['val_ratio_geomean']:.3g}, worst "
