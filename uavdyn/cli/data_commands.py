@@ -261,7 +261,7 @@ def add_import_log(sub) -> None:
                        "several) into wings-level longitudinal segments and write them as "
                        "one dataset with a split")
     add_force(p)
-    p.add_argument("log", type=existing_path, nargs="+", metavar="LOG",
+    p.add_argument("log", type=existing_path, nargs="+",
                    help="the .ulg/.bin/.csv files or ALFA folders, or folders holding them "
                         "(one format; a folder's logs in name order; the order given is the "
                         "flight order --split-by log uses)")

@@ -141,6 +141,9 @@ def plan_log_dataset(flights: FlightLog | list[FlightLog], rules: SegmentRules |
     for flight, report, reason in zip(flights, reports, reasons):
         lines += report.lines() if report is not None else [f"{flight.name}: no segment "
                                                             f"kept: {reason}"]
+        own = flight.meta.get("own_rate_hz")
+        if own and abs(own * flight.dt - 1.0) > 1e-6:
+            lines += [f"  logged at {own:.6g} Hz, resampled to {1 / flight.dt:.6g} Hz"]
         lines += [f"  control map: {text}" for text in control_map_text(flight.meta)]
         lines += [f"  grid: {flight.meta['grid']}"] if flight.meta.get("grid") else []
     lines += [f"split: {_split_counts(splits, sorties)} (by {rule['by']}"
