@@ -63,16 +63,25 @@ def test_a_gyro_gap_keeps_the_straight_line_in_its_interval():
     assert np.all(np.isfinite(pitch))
 
 
-def test_the_grid_follows_the_fastest_body_rate_topic():
+def test_the_grid_follows_the_fastest_body_rate_topic_only_where_it_beats_the_attitude():
     stamps = {"attitude": np.arange(0, 10, 0.4), "gyro": np.arange(0, 10, 1 / 10.06),
               "airspeed": np.arange(0, 10, 1 / 19.4)}
-    choice = fastest_grid(stamps, ("gyro",))
-    assert choice.rate_hz == 10.0 and choice.topic == "gyro"
+    choice = fastest_grid(stamps, ("gyro",), "attitude")
+    assert choice.rate_hz == 10.0 and choice.topic == "gyro" and choice.gyro_aided
     assert "10 Hz from gyro (10.06 Hz)" in choice.reason and "attitude 2.5 Hz" in choice.reason
-    assert fastest_grid(stamps, ("gyro",), 5.0).rate_hz == 5.0
+    given = fastest_grid(stamps, ("gyro",), "attitude", rate_hz=5.0)
+    assert given.rate_hz == 5.0 and given.gyro_aided
+    # an attitude as fast as the gyro keeps the reader's own attitude-rate grid
+    fast = {"attitude": np.arange(0, 10, 0.01), "gyro": np.arange(0, 10, 0.01)}
+    same = fastest_grid(fast, ("gyro",), "attitude", attitude_rate_hz=100.0)
+    assert (same.rate_hz, same.topic, same.gyro_aided) == (100.0, "attitude", False)
+    # a 1 kHz gyro over a 20 Hz attitude: the grid is capped at 100 Hz, and says so
+    capped = fastest_grid({"attitude": np.arange(0, 2, 0.05), "gyro": np.arange(0, 2, 1e-3)},
+                          ("gyro",), "attitude")
+    assert capped.rate_hz == 100.0 and "capped at 100 Hz" in capped.reason
     assert topic_rate(np.arange(0, 1, 0.02)) == pytest.approx(50.0)
     with pytest.raises(FlightDataError, match="no body-rate topic"):
-        fastest_grid(stamps, ("imu",))
+        fastest_grid(stamps, ("imu",), "attitude")
 
 
 def test_alfa_grid_from_the_raw_gyro_and_its_attitude_through_every_sample():
@@ -96,3 +105,36 @@ def test_alfa_grid_from_the_raw_gyro_and_its_attitude_through_every_sample():
     at = np.interp(t[inside], flight.time, flight.channels["pitch"])
     step = np.nanmax(np.abs(np.diff(flight.channels["pitch"])))
     assert np.nanmax(np.abs(at - (-pitch_from_quaternion(quats))[inside])) < step
+
+
+def test_px4_log_with_a_slow_attitude_gets_the_gyro_grid_and_the_analytic_pitch(tmp_path):
+    """A synthetic ULog (tests/ulog_writer.py) with vehicle_attitude at 5 Hz and
+    vehicle_angular_velocity at 100 Hz, banked 0.3 rad and turning: the grid is 100 Hz and
+    the pitch between the attitude samples is the analytic one."""
+    from tests.test_ulog_synthetic import (
+        RATE_HZ,
+        actuator_controls,
+        control_stamps,
+        seconds,
+        stamps,
+        state_topics,
+        theta_true,
+        write_log,
+    )
+    from uavdyn.flightdata.ulog_flight import read_ulog_flight
+
+    fast = state_topics(stamps(401, RATE_HZ), yaw_rate=0.2, roll=0.3)
+    slow = state_topics(stamps(21, 5.0), yaw_rate=0.2, roll=0.3)
+    topics = {**fast, "vehicle_attitude": slow["vehicle_attitude"],
+              **actuator_controls(control_stamps())}
+    flight = read_ulog_flight(write_log(tmp_path / "slow_att.ulg", topics))
+    assert flight.dt == pytest.approx(0.01)
+    assert flight.meta["grid"].startswith("100 Hz from vehicle_angular_velocity")
+    t = flight.time + seconds(stamps(1, RATE_HZ))[0]
+    t_att = seconds(slow["vehicle_attitude"]["timestamp"])
+    inner = (t >= t_att[1]) & (t <= t_att[-2])
+    truth = theta_true(t)
+    assert np.max(np.abs(flight.channels["pitch"] - truth)[inner]) < 2e-3
+    line = np.interp(t, t_att, theta_true(t_att))
+    assert np.max(np.abs(line - truth)[inner]) > 0.01     # what the old grid would give
+    np.testing.assert_allclose(flight.channels["roll"][inner], 0.3, atol=2e-3)

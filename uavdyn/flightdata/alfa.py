@@ -376,17 +376,21 @@ def read_alfa_flight(folder: str | Path, rate_hz: float | None = None, name: str
     t0 = max(float(rel[k][0]) for k in ("imu", "gyro", "odom"))
     t1 = min(float(rel[k][-1]) for k in ("imu", "gyro", "odom"))
     choice = fastest_grid({wanted[k][0]: rel[k] for k in ALFA_FLIGHT_TOPICS},
-                          (wanted["gyro"][0],), rate_hz)
+                          (wanted["gyro"][0],), wanted["imu"][0], rate_hz=rate_hz)
     grid = _grid(t0, t1, choice.rate_hz, folder)
 
     def on_grid(key: str, hold: bool = False) -> np.ndarray:
         return (commands_on_grid if hold else states_on_grid)(grid, rel[key], topics[key].vals)
 
     gyro, vel = on_grid("gyro"), on_grid("odom")
-    quats = topics["imu"].vals
-    roll, pitch = gyro_aided_attitude(grid, rel["imu"], roll_from_quaternion(quats),
-                                      -pitch_from_quaternion(quats), gyro[:, 0], -gyro[:, 1],
-                                      -gyro[:, 2])
+    if choice.gyro_aided:
+        quats = topics["imu"].vals
+        roll, pitch = gyro_aided_attitude(grid, rel["imu"], roll_from_quaternion(quats),
+                                          -pitch_from_quaternion(quats), gyro[:, 0],
+                                          -gyro[:, 1], -gyro[:, 2])
+    else:
+        quat = _quaternions_on_grid(grid, rel["imu"], topics["imu"].vals)
+        roll, pitch = roll_from_quaternion(quat), -pitch_from_quaternion(quat)
     att_gap = in_gap(grid, rel["imu"])
     roll[att_gap] = pitch[att_gap] = np.nan
     va = on_grid("airspeed")[:, 0]
@@ -397,21 +401,20 @@ def read_alfa_flight(folder: str | Path, rate_hz: float | None = None, name: str
                                 for c in ("elevator", "throttle")])
     channels = {"roll": roll, "pitch": pitch, "p": gyro[:, 0], "q": -gyro[:, 1],
                 "r": -gyro[:, 2], "u": u, "v": -vel[:, 1], "w": w}
-    grid_text = (f"{choice.reason}; roll and pitch between the attitude samples "
-                 f"({choice.topic_rates_hz[wanted['imu'][0]]:g} Hz) from the integrated gyro")
     meta = {"file": str(folder), "start_time_s": origin * 1e-9 + t0, "rate_hz": choice.rate_hz,
-            "files": {key: str(tp.path) for key, tp in topics.items()}, "grid": grid_text,
+            "files": {key: str(tp.path) for key, tp in topics.items()}, "grid": choice.reason,
             "topic_rates_hz": choice.topic_rates_hz,
-            "sources": {"roll,pitch": "mavros-imu-data orientation (pitch negated: ENU/FLU), "
-                                      "between its samples the integrated raw gyro",
+            "sources": {"roll,pitch": "mavros-imu-data orientation (pitch negated: ENU/FLU)"
+                        + (", between its samples the integrated raw gyro"
+                           if choice.gyro_aided else ""),
                         "p,q,r": "mavros-imu-data_raw angular_velocity x, -y, -z",
                         "v,w": "mavros-local_position-odom twist -y, -z (ground relative)",
                         "u": "sqrt(Va^2 - w^2), Va = mavros-nav_info-airspeed measured",
                         "altitude_m": "mavros-vfr_hud altitude (MSL)"},
             "control_map": {k: m.describe() for k, m in maps.items()},
             "resampling": f"topics (2.5-19 Hz) on a uniform {choice.rate_hz:g} Hz grid: "
-                          "attitude gyro-aided between its samples, other states linear, "
-                          "controls held; NaN in topic gaps"}
+                          + ("attitude gyro-aided between its samples, " if choice.gyro_aided
+                             else "") + "states linear, controls held; NaN in topic gaps"}
     return FlightLog(name=name or root.name, kind="fixed_wing", time=grid - grid[0],
                      channels=channels, controls=controls, velocity_reference="airspeed",
                      source="ALFA (MAVROS CSV)", altitude_m=on_grid("hud")[:, 1], airspeed=va,

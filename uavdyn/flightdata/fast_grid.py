@@ -3,10 +3,12 @@
 Some logs record the attitude slowly and the raw gyro faster (ALFA: attitude 2.5 Hz, raw
 gyro 10 Hz). Two rules:
 
-* **the grid follows the fastest usable body-rate topic** (:func:`fastest_grid`): the pitch
-  rate is the fastest state of the pitch plane, so the grid runs at its topic's rate (a rate
-  within 2 % of a whole number of Hz is taken as that whole number); slower topics are
-  interpolated (states) or held (commands) onto it, as before;
+* **the grid follows the fastest usable body-rate topic** where it is faster than the
+  attitude (:func:`fastest_grid`): the pitch rate is the fastest state of the pitch plane, so
+  the grid runs at its topic's rate (a rate within 2 % of a whole number of Hz is taken as
+  that number), up to 100 Hz or the attitude's own rate if that is higher; slower topics
+  are interpolated (states) or held (commands) onto it, as before. A log whose attitude is
+  as fast as its gyro keeps its reader's attitude-rate grid;
 * **the attitude between its own samples comes from the gyro** (:func:`gyro_aided_attitude`):
   the Euler-angle rates from the gyro (``phi_dot = p + (q sin phi + r cos phi) tan theta``,
   ``theta_dot = q cos phi - r sin phi``) are integrated from each attitude sample to the next,
@@ -28,6 +30,7 @@ from uavdyn.flightdata.errors import FlightDataError
 
 WHOLE_HZ_TOLERANCE = 0.02     # a rate within 2 % of a whole number of Hz is that number
 PASSES = 3                    # Euler rates re-evaluated at the previous pass's attitude
+AUTO_GRID_CAP_HZ = 100.0      # a gyro faster than the attitude sets the grid up to this
 
 
 @dataclass(frozen=True)
@@ -38,11 +41,7 @@ class GridChoice:
     topic: str
     topic_rates_hz: dict[str, float] = field(default_factory=dict)
     reason: str = ""
-
-    def as_dict(self) -> dict:
-        """JSON-ready: ``rate_hz``, ``from``, ``topic_rates_hz``, ``reason``."""
-        return {"rate_hz": self.rate_hz, "from": self.topic,
-                "topic_rates_hz": self.topic_rates_hz, "reason": self.reason}
+    gyro_aided: bool = False
 
 
 def topic_rate(t: np.ndarray) -> float:
@@ -60,22 +59,31 @@ def _whole(rate: float) -> float:
 
 
 def fastest_grid(stamps: dict[str, np.ndarray], body_rate_topics: tuple[str, ...],
+                 attitude_topic: str, attitude_rate_hz: float | None = None,
                  rate_hz: float | None = None) -> GridChoice:
-    """The grid rate: ``rate_hz`` if given, else the rate of the fastest of
-    ``body_rate_topics`` (the gyro topics the reader can use).
+    """The grid rate: ``rate_hz`` if given; else, where a body-rate topic is faster than the
+    attitude topic, the rate of the fastest one (at most ``max(attitude rate,``
+    :data:`AUTO_GRID_CAP_HZ` ``)``); else the attitude topic's rate.
 
     Parameters
     ----------
     stamps : dict of str to ndarray
         Each topic's sample times (s), by the name the summary should show.
     body_rate_topics : tuple of str
-        The keys of ``stamps`` that carry body rates.
+        The keys of ``stamps`` that carry body rates (the gyro topics the reader can use).
+    attitude_topic : str
+        The key of ``stamps`` that carries the attitude.
+    attitude_rate_hz : float, optional
+        The reader's own rate for a grid that follows the attitude topic (default the
+        attitude topic's median rate, a whole number of Hz when within 2 %).
     rate_hz : float, optional
         A stated rate.
 
     Returns
     -------
     GridChoice
+        ``gyro_aided`` says whether the attitude is slower than the grid (the reader then
+        fills it with :func:`gyro_aided_attitude`).
 
     Raises
     ------
@@ -89,12 +97,26 @@ def fastest_grid(stamps: dict[str, np.ndarray], body_rate_topics: tuple[str, ...
                               f"{', '.join(body_rate_topics)}")
     best = max(usable, key=lambda k: rates[k])
     listed = ", ".join(f"{k} {rates[k]:g} Hz" for k in stamps)
+    att = rates[attitude_topic]
+    own = float(attitude_rate_hz) if attitude_rate_hz is not None else _whole(att)
+    cap = max(att, AUTO_GRID_CAP_HZ)
+    faster = min(rates[best], cap)
     if rate_hz is not None:
-        return GridChoice(float(rate_hz), "given", rates, f"{float(rate_hz):g} Hz given "
-                          f"(topics: {listed})")
-    rate = _whole(rates[best])
-    return GridChoice(rate, best, rates, f"{rate:g} Hz from {best} ({rates[best]:g} Hz), the "
-                      f"fastest body-rate topic (topics: {listed})")
+        rate, topic, why = float(rate_hz), "given", f"{float(rate_hz):g} Hz given"
+    elif faster <= att * (1 + WHOLE_HZ_TOLERANCE):
+        rate, topic = own, attitude_topic
+        why = (f"{own:g} Hz from {attitude_topic}, the attitude ("
+               + ("no body-rate topic is faster)" if rates[best] <= att * (1 + WHOLE_HZ_TOLERANCE)
+                  else f"already above {AUTO_GRID_CAP_HZ:g} Hz)"))
+    else:
+        rate, topic = _whole(faster), best
+        why = (f"{rate:g} Hz from {best} ({rates[best]:g} Hz), the fastest body-rate topic"
+               + (f", capped at {cap:g} Hz (--rate chooses)" if rates[best] > cap else ""))
+    aided = rate > att * (1 + WHOLE_HZ_TOLERANCE)
+    if aided:
+        why += (f"; roll and pitch between the attitude samples ({att:g} Hz) from the "
+                "integrated gyro")
+    return GridChoice(rate, topic, rates, f"{why} (topics: {listed})", aided)
 
 
 def euler_rates(roll: np.ndarray, pitch: np.ndarray, p: np.ndarray, q: np.ndarray,
