@@ -165,8 +165,8 @@ def cmd_import_log(args: argparse.Namespace) -> int:
     rules = SegmentRules(max_roll_deg=args.max_roll, max_yaw_rate_deg_s=args.max_yaw_rate,
                          max_sideslip_deg=args.max_sideslip, min_duration_s=args.min_duration,
                          min_speed_m_s=args.min_speed, kinematic=not args.no_kinematic_check)
-    planned = plan_log_dataset(flights, rules, split_options_from(args),
-                               rate.reason)  # refusals first
+    said = rate.reason if len(flights) > 1 or args.rate else ""  # one log: its own line
+    planned = plan_log_dataset(flights, rules, split_options_from(args), said)  # refusals first
     with output_folder(args.out, "import-log", args.force) as tmp:
         written = write_log_dataset(planned, tmp)
     for line in written.lines:
