@@ -190,3 +190,28 @@ def test_find_logs_and_unique_names(campaign, tmp_path):
                       np.zeros((3, 2)), "ground", "t")
     with pytest.raises(FlightDataError, match="one dataset holds one airframe kind"):
         on_one_rate([fixed, other])
+
+
+def test_a_log_without_a_segment_is_recorded_with_its_reason_not_dropped(campaign, tmp_path,
+                                                                         capsys):
+    """A 4 s log (shorter than the 5 s minimum segment) in a campaign: the others import, the
+    manifest lists it with no segment and why, the summary says so; a campaign with no usable
+    log at all is refused in one line and writes nothing."""
+    root, flights, paths = campaign
+    short = write_campaign(tmp_path / "short", [campaign_flight(9, 4.0, 50.0)], stem="short")[0]
+    out = tmp_path / "ds"
+    code, text, err = _run(capsys, "import-log", str(paths[0]), str(short), "--kind",
+                           "fixed_wing", "--out", str(out))
+    assert code == 0, err
+    manifest = json.loads((out / "manifest.json").read_text())
+    record = manifest["logs"][1]
+    assert record["name"] == "short1_50hz" and record["segments"] == [] and record["kept_s"] == 0
+    assert "no longitudinal segment of at least 5 s" in record["no_segment"]
+    assert "short1_50hz: no segment kept: no longitudinal segment" in text
+    assert {e["log"] for e in manifest["sorties"]} == {"flight1_50hz"}
+    assert not (out / "import_timeline_short1_50hz.png").exists()
+    other = write_campaign(tmp_path / "other", [campaign_flight(10, 4.0, 50.0)])[0]
+    code, _, err = _run(capsys, "import-log", str(short), str(other), "--kind", "fixed_wing",
+                        "--out", str(tmp_path / "none"))
+    assert code == 2 and "none of the 2 logs has a usable segment" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "none").exists()
