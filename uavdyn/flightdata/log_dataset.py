@@ -192,7 +192,8 @@ def _used_share(flights: list[FlightLog], sorties: list) -> str:
     total = sum(f.duration for f in flights)
     kept = sum(s.duration for s in sorties)
     return (f"campaign: {len(flights)} logs, {total:.1f} s, {kept:.1f} s kept in "
-            f"{len(sorties)} segments ({100 * kept / max(total, 1e-12):.0f} % of the flight "
+            f"{len(sorties)} segment{'' if len(sorties) == 1 else 's'} "
+            f"({100 * kept / max(total, 1e-12):.0f} % of the flight "
             "time)")
 
 
