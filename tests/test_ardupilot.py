@@ -75,8 +75,9 @@ def truth(duration: float = 30.0) -> dict[str, np.ndarray]:
 
 
 def write_plane(path, tr, omit=(), params=None, imu_gap=None, wind=True, airspeed=True,
-                velocity="XKF1", vehicle="plane"):
-    """A DataFlash log of the truth ``tr``; ``omit`` leaves messages out entirely."""
+                velocity="XKF1", vehicle="plane", att_every=1):
+    """A DataFlash log of the truth ``tr``; ``omit`` leaves messages out entirely; ATT is
+    written every ``att_every``-th sample (a slower attitude than IMU)."""
     w = DataFlashWriter()
     defs = dict(MESSAGES)
     if vehicle == "copter":
@@ -95,7 +96,7 @@ def write_plane(path, tr, omit=(), params=None, imu_gap=None, wind=True, airspee
     for k, t in enumerate(tr["t"]):
         us = T0_US + k * 20_000
         deg = {a: float(np.degrees(tr[a][k])) for a in ("roll", "pitch", "yaw")}
-        if "ATT" not in omit:
+        if "ATT" not in omit and k % att_every == 0:
             w.write("ATT", TimeUS=us, Roll=deg["roll"], Pitch=deg["pitch"],
                     Yaw=deg["yaw"] % 360.0)
         if "IMU" not in omit and not (imu_gap and imu_gap[0] <= t <= imu_gap[1]):
@@ -166,6 +167,24 @@ def test_fixed_wing_channels_equal_the_written_truth(tmp_path, tr):
                                                    "value": [0.35, -0.35]}
     assert "percent" in log.meta["control_map_notes"]["throttle"]
     assert "assumed" in log.meta["control_map_notes"]["elevator"]
+
+
+def test_a_slow_att_gets_the_imu_grid_and_the_pitch_between_its_samples(tmp_path, tr):
+    """ATT at 5 Hz, IMU at 50 Hz (issue 41 item 4): the grid follows IMU, and roll and pitch
+    between the ATT samples come from the integrated gyro, close to the written truth where a
+    straight line between the ATT samples is not."""
+    log = read_dataflash(write_plane(tmp_path / "slow.bin", tr, att_every=10))
+    assert log.dt == pytest.approx(1 / RATE)
+    assert log.meta["grid"].startswith("50 Hz from IMU (50 Hz), the fastest body-rate topic")
+    n = len(log.time)           # the grid ends at the last ATT sample
+    t = tr["t"][:n]
+    inner = (t >= 0.2) & (t <= t[-1] - 0.2)
+    for key in ("roll", "pitch"):   # the truth's rates are finite differences: kinks smear
+        line = np.interp(t, tr["t"][::10], tr[key][::10])
+        rms_line = np.sqrt(np.mean((line - tr[key][:n])[inner] ** 2))
+        rms = np.sqrt(np.mean((log.channels[key] - tr[key][:n])[inner] ** 2))
+        assert rms < rms_line / 3 and rms < 3e-4, (key, rms, rms_line)
+        np.testing.assert_allclose(log.channels[key][inner], tr[key][:n][inner], atol=2e-3)
 
 
 def test_turn_crosses_180_deg_without_a_yaw_swing(tmp_path, tr):

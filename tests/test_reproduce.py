@@ -5,6 +5,7 @@ on a dataset folder written by hand (not by the generator)."""
 
 import json
 import math
+from pathlib import Path
 
 import matplotlib.image
 import numpy as np
@@ -360,6 +361,27 @@ def test_evaluate_refuses_a_dataset_without_test_split_unless_asked(tmp_path, ca
     metrics = json.loads(out.read_text())
     assert metrics["split"].startswith("all sorties") and len(metrics["sorties"]) == 2
     assert "all sorties" in out.with_suffix(".md").read_text()
+
+
+def test_evaluate_all_sorties_scores_every_split_not_only_test(tmp_path):
+    """Issue 41: on a dataset that has a test split, ``--all-sorties`` used to score only the
+    test sorties; it scores every one, and says how many of each split."""
+    folder = write_hand_dataset(tmp_path / "hand", n_sorties=3, duration=4.0)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    for entry, split in zip(manifest["sorties"], ("train", "validation", "test")):
+        entry["split"] = split
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    names = [Path(e["file"]).stem for e in manifest["sorties"]]
+    out = tmp_path / "m.json"
+    assert main(["evaluate", "--airframe", "aerosonde", "--dataset", str(folder),
+                 "--all-sorties", "--out", str(out)]) == 0
+    metrics = json.loads(out.read_text())
+    assert sorted(metrics["sorties"]) == sorted(names)
+    assert {row["sortie"] for row in metrics["ladder"]["per_sortie"]} == set(names)
+    assert "1 train, 1 validation, 1 test" in metrics["split"]
+    assert main(["evaluate", "--airframe", "aerosonde", "--dataset", str(folder),
+                 "--out", str(out), "--force"]) == 0
+    assert json.loads(out.read_text())["sorties"] == [names[2]]   # without it: test only
 
 
 def test_free_run_runner_starts_an_augmented_step_from_its_own_start_state():

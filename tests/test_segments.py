@@ -178,12 +178,20 @@ def test_a_px4_hover_at_its_own_rate_imports_and_refuses_an_unexcited_pitch_deri
 
     monkeypatch.setenv("UAVDYN_CC", "")  # the CasADi VM: see the ALFA test
 
+    # by default the grid follows the 50 Hz gyro (the attitude is logged at 20.8 Hz)
+    code, out, err = _run(capsys, "import-log", str(ulog("px4_sitl_hover.ulg")),
+                          "--out", str(tmp_path / "hover50"))
+    assert code == 0, err
+    manifest = json.loads((tmp_path / "hover50" / "manifest.json").read_text())
+    assert manifest["sample_rate_hz"] == pytest.approx(50.0)
+    assert manifest["logs"][0]["grid"].startswith("50 Hz from vehicle_angular_velocity")
+    assert "1 sortie: train only" in out    # one segment: a stated split, not a refusal
     data = tmp_path / "hover"
     code, out, err = _run(capsys, "import-log", str(ulog("px4_sitl_hover.ulg")),
-                          "--fractions", "1,0,0", "--out", str(data))
+                          "--rate", "20", "--out", str(data))
     assert code == 0, err
     manifest = json.loads((data / "manifest.json").read_text())
-    assert manifest["sample_rate_hz"] == pytest.approx(20.0)  # the attitude topic's own rate
+    assert manifest["sample_rate_hz"] == pytest.approx(20.0)  # the attitude topic's rate
     assert len(manifest["sorties"]) == 1 and "in-air flag" in manifest["sorties"][0]["cut"][
         "before"]
     airframe = str(Path(__file__).resolve().parents[1] / "examples" / "x500.toml")

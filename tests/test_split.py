@@ -217,9 +217,24 @@ def test_cli_end_to_end(tmp_path, capsys):
 
 def test_cli_too_few_sorties_one_line(tmp_path, capsys):
     folder = make_dataset(tmp_path / "data", n=2)
-    assert main(["split", str(folder)]) == 2
+    assert main(["split", str(folder), "--fractions", "0.7,0.15,0.15"]) == 2
     line = one_line_error(capsys)
     assert line.startswith("uavdyn split: error:") and "'test' would be empty" in line
+
+
+@pytest.mark.parametrize("n, expected", [(1, ["train"]), (2, ["train", "test"])])
+def test_cli_default_fractions_for_one_or_two_sorties_are_stated_not_refused(
+        tmp_path, capsys, n, expected):
+    """Without --fractions, 1 sortie goes to train and 2 to train and test (time-block: the
+    later one held out); the manifest and the printed line say why."""
+    folder = make_dataset(tmp_path / "data", n=n, starts=[10.0 * (n - i) for i in range(n)])
+    assert main(["split", str(folder), "--by", "time-block"]) == 0
+    out = capsys.readouterr().out
+    manifest = json.loads((folder / "manifest.json").read_text())
+    by_start = sorted(manifest["sorties"], key=lambda e: e["source_start_s"])
+    assert [e["split"] for e in by_start] == expected
+    assert "needs 3" in manifest["split_rule"]["note"] and "needs 3" in out
+    assert main(["split", str(folder), "--fractions", "0.7,0.15,0.15"]) == 2
 
 
 @pytest.mark.parametrize("extra, option", [
@@ -256,8 +271,7 @@ def test_split_options_helpers():
     add_split_options(parser)
     args = parser.parse_args([])
     assert (args.split_by, args.fractions, args.seed) == (None, None, None)
-    assert split_options_from(args) == {"by": "sortie", "fractions": (0.7, 0.15, 0.15),
-                                        "seed": 0}
+    assert split_options_from(args) == {"by": "sortie", "fractions": None, "seed": 0}
     args = parser.parse_args(["--split-by", "time-block", "--fractions", "0.6,0.4,0",
                               "--seed", "2"])
     assert split_options_from(args) == {"by": "time-block", "fractions": (0.6, 0.4, 0.0),

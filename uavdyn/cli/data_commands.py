@@ -42,11 +42,11 @@ from uavdyn.emulation.fingerprint import (
 )
 from uavdyn.emulation.missions import missions_for
 from uavdyn.flightdata import read_alfa_flight, read_dataflash, read_sixdof_csv
+from uavdyn.flightdata.campaign import find_logs, on_one_rate
 from uavdyn.flightdata.control_map import parse_channel_map
 from uavdyn.flightdata.errors import FlightDataError
-from uavdyn.flightdata.flightlog import FlightLog, resample_flight
+from uavdyn.flightdata.flightlog import FlightLog
 from uavdyn.flightdata.log_dataset import SUMMARY_FILE as LOG_SUMMARY
-from uavdyn.flightdata.log_dataset import TIMELINE_FILE as LOG_TIMELINE
 from uavdyn.flightdata.log_dataset import plan_log_dataset, write_log_dataset
 from uavdyn.flightdata.manifest import MANIFEST_MAX_SORTIES
 from uavdyn.flightdata.segments import SegmentRules
@@ -155,44 +155,31 @@ def _check_recipe(recipe: Recipe) -> None:
 
 
 def cmd_import_log(args: argparse.Namespace) -> int:
-    """Import a real log, cut it into longitudinal segments and write them as a dataset with a
-    split, a summary and a timeline figure."""
-    source = Path(args.log)
-    fmt = _log_format(source, args.format)
+    """Import one log or a campaign of several (files and folders, one format), cut them into
+    longitudinal segments and write them as one dataset on one grid rate with a split, a
+    summary and a timeline figure per log."""
+    sources = find_logs(args.log, args.format)
     check_output_folder(args.out, "import-log", args.force)
-    flight = _read_flight(source, fmt, args)
+    flights, rate = on_one_rate([_read_flight(s.path, s.format, args) for s in sources],
+                                args.rate)
     rules = SegmentRules(max_roll_deg=args.max_roll, max_yaw_rate_deg_s=args.max_yaw_rate,
                          max_sideslip_deg=args.max_sideslip, min_duration_s=args.min_duration,
                          min_speed_m_s=args.min_speed, kinematic=not args.no_kinematic_check)
-    planned = plan_log_dataset(flight, rules, split_options_from(args))  # refusals first
+    said = rate.reason if len(flights) > 1 or args.rate else ""  # one log: its own line
+    planned = plan_log_dataset(flights, rules, split_options_from(args), said)  # refusals first
     with output_folder(args.out, "import-log", args.force) as tmp:
         written = write_log_dataset(planned, tmp)
     for line in written.lines:
         print(line)
-    print(f"wrote {args.out}/ ({len(written.splits)} segment sorties at {1 / flight.dt:.6g} Hz, "
-          f"{LOG_SUMMARY} and {LOG_TIMELINE})")
+    logs = f" from {len(flights)} logs" if len(flights) > 1 else ""
+    print(f"wrote {args.out}/ ({len(written.splits)} segment sorties{logs} at "
+          f"{rate.rate_hz:.6g} Hz, {LOG_SUMMARY} and {', '.join(written.timeline_files())})")
     return 0
 
 
-def _log_format(source: Path, fmt: str) -> str:
-    """The format to read ``source`` as: ``auto`` goes by a folder (ALFA) or the suffix."""
-    if fmt == "auto":
-        if source.is_dir():
-            return "alfa"
-        by_suffix = {".ulg": "ulog", ".bin": "ardupilot", ".csv": "csv"}
-        fmt = by_suffix.get(source.suffix.lower())
-        if fmt is None:
-            raise CliError(f"cannot tell the format of {source} from its name (.ulg, .bin, "
-                           ".csv or an ALFA folder): give --format")
-    if (fmt == "alfa") != source.is_dir():
-        raise CliError(f"--format {fmt} reads {'a folder' if fmt == 'alfa' else 'a file'}, but "
-                       f"the log {source} is {'a folder' if source.is_dir() else 'a file'}")
-    return fmt
-
-
 def _read_flight(source: Path, fmt: str, args: argparse.Namespace) -> FlightLog:
-    """The log as a six-degree-of-freedom flight at its own rate (or ``--rate``, low-pass
-    filtered first when lower: :func:`resample_flight`)."""
+    """The log as a six-degree-of-freedom flight at its own rate (the campaign's rate is
+    applied after: :func:`~uavdyn.flightdata.campaign.on_one_rate`)."""
     maps = args.control_map or None
     try:
         flight = _read_format(source, fmt, args.kind, maps)
@@ -200,7 +187,7 @@ def _read_flight(source: Path, fmt: str, args: argparse.Namespace) -> FlightLog:
         if exc.reason.startswith("control map"):  # the option's value, not the log, is wrong
             raise CliError(f"--control-map: {exc.reason}") from None
         raise
-    return resample_flight(flight, args.rate) if args.rate else flight
+    return flight
 
 
 def _read_format(source: Path, fmt: str, kind: str | None, maps: list | None) -> FlightLog:
@@ -269,20 +256,24 @@ def add_generate_data(sub) -> None:
 
 def add_import_log(sub) -> None:
     """Register ``import-log``."""
-    p = sub.add_parser("import-log", help="cut a real flight log (PX4 ULog, ALFA folder, "
-                       "ArduPilot .bin, six-degree-of-freedom CSV) into wings-level "
-                       "longitudinal segments and write them as a dataset with a split")
+    p = sub.add_parser("import-log", help="cut real flight logs (PX4 ULog, ALFA folder, "
+                       "ArduPilot .bin, six-degree-of-freedom CSV; one log or a campaign of "
+                       "several) into wings-level longitudinal segments and write them as "
+                       "one dataset with a split")
     add_force(p)
-    p.add_argument("log", type=existing_path, help="the .ulg/.bin/.csv file or ALFA folder")
+    p.add_argument("log", type=existing_path, nargs="+",
+                   help="the .ulg/.bin/.csv files or ALFA folders, or folders holding them "
+                        "(one format; a folder's logs in name order; the order given is the "
+                        "flight order --split-by log uses)")
     p.add_argument("--format", choices=["auto", "ulog", "alfa", "ardupilot", "csv"],
-                   default="auto", help="auto: a folder is ALFA, else by the suffix "
-                   "(.ulg, .bin, .csv)")
+                   default="auto", help="auto: a folder with ALFA topics is ALFA, a file by "
+                   "its suffix (.ulg, .bin, .csv)")
     p.add_argument("--kind", choices=["fixed_wing", "multirotor"], default=None,
                    help="the airframe kind (default: from the log; required for csv)")
     p.add_argument("--rate", type=positive(MAX_RATE_HZ, "rate", "Hz"), default=None,
-                   help=f"resample to this rate in Hz, up to {MAX_RATE_HZ:g}, low-pass "
-                        "filtered first when lower (default: the log's own attitude rate; "
-                        "10 Hz for ALFA)")
+                   help=f"resample every log to this rate in Hz, up to {MAX_RATE_HZ:g}, "
+                        "low-pass filtered first when lower (default: the logs' own rate; "
+                        "logs at different rates go to the lowest of them)")
     p.add_argument("--max-roll", type=positive(90.0, "angle", "deg"), default=10.0,
                    help="wings level: |roll| at most this, deg (default 10)")
     p.add_argument("--max-yaw-rate", type=positive(360.0, "rate", "deg/s"), default=10.0,

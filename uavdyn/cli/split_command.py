@@ -64,13 +64,15 @@ def _add_options(parser: argparse.ArgumentParser, by_flag: str) -> None:
     """The rule (``by_flag``), ``--fractions`` and ``--seed``; None stands for the default."""
     parser.add_argument(by_flag, dest="split_by", choices=SPLIT_RULES, default=None,
                         help="sortie: whole sorties at random (seeded); time-block: "
-                             "consecutive blocks in flight order, the later flight held out "
-                             "(default sortie)")
+                             "consecutive blocks in flight order, the later flight held out; "
+                             "log: whole logs of a campaign in import order, the later "
+                             "logs held out (default sortie)")
     parser.add_argument("--fractions", type=fractions_text, default=None,
                         metavar="TRAIN,VALIDATION,TEST",
                         help="shares of train, validation and test (sortie counts, or "
-                             "duration for time-block), each >= 0, summing to 1; 0 leaves "
-                             f"that part empty (default {_DEFAULT_TEXT})")
+                             "duration for time-block and log), each >= 0, summing to 1; 0 "
+                             f"leaves that part empty (default {_DEFAULT_TEXT} from 3 "
+                             "sorties or logs; 2 give train and test, 1 gives train)")
     parser.add_argument("--seed", type=SEED, default=None,
                         help="seed of the random sortie order (default 0)")
 
@@ -92,7 +94,9 @@ def add_split_options(parser: argparse.ArgumentParser) -> None:
 
 def split_options_from(args: argparse.Namespace) -> dict:
     """The keyword arguments of :func:`uavdyn.flightdata.split.assign_split` (``by``,
-    ``fractions``, ``seed``) from the parsed split options, defaults filled in.
+    ``fractions``, ``seed``) from the parsed split options, defaults filled in (``fractions``
+    None when not given: the default for the number of sorties,
+    :func:`uavdyn.flightdata.split.default_fractions`).
 
     Parameters
     ----------
@@ -104,7 +108,7 @@ def split_options_from(args: argparse.Namespace) -> dict:
     dict
     """
     return {"by": args.split_by or "sortie",
-            "fractions": DEFAULT_FRACTIONS if args.fractions is None else args.fractions,
+            "fractions": args.fractions,
             "seed": 0 if args.seed is None else args.seed}
 
 
@@ -114,13 +118,15 @@ def cmd_split(args: argparse.Namespace) -> int:
     split_dataset(args.dataset, **options)
     path = Path(args.dataset) / "manifest.json"
     totals = {name: [0, 0.0] for name in SPLIT_NAMES}
-    for entry in read_manifest(path)["sorties"]:
+    manifest = read_manifest(path)
+    for entry in manifest["sorties"]:
         totals[entry["split"]][0] += 1
         totals[entry["split"]][1] += float(entry["duration_s"])
     for name, (n, seconds) in totals.items():
         print(f"{name}: {n} sortie{'' if n == 1 else 's'}, {seconds:.1f} s")
     rule = options["by"] + (f", seed {options['seed']}" if options["by"] == "sortie" else "")
-    print(f"wrote {path} (split by {rule})")
+    note = manifest.get("split_rule", {}).get("note")
+    print(f"wrote {path} (split by {rule}{'; ' + note if note else ''})")
     return 0
 
 

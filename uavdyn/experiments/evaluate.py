@@ -39,7 +39,9 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
     file, run on the airframe its weights were trained on (checked by hash).
 
     A dataset without ``split`` sorties is an error (its sorties may be the ones a model was
-    fitted on) unless ``all_sorties``: then every sortie is scored and the result says so.
+    fitted on) unless ``all_sorties``. With ``all_sorties`` every sortie is scored, whatever
+    its split (train, validation and test alike), and the result says so and how many of each
+    split it scored.
     The solver steps are Table 1's (``dts``) where they fit the log interval, else the nearest
     whole fraction of it (:func:`~uavdyn.integrate.fitting_steps`): the data are never
     resampled."""
@@ -48,12 +50,10 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
     if ds.kind != airframe.kind:
         raise ValueError(f"dataset {dataset} is of kind '{ds.kind}' but airframe "
                          f"'{airframe.name}' is '{airframe.kind}'")
-    sorties = ds.split(split)
+    sorties = ds.sorties if all_sorties else ds.split(split)
     if not sorties:
-        if not all_sorties:
-            raise ValueError(f"{dataset}: no '{split}' sorties (manifest split column); give "
-                             "--all-sorties to score every sortie (the result then says so)")
-        sorties = ds.sorties
+        raise ValueError(f"{dataset}: no '{split}' sorties (manifest split column); give "
+                         "--all-sorties to score every sortie (the result then says so)")
     dts = fitting_steps(sorties[0].dt, dts or TABLE1_DTS)
     physics = physics_rungs(airframe, identified)
     nets = [load_weights(w) for w in weights]
@@ -70,11 +70,21 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
                              [c for c in candidates if c.solver.dt == dts[0]], store)
     return {"airframe": airframe.name, "kind": airframe.kind, "dataset": str(dataset),
             "sorties": [s.name for s in sorties],
-            "split": split if ds.split(split) else f"all sorties (the dataset has no '{split}' "
-                                                    "split: they may include fitted ones)",
+            "split": _scored_text(sorties, split) if all_sorties else split,
             "identified": identified.origin if identified is not None else None,
             "weights": [str(w) for w in weights], "table1": table1, "table4": table4,
             "per_sortie": safety, "ladder": ladder}
+
+
+def _scored_text(sorties: list[Sortie], split: str) -> str:
+    """What ``--all-sorties`` scored: every sortie, with its splits counted (the train ones
+    are those a model may have been fitted on)."""
+    counts = {}
+    for s in sorties:
+        counts[s.split or "no split"] = counts.get(s.split or "no split", 0) + 1
+    parts = ", ".join(f"{n} {name}" for name, n in counts.items())
+    return (f"all sorties: {len(sorties)} ({parts}; not only '{split}': those of train may "
+            "be the ones a model was fitted on)")
 
 
 def physics_rungs(airframe: Airframe, identified: Airframe | None

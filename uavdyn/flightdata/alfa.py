@@ -25,6 +25,7 @@ from uavdyn.flightdata.attitude import (
 )
 from uavdyn.flightdata.control_map import ChannelMap, override
 from uavdyn.flightdata.errors import FlightDataError
+from uavdyn.flightdata.fast_grid import fastest_grid, gyro_aided_attitude
 from uavdyn.flightdata.files import _read_regular, _utf8_text
 from uavdyn.flightdata.flightlog import FlightLog
 from uavdyn.flightdata.import_checks import (
@@ -317,7 +318,7 @@ def default_alfa_maps() -> dict[str, ChannelMap]:
                                    0.0, 1.0)}
 
 
-def read_alfa_flight(folder: str | Path, rate_hz: float = 10.0, name: str | None = None,
+def read_alfa_flight(folder: str | Path, rate_hz: float | None = None, name: str | None = None,
                      control_maps: list[ChannelMap] | None = None) -> FlightLog:
     """Read an ALFA sequence folder as a six-degree-of-freedom flight on a uniform grid.
 
@@ -328,12 +329,17 @@ def read_alfa_flight(folder: str | Path, rate_hz: float = 10.0, name: str | None
     ``vfr_hud.altitude`` (MSL). The log has no in-air flag: the segmenter's speed floor stands
     in for it. Samples in a topic's gap are NaN.
 
+    The grid follows the fastest body-rate topic, the raw gyro (``mavros-imu-data_raw``,
+    about 10 Hz), and roll and pitch between the attitude samples (2.5 Hz) come from the
+    integrated gyro (:mod:`uavdyn.flightdata.fast_grid`); ``meta['grid']`` says which topic
+    set the rate and every topic's rate.
+
     Parameters
     ----------
     folder : str or Path
         The sequence folder.
-    rate_hz : float
-        Grid rate (default 10 Hz, the raw gyro's rate; attitude is logged at 2.5 Hz).
+    rate_hz : float, optional
+        Grid rate (default: the raw gyro's rate, :func:`~uavdyn.flightdata.fast_grid.fastest_grid`).
     name : str, optional
         Flight name (default the folder name).
     control_maps : list of ChannelMap, optional
@@ -345,7 +351,7 @@ def read_alfa_flight(folder: str | Path, rate_hz: float = 10.0, name: str | None
     FlightLog
     """
     folder = _as_path(folder, "folder")
-    _check_rate(rate_hz, folder, allow_none=False)
+    _check_rate(rate_hz, folder, allow_none=True)
     _check_name(name, folder)
     if not folder.is_dir():
         raise FlightDataError("not an ALFA sequence folder (not a folder)", folder)
@@ -369,15 +375,23 @@ def read_alfa_flight(folder: str | Path, rate_hz: float = 10.0, name: str | None
     rel = {key: (tp.t_ns - origin) * 1e-9 for key, tp in topics.items()}
     t0 = max(float(rel[k][0]) for k in ("imu", "gyro", "odom"))
     t1 = min(float(rel[k][-1]) for k in ("imu", "gyro", "odom"))
-    grid = _grid(t0, t1, float(rate_hz), folder)
+    choice = fastest_grid({wanted[k][0]: rel[k] for k in ALFA_FLIGHT_TOPICS},
+                          (wanted["gyro"][0],), wanted["imu"][0], rate_hz=rate_hz)
+    grid = _grid(t0, t1, choice.rate_hz, folder)
 
     def on_grid(key: str, hold: bool = False) -> np.ndarray:
         return (commands_on_grid if hold else states_on_grid)(grid, rel[key], topics[key].vals)
 
-    quat = _quaternions_on_grid(grid, rel["imu"], topics["imu"].vals)
     gyro, vel = on_grid("gyro"), on_grid("odom")
+    if choice.gyro_aided:
+        quats = topics["imu"].vals
+        roll, pitch = gyro_aided_attitude(grid, rel["imu"], roll_from_quaternion(quats),
+                                          -pitch_from_quaternion(quats), gyro[:, 0],
+                                          -gyro[:, 1], -gyro[:, 2])
+    else:
+        quat = _quaternions_on_grid(grid, rel["imu"], topics["imu"].vals)
+        roll, pitch = roll_from_quaternion(quat), -pitch_from_quaternion(quat)
     att_gap = in_gap(grid, rel["imu"])
-    roll, pitch = roll_from_quaternion(quat), -pitch_from_quaternion(quat)
     roll[att_gap] = pitch[att_gap] = np.nan
     va = on_grid("airspeed")[:, 0]
     w = -vel[:, 2]
@@ -387,16 +401,20 @@ def read_alfa_flight(folder: str | Path, rate_hz: float = 10.0, name: str | None
                                 for c in ("elevator", "throttle")])
     channels = {"roll": roll, "pitch": pitch, "p": gyro[:, 0], "q": -gyro[:, 1],
                 "r": -gyro[:, 2], "u": u, "v": -vel[:, 1], "w": w}
-    meta = {"file": str(folder), "start_time_s": origin * 1e-9 + t0, "rate_hz": float(rate_hz),
-            "files": {key: str(tp.path) for key, tp in topics.items()},
-            "sources": {"roll,pitch": "mavros-imu-data orientation (pitch negated: ENU/FLU)",
+    meta = {"file": str(folder), "start_time_s": origin * 1e-9 + t0, "rate_hz": choice.rate_hz,
+            "files": {key: str(tp.path) for key, tp in topics.items()}, "grid": choice.reason,
+            "topic_rates_hz": choice.topic_rates_hz,
+            "sources": {"roll,pitch": "mavros-imu-data orientation (pitch negated: ENU/FLU)"
+                        + (", between its samples the integrated raw gyro"
+                           if choice.gyro_aided else ""),
                         "p,q,r": "mavros-imu-data_raw angular_velocity x, -y, -z",
                         "v,w": "mavros-local_position-odom twist -y, -z (ground relative)",
                         "u": "sqrt(Va^2 - w^2), Va = mavros-nav_info-airspeed measured",
                         "altitude_m": "mavros-vfr_hud altitude (MSL)"},
             "control_map": {k: m.describe() for k, m in maps.items()},
-            "resampling": f"topics (2.5-19 Hz) on a uniform {float(rate_hz):g} Hz grid: states "
-                          "linear, quaternions normalised, controls held; NaN in topic gaps"}
+            "resampling": f"topics (2.5-19 Hz) on a uniform {choice.rate_hz:g} Hz grid: "
+                          + ("attitude gyro-aided between its samples, " if choice.gyro_aided
+                             else "") + "states linear, controls held; NaN in topic gaps"}
     return FlightLog(name=name or root.name, kind="fixed_wing", time=grid - grid[0],
                      channels=channels, controls=controls, velocity_reference="airspeed",
                      source="ALFA (MAVROS CSV)", altitude_m=on_grid("hud")[:, 1], airspeed=va,

@@ -39,6 +39,7 @@ from uavdyn.flightdata.ardupilot_maps import default_maps
 from uavdyn.flightdata.attitude import body_from_euler, rotate_to_body
 from uavdyn.flightdata.control_map import ChannelMap
 from uavdyn.flightdata.errors import FlightDataError
+from uavdyn.flightdata.fast_grid import fastest_grid, gyro_aided_attitude
 from uavdyn.flightdata.flightlog import FlightLog
 from uavdyn.flightdata.import_checks import MAX_RATE_HZ, _as_path, check_reader_options
 from uavdyn.flightdata.resample import _grid, hold_on_grid, interp_on_grid
@@ -290,6 +291,11 @@ def _ned_velocity(scan: _Scan, path: Path) -> tuple[str, np.ndarray, np.ndarray]
                           column="XKF1")
 
 
+def _attitude_rate(att_t: np.ndarray) -> float:
+    """The attitude message's mean rate rounded to 1 Hz (the grid when no gyro is faster)."""
+    return max(1.0, float(round((len(att_t) - 1) / (att_t[-1] - att_t[0]))))
+
+
 def _grid_for(spans: list[np.ndarray], att_t: np.ndarray, rate_hz: float | None, path: Path
               ) -> tuple[np.ndarray, float]:
     """The grid over the time every required message covers, at ``rate_hz`` or the attitude
@@ -299,7 +305,7 @@ def _grid_for(spans: list[np.ndarray], att_t: np.ndarray, rate_hz: float | None,
         raise FlightDataError("the attitude, gyro, velocity and control messages share no time "
                               "span", path, column="TimeUS")
     if rate_hz is None:
-        rate_hz = max(1.0, float(round((len(att_t) - 1) / (att_t[-1] - att_t[0]))))
+        rate_hz = _attitude_rate(att_t)
         if rate_hz > MAX_RATE_HZ:
             raise FlightDataError(f"the attitude rate {rate_hz:g} Hz is above {MAX_RATE_HZ:g} "
                                   "Hz (corrupt stamps?): pass rate_hz", path, column="TimeUS")
@@ -319,7 +325,9 @@ def read_dataflash(path: str | Path, kind: str | None = None, rate_hz: float | N
         Default from the log: VER's build type, the firmware line (ArduPlane/ArduCopter),
         else which messages it has.
     rate_hz : float, optional
-        Grid rate; default ATT's own rate rounded to 1 Hz.
+        Grid rate; default ATT's own rate rounded to 1 Hz, or, where IMU is faster, IMU's
+        (at most 100 Hz) with roll and pitch between the ATT samples from the integrated
+        gyro (:mod:`uavdyn.flightdata.fast_grid`; ``meta['grid']`` says which).
     control_maps : list of ChannelMap, optional
         Replace a default control map; ``source`` is ``MESSAGE.FIELD`` (e.g. ``RCOU.C2``).
     name : str, optional
@@ -355,21 +363,30 @@ def read_dataflash(path: str | Path, kind: str | None = None, rate_hz: float | N
     maps, notes = default_maps(kind, scan, control_maps, path)
     raw = {c: _field(scan, maps[c].source, f"the {c} control", path) for c in maps}
     att_t = scan.series[att][0]
+    choice = fastest_grid({att: att_t, "IMU": gyro[0][0], vel_source.split(".")[0]: vel_t},
+                          ("IMU",), att, _attitude_rate(att_t), rate_hz)
+    own = rate_hz is None and not choice.gyro_aided
     grid, rate_hz = _grid_for([att_t, gyro[0][0], vel_t] + [r[0] for r in raw.values()],
-                              att_t, rate_hz, path)
+                              att_t, None if own else choice.rate_hz, path)
     angles = {c: interp_on_grid(grid, att_t, np.radians(scan.series[att][1][f]),
                                 angle=c != "pitch")
               for c, f in (("roll", "Roll"), ("pitch", "Pitch"), ("yaw", "Yaw"))}
+    pqr = {c: interp_on_grid(grid, *g) for c, g in zip("pqr", gyro)}
+    if choice.gyro_aided:   # yaw (for the velocities) stays interpolated
+        gap = np.isnan(angles["roll"]) | np.isnan(angles["pitch"])
+        angles["roll"], angles["pitch"] = gyro_aided_attitude(
+            grid, att_t, np.radians(scan.series[att][1]["Roll"]),
+            np.radians(scan.series[att][1]["Pitch"]), pqr["p"], pqr["q"], pqr["r"])
+        angles["roll"][gap] = angles["pitch"][gap] = np.nan
     sources = {"roll, pitch": f"{att}.Roll/Pitch (deg)", "p, q, r": "IMU.GyrX/GyrY/GyrZ"}
     body, reference, airspeed = _body_velocity(scan, grid, angles, vel_source, vel_t, v_ned,
                                                sources)
-    channels = {"roll": angles["roll"], "pitch": angles["pitch"],
-                **{c: interp_on_grid(grid, *g) for c, g in zip("pqr", gyro)},
+    channels = {"roll": angles["roll"], "pitch": angles["pitch"], **pqr,
                 "u": body[:, 0], "v": body[:, 1], "w": body[:, 2]}
     controls = np.column_stack([hold_on_grid(grid, raw[c][0], maps[c].apply(raw[c][1]))
                                 for c in CONTROL_NAMES[kind]])
     meta = {"file": str(path), "start_time_s": float(grid[0]), "rate_hz": rate_hz,
-            "vehicle": vehicle, "sources": sources,
+            "vehicle": vehicle, "sources": sources, "grid": choice.reason,
             "control_map": {c: m.as_dict() for c, m in maps.items()},
             "control_map_text": {c: m.describe() for c, m in maps.items()},
             "control_map_notes": notes,

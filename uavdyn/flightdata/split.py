@@ -9,7 +9,14 @@ to one part. Two rules:
   one sortie);
 * ``by="time-block"``: the sorties in flight order (``source_start_s``, else manifest order),
   cut into consecutive blocks at the cumulative-duration fractions: train first, then
-  validation, then test, so the later flight is held out (no look-ahead).
+  validation, then test, so the later flight is held out (no look-ahead);
+* ``by="log"``: whole logs of a campaign (the sorties' ``log``), in the order the logs were
+  imported, cut into consecutive blocks the same way: every segment of a log goes to one
+  part, the later flights held out.
+
+Without stated fractions (``fractions=None``) the default 0.7/0.15/0.15 applies when there
+are at least three sorties (or logs); two give train and test, one gives train
+(:func:`default_fractions`), and the choice is said, not refused.
 
 :func:`split_dataset` records the parts in ``manifest.json`` (``split`` per sortie and the
 ``split_rule`` used), rewritten atomically; nothing else in the folder changes.
@@ -28,8 +35,9 @@ from uavdyn.flightdata.manifest import read_manifest
 from uavdyn.flightdata.sortie import SPLIT_NAMES
 from uavdyn.outputs import write_text_atomic
 
-SPLIT_RULES = ("sortie", "time-block")
+SPLIT_RULES = ("sortie", "time-block", "log")
 DEFAULT_FRACTIONS = (0.7, 0.15, 0.15)
+FEW_UNITS_FRACTIONS = {1: (1.0, 0.0, 0.0), 2: (0.5, 0.0, 0.5)}  # default for 1 or 2 sorties
 FRACTION_TOLERANCE = 1e-6
 
 
@@ -76,7 +84,8 @@ def _parts_text(fractions: tuple[float, ...]) -> str:
     return ", ".join(f"{name} {f:g}" for name, f in zip(SPLIT_NAMES, fractions))
 
 
-def _check_enough(n: int, fractions: tuple[float, float, float]) -> None:
+def _check_enough(n: int, fractions: tuple[float, float, float], noun: str = "sortie"
+                  ) -> None:
     """Refuse, naming them, the parts with a nonzero fraction that ``n`` sorties leave empty
     (the smallest fractions go without first)."""
     wanted = [i for i in sorted(range(3), key=lambda i: (-fractions[i], i)) if fractions[i] > 0]
@@ -85,9 +94,10 @@ def _check_enough(n: int, fractions: tuple[float, float, float]) -> None:
     empty = [SPLIT_NAMES[i] for i in sorted(wanted[n:])]
     names = " and ".join(f"'{name}'" for name in empty)
     zeros = " and ".join(empty)
-    noun = "sortie" if n == 1 else "sorties"
+    what = "segments" if noun == "sortie" else "logs"
+    noun = noun if n == 1 else noun + "s"
     raise SplitError(f"{n} {noun} cannot fill {_parts_text(fractions)}: {names} would be "
-                     f"empty; import more segments or give --fractions with 0 for {zeros}")
+                     f"empty; import more {what} or give --fractions with 0 for {zeros}")
 
 
 def _counts(n: int, fractions: tuple[float, float, float]) -> list[int]:
@@ -141,13 +151,13 @@ def _nearest_cut(cumulative: np.ndarray, target: float, low: int, high: int) -> 
     return int(ks[best[-1]])
 
 
-def _time_block_counts(durations: list[float], fractions: tuple[float, float, float]
-                       ) -> list[int]:
+def _time_block_counts(durations: list[float], fractions: tuple[float, float, float],
+                       noun: str = "sortie") -> list[int]:
     """Sorties per consecutive block, cut where the cumulative duration is nearest the
     fractions' boundaries; a zero fraction's block is empty, a nonzero one's never."""
     n = len(durations)
     need = [1 if f > 0 else 0 for f in fractions]
-    _check_enough(n, fractions)
+    _check_enough(n, fractions, noun)
     cumulative = np.concatenate([[0.0], np.cumsum(durations)])
     total = cumulative[-1]
     if fractions[0] == 0:
@@ -163,8 +173,67 @@ def _time_block_counts(durations: list[float], fractions: tuple[float, float, fl
     return [k1, k2 - k1, n - k2]
 
 
+def default_fractions(units: int, by: str = "sortie") -> tuple[tuple[float, float, float],
+                                                              str]:
+    """The fractions used when none are stated, and the sentence saying so.
+
+    Parameters
+    ----------
+    units : int
+        The sorties (or, for ``by="log"``, the logs) to split.
+    by : str
+        The rule (only for the sentence).
+
+    Returns
+    -------
+    fractions : tuple of float
+        :data:`DEFAULT_FRACTIONS` for three or more units; two units give train and test
+        (0.5, 0, 0.5), one gives train (1, 0, 0).
+    note : str
+        Empty for the default; else why the part(s) stayed empty.
+    """
+    if units >= 3 or units < 1:
+        return DEFAULT_FRACTIONS, ""
+    noun = "log" if by == "log" else "sortie"
+    got = "train and test" if units == 2 else "train only"
+    return FEW_UNITS_FRACTIONS[units], (
+        f"{units} {noun}{'s' if units > 1 else ''}: {got} (the default "
+        f"{','.join(f'{f:g}' for f in DEFAULT_FRACTIONS)} needs 3; --fractions chooses)")
+
+
+def _log_units(entries: list[dict]) -> tuple[list[int], list[list[int]]]:
+    """For ``by="log"``: the entries grouped by their ``log``, logs in order of first
+    appearance (the order they were imported)."""
+    groups: dict[str, list[int]] = {}
+    for i, e in enumerate(entries):
+        log = e.get("log")
+        if not isinstance(log, str) or not log:
+            raise SplitError(f"sorties[{i}] has no 'log' (the log it was cut from): split "
+                             "--by log needs a dataset made by import-log")
+        groups.setdefault(log, []).append(i)
+    return list(range(len(groups))), list(groups.values())
+
+
+def _by_log(entries: list[dict], fractions: tuple[float, float, float] | None) -> list[str]:
+    """``by="log"``: consecutive blocks of whole logs (import order) at the cumulative
+    duration of their segments."""
+    _, groups = _log_units(entries)
+    if fractions is None:
+        fractions = default_fractions(len(groups), "log")[0]
+    fractions = check_fractions(fractions)
+    durations = [sum(_finite(entries[i].get("duration_s"), f"sorties[{i}].duration_s")
+                     for i in g) for g in groups]
+    counts = _time_block_counts(durations, fractions, noun="log")
+    parts = [name for name, c in zip(SPLIT_NAMES, counts) for _ in range(c)]
+    out = [""] * len(entries)
+    for group, part in zip(groups, parts):
+        for i in group:
+            out[i] = part
+    return out
+
+
 def assign_split(entries: list[dict], by: str = "sortie",
-                 fractions: tuple[float, float, float] = DEFAULT_FRACTIONS,
+                 fractions: tuple[float, float, float] | None = DEFAULT_FRACTIONS,
                  seed: int = 0) -> list[str]:
     """One split name per manifest entry, whole sorties only (never by sample).
 
@@ -172,13 +241,14 @@ def assign_split(entries: list[dict], by: str = "sortie",
     ----------
     entries : list of dict
         Manifest ``sorties`` entries; ``by="time-block"`` reads ``duration_s`` and, if every
-        entry has one, ``source_start_s``.
-    by : {"sortie", "time-block"}
-        Seeded random sorties, or consecutive blocks in flight order (the later flight held
-        out as test).
-    fractions : tuple of float
+        entry has one, ``source_start_s``; ``by="log"`` reads ``log`` and ``duration_s``.
+    by : {"sortie", "time-block", "log"}
+        Seeded random sorties, consecutive blocks in flight order (the later flight held
+        out as test), or consecutive blocks of whole logs in import order.
+    fractions : tuple of float or None
         Train, validation and test shares (counts for ``sortie``, duration for
-        ``time-block``); each >= 0, summing to 1. A zero share leaves its part empty.
+        ``time-block`` and ``log``); each >= 0, summing to 1. A zero share leaves its part
+        empty. None: :func:`default_fractions` for the number of sorties (or logs).
     seed : int
         Seed of the ``sortie`` permutation (>= 0); the same seed gives the same split.
 
@@ -193,11 +263,15 @@ def assign_split(entries: list[dict], by: str = "sortie",
         On one line: a bad rule, fractions or seed, or too few sorties to give every part
         with a nonzero fraction at least one (naming the part that would be empty).
     """
-    fractions = check_fractions(fractions)
     if by not in SPLIT_RULES:
         raise SplitError(f"split rule {by!r} is not one of {SPLIT_RULES}"[:200])
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SplitError(f"seed must be a whole number >= 0, got {seed!r}"[:200])
+    if by == "log":
+        return _by_log(entries, fractions)
+    if fractions is None:
+        fractions = default_fractions(len(entries), by)[0]
+    fractions = check_fractions(fractions)
     n = len(entries)
     if by == "sortie":
         order = [int(i) for i in np.random.default_rng(int(seed)).permutation(n)]
@@ -214,8 +288,34 @@ def assign_split(entries: list[dict], by: str = "sortie",
     return out
 
 
+def split_rule(entries: list[dict], by: str = "sortie",
+               fractions: tuple[float, float, float] | None = DEFAULT_FRACTIONS,
+               seed: int = 0) -> dict:
+    """The rule as a manifest records it (``split_rule``): ``by``, the ``fractions`` used
+    (the default for the number of sorties or logs when None), ``seed``, and a ``note`` when
+    the default left a part empty.
+
+    Parameters
+    ----------
+    entries : list of dict
+        The manifest's sorties (counted, and grouped by ``log`` for ``by="log"``).
+    by, fractions, seed
+        As for :func:`assign_split`.
+
+    Returns
+    -------
+    dict
+    """
+    note = ""
+    if fractions is None:
+        units = len(_log_units(entries)[1]) if by == "log" else len(entries)
+        fractions, note = default_fractions(units, by)
+    rule = {"by": by, "fractions": list(check_fractions(fractions)), "seed": int(seed)}
+    return {**rule, "note": note} if note else rule
+
+
 def split_dataset(folder: str | Path, by: str = "sortie",
-                  fractions: tuple[float, float, float] = DEFAULT_FRACTIONS,
+                  fractions: tuple[float, float, float] | None = DEFAULT_FRACTIONS,
                   seed: int = 0) -> dict[str, list[str]]:
     """Assign every sortie of a dataset folder to a split and record it in its manifest.
 
@@ -243,11 +343,10 @@ def split_dataset(folder: str | Path, by: str = "sortie",
     """
     path = Path(folder) / "manifest.json"
     manifest = read_manifest(path)
-    fractions = check_fractions(fractions)
-    names = assign_split(manifest["sorties"], by, fractions, seed)
+    rule = split_rule(manifest["sorties"], by, fractions, seed)
+    names = assign_split(manifest["sorties"], by, rule["fractions"], seed)
     sorties = [dict(entry, split=name) for entry, name in zip(manifest["sorties"], names)]
-    updated = dict(manifest, sorties=sorties,
-                   split_rule={"by": by, "fractions": list(fractions), "seed": int(seed)})
+    updated = dict(manifest, sorties=sorties, split_rule=rule)
     write_text_atomic(path, json.dumps(updated, indent=2) + "\n")
     out: dict[str, list[str]] = {name: [] for name in SPLIT_NAMES}
     for entry in sorties:

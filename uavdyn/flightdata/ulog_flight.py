@@ -23,6 +23,7 @@ from uavdyn.flightdata.attitude import (
 )
 from uavdyn.flightdata.control_map import ChannelMap, override
 from uavdyn.flightdata.errors import FlightDataError
+from uavdyn.flightdata.fast_grid import fastest_grid, gyro_aided_attitude
 from uavdyn.flightdata.flightlog import FlightLog
 from uavdyn.flightdata.import_checks import _as_path
 from uavdyn.flightdata.resample import (
@@ -106,8 +107,10 @@ def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str |
     path : str or Path
         The ``.ulg`` file.
     rate_hz : float, optional
-        Grid rate; default the attitude topic's own rate (rounded to 1 Hz), so no resampling
-        beyond aligning the topics.
+        Grid rate; default the attitude topic's own rate (rounded to 1 Hz), or, where the
+        body-rate topic is faster, its rate (at most 100 Hz) with roll and pitch between the
+        attitude samples from the integrated gyro (:mod:`uavdyn.flightdata.fast_grid`;
+        ``meta['grid']`` says which).
     kind : {'fixed_wing', 'multirotor'}, optional
         Default from the log's MAV_TYPE.
     pitch_mix : float
@@ -139,7 +142,13 @@ def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str |
                               column="p,q,r")
     sources["p,q,r"] = rates[0]
     controls, control_sources = _controls(topics, kind, float(pitch_mix), path)
-    grid, rate_hz = _ulog_grid([att, rates[1], vel, controls], rate_hz, path)
+    gyro_topic = rates[0].split(".")[0]
+    choice = fastest_grid({"vehicle_attitude": att[0], gyro_topic: rates[1][0],
+                           "vehicle_local_position": vel[0]}, (gyro_topic,), "vehicle_attitude",
+                          max(1.0, round(_mean_rate(att[0]))), rate_hz)
+    own = rate_hz is None and not choice.gyro_aided   # the attitude's own rate, as always
+    grid, rate_hz = _ulog_grid([att, rates[1], vel, controls], None if own else choice.rate_hz,
+                               path)
     quat = _quaternions_on_grid(grid, *att)
     pqr = states_on_grid(grid, *rates[1])
     v_ned = states_on_grid(grid, *vel)
@@ -159,8 +168,11 @@ def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str |
                 v_body[:, 0] = np.sqrt(np.maximum(va**2 - v_body[:, 2] ** 2, 0.0))
             reference = "airspeed"
     att_nan = in_gap(grid, att[0])
-    channels = {"roll": roll_from_quaternion(quat), "pitch": pitch_from_quaternion(quat),
-                "p": pqr[:, 0], "q": pqr[:, 1], "r": pqr[:, 2],
+    roll, pitch = roll_from_quaternion(quat), pitch_from_quaternion(quat)
+    if choice.gyro_aided:   # the velocities stay rotated by the interpolated quaternion
+        roll, pitch = gyro_aided_attitude(grid, att[0], roll_from_quaternion(att[1]),
+                                          pitch_from_quaternion(att[1]), *pqr.T)
+    channels = {"roll": roll, "pitch": pitch, "p": pqr[:, 0], "q": pqr[:, 1], "r": pqr[:, 2],
                 "u": v_body[:, 0], "v": v_body[:, 1], "w": v_body[:, 2]}
     for key in ("roll", "pitch"):
         channels[key][att_nan] = np.nan
@@ -172,9 +184,11 @@ def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str |
     meta = {"file": str(path), "start_time_s": float(grid[0]) + topics.origin_us * 1e-6,
             "rate_hz": rate_hz, "sources": sources, "control_sources": control_sources,
             "control_map": {k: m.describe() for k, m in maps.items()},
-            "resampling": "topics aligned on a uniform grid at the attitude topic's rate: "
-                          "states linear, quaternions normalised, controls held; NaN in "
-                          "topic gaps",
+            "grid": choice.reason,
+            "resampling": f"topics aligned on a uniform {rate_hz:g} Hz grid (meta['grid']): "
+                          + ("roll and pitch gyro-aided between the attitude samples, "
+                             if choice.gyro_aided else "") + "states linear, quaternions "
+                          "normalised, controls held; NaN in topic gaps",
             "topic_rates_hz": {"attitude": round(_mean_rate(att[0]), 1),
                                "body_rates": round(_mean_rate(rates[1][0]), 1),
                                "velocity": round(_mean_rate(vel[0]), 1)},
