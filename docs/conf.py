@@ -34,11 +34,13 @@ root_doc = "index"
 # (benchmarks, validation, MPC demo, Monte-Carlo envelopes, tutorial figures).
 # benchmarks/bench_hybrid.md is a bare table (it is also pasted into the README); the page
 # benchmarks/hybrid_correction.md gives it a title and includes it; benchmarks/knockout.md
-# does the same for the bare table benchmarks/bench_knockout.md.
+# does the same for the bare tables benchmarks/bench_knockout.md and
+# benchmarks/bench_knockout_60_sorties.md.
 exclude_patterns = [
     "_build",
     "benchmarks/bench_hybrid.md",
     "benchmarks/bench_knockout.md",
+    "benchmarks/bench_knockout_60_sorties.md",
     "**/*.json",
     "mpc/*",
     "montecarlo/*",

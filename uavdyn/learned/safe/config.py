@@ -53,7 +53,7 @@ class SafeConfig:
     linear: bool = True               # a linear path from the inputs to the outputs beside the
                                       # hidden layers (uavdyn.learned.mlp): on the knockout
                                       # benchmark it recovered 0.45 of the trainer's alpha-dot
-                                      # term against 0.11 without, 0.56 of the F450's inflow
+                                      # term against 0.15 without, 0.56 of the F450's inflow
                                       # term against 0.27
     memory_tau: tuple[float, ...] | None = None  # None: (0.05, 0.2) s without actuator states
     horizon_s: float = 2.0            # rollout windows from recorded states, this long
