@@ -62,7 +62,11 @@ def cmd_design_input(args: argparse.Namespace) -> int:
           "(Cramer-Rao: a lower bound; turbulence makes the real corrected ones larger):")
     for n, v, s, r in zip(predicted.names, predicted.nominal, predicted.std_error,
                           predicted.ratio()):
-        print(f"    {n:>14} = {v:+.4g}  SE >= {s:.3g}  (|value|/SE {r:.3g})")
+        tail = f"|value|/SE {r:.3g}" if v else f"file value 0: resolved if |value| > {3 * s:.3g}"
+        print(f"    {n:>14} = {v:+.4g}  SE >= {s:.3g}  ({tail})")
+    if predicted.collinear_groups:
+        print("  collinear on this flight (Belsley): "
+              + "; ".join(", ".join(g) for g in predicted.collinear_groups))
     print(f"wrote {', '.join(written)} in {out}")
     return 0
 

@@ -76,7 +76,7 @@ def report(design: ExcitationDesign, predicted: PredictedErrors | None, sorties:
           f"{design.mode.damping:.3g} ({design.mode.source})",
           f"- timing: {design.rule}",
           f"- amplitude: {design.amplitude:.5g} ({design.amplitude_why})",
-          f"- inputs: " + "; ".join(f"{e['signal']} at {e['t_s']:g} s" for e in design.events)]
+          "- inputs: " + "; ".join(f"{e['signal']} at {e['t_s']:g} s" for e in design.events)]
     if design.peak_factor() is not None:
         md.append(f"- relative peak factor: {design.peak_factor():.3f} (1 = a single sine)")
     md += [f"- ArduPilot: {ardupilot_note}", *[f"- note: {n}" for n in design.notes]]
@@ -98,7 +98,9 @@ def report(design: ExcitationDesign, predicted: PredictedErrors | None, sorties:
                "1/sqrt(sorties).", "",
                "| parameter | file value | predicted SE | abs(value) / SE |", "|---|---|---|---|"]
         md += [f"| {r['name']} | {r['nominal']:.4g} | {r['predicted_std_error']:.3g} | "
-               f"{r['ratio']:.3g} |" for r in rows]
+               + (f"{r['ratio']:.3g} |" if r["nominal"] else
+                  f"(file value 0: resolved if abs(value) > {3 * r['predicted_std_error']:.3g}) |")
+               for r in rows]
         if predicted.collinear_groups:
             md.append(f"\nCollinear (not separable by this flight): "
                       f"{predicted.collinear_groups}")
