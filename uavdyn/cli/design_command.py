@@ -23,7 +23,7 @@ from uavdyn.cli.common import (
 from uavdyn.excitation import SIGNALS, design_input, emulate_design, predict_errors
 from uavdyn.excitation.design import MOMENT_PARAMS
 from uavdyn.excitation.outputs import write_design
-from uavdyn.excitation.predict import write_emulated
+from uavdyn.excitation.predict import calm_screen, write_emulated
 from uavdyn.outputs import output_folder
 
 MAX_SORTIES = 500
@@ -43,9 +43,10 @@ def cmd_design_input(args: argparse.Namespace) -> int:
     flights = emulate_design(design, airframe, args.sorties, args.seed,
                              args.turbulent_fraction)
     predicted = predict_errors(airframe, flights, names, max_windows=None)
+    refused = calm_screen(flights, names)
     out = Path(args.out)
     with output_folder(out, "design-input", args.force) as tmp:
-        written = write_design(tmp, design, predicted, args.sorties)
+        written = write_design(tmp, design, predicted, args.sorties, refused)
         if args.emulate:
             write_emulated(flights, design, tmp / "emulated", {
                 "sorties": args.sorties, "seed": args.seed,
@@ -67,6 +68,8 @@ def cmd_design_input(args: argparse.Namespace) -> int:
     if predicted.collinear_groups:
         print("  collinear on this flight (Belsley): "
               + "; ".join(", ".join(g) for g in predicted.collinear_groups))
+    for line in refused:
+        print(f"  warning: on the calm sorties identify would refuse {line}")
     print(f"wrote {', '.join(written)} in {out}")
     return 0
 

@@ -8,11 +8,12 @@ so they are timed from the **closed-loop pitch-attitude mode** of the model with
 emulator's attitude and speed loops (:data:`uavdyn.emulation.missions.GAINS`); a user whose
 own autopilot differs gives the mode's frequency (``mode_hz``).
 
-Amplitudes: a fixed wing's elevator gives ``alpha_deg`` of static angle-of-attack change
-(``|C_m_alpha / C_m_delta_e|`` times it); a multirotor's pitch command is 0.1 (the middle of
-the emulator's system-identification inputs). Either is then cut to 80 % of the travel the
-file's ``[limits]`` leave about trim (a multirotor's also to what its rotor mix can hold) and,
-where the file sets a rate limit, to what the actuator slews in a quarter of the shortest
+Amplitudes: a fixed wing's elevator input is scaled so the linearised airframe's open-loop
+angle-of-attack response to it peaks at ``alpha_deg`` (a short pulse moves alpha far less than
+the static ``|C_m_alpha / C_m_delta_e|`` ratio says); a multirotor's pitch command is 0.1 (the
+middle of the emulator's system-identification inputs). Either is then cut to 80 % of the
+travel the file's ``[limits]`` leave about trim (a multirotor's also to what its rotor mix can
+hold) and, where the file sets a rate limit, to a full reversal slewed in half the shortest
 pulse.
 """
 
@@ -22,6 +23,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import expm
 
 from uavdyn.airframes import Airframe
 from uavdyn.emulation.missions import GAINS
@@ -39,7 +41,8 @@ CONTROLS = {"fixed_wing": ("elevator", "throttle"), "multirotor": ("collective",
 PITCH_CHANNEL = {"fixed_wing": 0, "multirotor": 1}
 LIMIT_SHARE = 0.8       # share of the travel about trim an input may use
 LEAD_S = 2.0            # trim hold at the start of each sortie
-SETTLE_S = 2.0          # hands-off after each fixed-wing input (the response), as sysid missions
+SETTLE_CYCLES = 4.0     # hands-off after each input: the mode's envelope down to exp(-4) ...
+SETTLE_S = (1.0, 3.0)   # ... within these bounds (s)
 GAP_S = 1.0             # autopilot back on before the next input
 MULTIROTOR_AMPLITUDE = 0.1
 MOMENT_PARAMS = {"fixed_wing": ("C_m_alpha", "C_m_q", "C_m_delta_e", "C_m_0"),
@@ -166,9 +169,9 @@ def pitch_mode(airframe: Airframe, speed: float, mode_hz: float | None = None) -
     return PitchMode(m.name, float(m.natural_frequency), float(m.damping), source)
 
 
-def _amplitude(airframe: Airframe, channel: int, trim_u: np.ndarray, unit_s: float,
-               alpha_deg: float, amplitude: float | None) -> tuple[float, str]:
-    """The input amplitude and the rule that set it (module docstring)."""
+def _caps(airframe: Airframe, channel: int, trim_u: np.ndarray, unit_s: float
+          ) -> tuple[float, str]:
+    """The largest amplitude the limits allow and why (module docstring)."""
     lo, hi = airframe.control_bounds()[channel]
     room = min(hi - trim_u[channel], trim_u[channel] - lo)
     caps = [(LIMIT_SHARE * room, f"{LIMIT_SHARE:.0%} of the [limits] travel about trim "
@@ -179,31 +182,46 @@ def _amplitude(airframe: Airframe, channel: int, trim_u: np.ndarray, unit_s: flo
                      f"{LIMIT_SHARE:.0%} of what the rotor mix holds (collective {c:.3g}, "
                      f"pitch_mix {mix:g})"))
     rates = airframe.rate_limits()
-    if rates and rates[channel]:
-        caps.append((0.125 * rates[channel] * unit_s, f"a full reversal slewed in a quarter of "
-                     f"the {unit_s:g} s pulse at the {rates[channel]:g}/s rate limit"))
-    cap, why_cap = min(caps, key=lambda c: c[0])
+    if rates and rates[channel] and math.isfinite(unit_s):
+        caps.append((0.25 * rates[channel] * unit_s, f"a full reversal slewed in half the "
+                     f"{unit_s:g} s pulse at the {rates[channel]:g}/s rate limit"))
+    cap, why = min(caps, key=lambda c: c[0])
     if cap <= 0:
         raise DesignError(f"--airframe {airframe.name}: the trim leaves no travel for inputs "
-                          f"on {CONTROLS[airframe.kind][channel]} ({why_cap})")
-    if amplitude is not None:
-        if amplitude > cap:
-            raise DesignError(f"--amplitude {amplitude:g} exceeds {cap:.4g}: {why_cap}")
-        return amplitude, "given (--amplitude)"
-    if airframe.kind == "fixed_wing":
-        P = airframe.params
-        ratio = abs(P.C_m_alpha / P.C_m_delta_e) if P.C_m_delta_e else 1.0
-        want, why = math.radians(alpha_deg) * ratio, \
-            f"{alpha_deg:g} deg of static alpha change (|C_m_alpha / C_m_delta_e| = {ratio:.3g})"
-    else:
-        want, why = MULTIROTOR_AMPLITUDE, "the emulator's system-identification pitch input"
-    if want > cap:
-        return cap, f"{why}, cut to {why_cap}"
-    return want, why
+                          f"on {CONTROLS[airframe.kind][channel]} ({why})")
+    return cap, why
+
+
+def alpha_response(airframe: Airframe, point, channel: int, u: np.ndarray, dt: float
+                   ) -> np.ndarray:
+    """The linearised airframe's open-loop angle-of-attack change (rad) to the increments
+    ``u`` on ``channel`` (zero-order hold over ``dt``), from trim."""
+    A, B = linearise(airframe, point)
+    n = A.shape[0]
+    E = expm(np.block([[A, B[:, [channel]]], [np.zeros((1, n + 1))]]) * dt)
+    Ad, Bd = E[:n, :n], E[:n, n:]
+    x = np.zeros(n)
+    out = np.empty(len(u))
+    u0, w0 = point.x[0], point.x[1]
+    for k, uk in enumerate(u):
+        out[k] = (u0 * x[1] - w0 * x[0]) / (u0**2 + w0**2)
+        x = Ad @ x + Bd[:, 0] * uk
+    return out
+
+
+def _wanted(airframe: Airframe, point, channel: int, unit_input: np.ndarray, dt: float,
+            alpha_deg: float) -> tuple[float, str]:
+    """The amplitude the rule asks for, before the limits."""
+    if airframe.kind != "fixed_wing":
+        return MULTIROTOR_AMPLITUDE, "the emulator's system-identification pitch input"
+    peak = float(np.max(np.abs(alpha_response(airframe, point, channel, unit_input, dt))))
+    return math.radians(alpha_deg) / peak, (
+        f"a peak angle-of-attack change of {alpha_deg:g} deg in the linearised open-loop "
+        f"response ({math.degrees(peak):.3g} deg per rad of elevator)")
 
 
 def _layout(t: np.ndarray, signal: str, kind: str, unit_3211: float, unit_doublet: float,
-            amplitude: float, band: tuple[float, float]
+            amplitude: float, band: tuple[float, float], settle: float
             ) -> tuple[np.ndarray, np.ndarray, list[dict]]:
     """The pitch-channel schedule over one sortie: inputs of alternating sign after a trim
     lead-in, each followed by its hands-off response and a gap (fixed wing)."""
@@ -223,19 +241,45 @@ def _layout(t: np.ndarray, signal: str, kind: str, unit_3211: float, unit_double
     while True:
         name = order[k % len(order)]
         length = 7 * unit_3211 if name == "3211" else 2 * unit_doublet
-        if s + length + SETTLE_S > T - 0.5:
+        if s + length + settle > T - 0.5:
             break
         u += multistep_3211(t, sign * amplitude, s, unit_3211) if name == "3211" else \
             doublet(t, sign * amplitude, s, unit_doublet)
         if kind == "fixed_wing":
-            hands[(t >= s) & (t < s + length + SETTLE_S)] = True
+            hands[(t >= s) & (t < s + length + settle)] = True
         events.append({"t_s": round(s, 4), "signal": name, "sign": int(sign),
                        "length_s": round(length, 4)})
-        s += length + SETTLE_S + GAP_S
+        s += length + settle + GAP_S
         k += 1
         if name == order[-1]:
             sign = -sign
     return u, hands, events
+
+
+def _size(airframe: Airframe, point, channel: int, signal: str, unit_input: np.ndarray,
+          events: list[dict], dt: float, shortest: float, alpha_deg: float,
+          amplitude: float | None) -> tuple[float, str]:
+    """The amplitude of the unit-amplitude schedule ``unit_input`` and why: the rule (a fixed
+    wing's peak alpha over its first inputs), cut to the limits; a given ``amplitude`` is
+    checked against them (module docstring)."""
+    cap, why_cap = _caps(airframe, channel, point.u,
+                         math.inf if signal == "multisine" else shortest)
+    rates = airframe.rate_limits()
+    if signal == "multisine" and rates and rates[channel]:
+        slope = float(np.max(np.abs(np.diff(unit_input)))) / dt  # per unit amplitude
+        if LIMIT_SHARE * rates[channel] / slope < cap:
+            cap = LIMIT_SHARE * rates[channel] / slope
+            why_cap = f"slewing at {LIMIT_SHARE:.0%} of the {rates[channel]:g}/s rate limit"
+    if amplitude is not None:
+        if amplitude > cap:
+            raise DesignError(f"--amplitude {amplitude:g} exceeds {cap:.4g}: {why_cap}")
+        return amplitude, "given (--amplitude)"
+    first = events[min(1, len(events) - 1)]
+    window = np.arange(len(unit_input)) * dt < first["t_s"] + first["length_s"] + 1.0
+    want, why = _wanted(airframe, point, channel, unit_input[window], dt, alpha_deg)
+    if want > cap:
+        return cap, f"{why}, cut to {why_cap}"
+    return want, why
 
 
 def design_input(airframe: Airframe, signal: str = "mixed", duration_s: float = 20.0,
@@ -285,27 +329,18 @@ def design_input(airframe: Airframe, signal: str = "mixed", duration_s: float = 
     f = w / (2 * math.pi)
     band = (f / 3.0, min(3.0 * f, sample_rate_hz / 5.0))
     channel = PITCH_CHANNEL[kind]
-    shortest = unit_3211 if signal != "doublet" else unit_doublet
-    if signal == "multisine":
-        shortest = math.inf  # its slope is checked on the signal itself, below
-    amp, why = _amplitude(airframe, channel, point.u, shortest, alpha_deg, amplitude)
+    settle = 2.0 if not math.isfinite(mode.damping) or mode.damping <= 0 else \
+        float(np.clip(SETTLE_CYCLES / (mode.damping * w), *SETTLE_S))
     n = int(round(duration_s * sample_rate_hz)) + 1
     t = np.arange(n) * dt
-    u, hands, events = _layout(t, signal, kind, unit_3211, unit_doublet, amp, band)
-    rates = airframe.rate_limits()
-    if signal == "multisine" and rates and rates[channel]:
-        slope = float(np.max(np.abs(np.diff(u)))) / dt
-        if slope > LIMIT_SHARE * rates[channel]:
-            if amplitude is not None:
-                raise DesignError(f"--amplitude {amplitude:g}: the multisine would slew at "
-                                  f"{slope:.3g}/s, beyond {LIMIT_SHARE:.0%} of the "
-                                  f"{rates[channel]:g}/s rate limit")
-            cut = LIMIT_SHARE * rates[channel] / slope
-            u, amp = u * cut, amp * cut
-            why += f", cut to slew at {LIMIT_SHARE:.0%} of the {rates[channel]:g}/s rate limit"
+    unit_input, hands, events = _layout(t, signal, kind, unit_3211, unit_doublet, 1.0, band,
+                                        settle)
     if not events:
         raise DesignError(f"--duration {duration_s:g} s is too short for one {signal} input "
-                          f"with its {LEAD_S:g} s lead-in and {SETTLE_S:g} s response")
+                          f"with its {LEAD_S:g} s lead-in and {settle:.3g} s response")
+    amp, why = _size(airframe, point, channel, signal, unit_input, events, dt,
+                     unit_doublet if signal == "doublet" else unit_3211, alpha_deg, amplitude)
+    u = amp * unit_input
     increments = np.zeros((n, 2))
     increments[:, channel] = u
     rule = {"3211": f"3-2-1-1 time step {RULE_3211:g}/omega_n = {unit_3211:g} s",

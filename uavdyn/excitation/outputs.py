@@ -65,9 +65,11 @@ def ardupilot_params(design: ExcitationDesign) -> tuple[str | None, str]:
 
 
 def report(design: ExcitationDesign, predicted: PredictedErrors | None, sorties: int,
-           ardupilot_note: str) -> tuple[dict, str]:
-    """The design report as JSON data and as Markdown."""
-    data = {**design.summary(), "ardupilot": ardupilot_note, "predicted": None}
+           ardupilot_note: str, refused: list[str] | None = None) -> tuple[dict, str]:
+    """The design report as JSON data and as Markdown (``refused``: what identify's
+    excitation screen would refuse on the calm emulated sorties)."""
+    data = {**design.summary(), "ardupilot": ardupilot_note, "predicted": None,
+            "identify_screen_on_calm_sorties": list(refused or [])}
     md = [f"# Flight-test input for {design.airframe}", "",
           f"- signal: {design.signal} on {design.controls[design.channel]}, one sortie of "
           f"{design.duration_s:g} s at {design.speed:g} m/s",
@@ -80,6 +82,8 @@ def report(design: ExcitationDesign, predicted: PredictedErrors | None, sorties:
     if design.peak_factor() is not None:
         md.append(f"- relative peak factor: {design.peak_factor():.3f} (1 = a single sine)")
     md += [f"- ArduPilot: {ardupilot_note}", *[f"- note: {n}" for n in design.notes]]
+    md += [f"- warning: on the calm emulated sorties `uavdyn identify` would refuse {r}"
+           for r in refused or []]
     if predicted is not None:
         rows = [{"name": n, "nominal": float(v), "predicted_std_error": float(s),
                  "ratio": float(r)}
@@ -108,7 +112,7 @@ def report(design: ExcitationDesign, predicted: PredictedErrors | None, sorties:
 
 
 def write_design(folder: Path, design: ExcitationDesign, predicted: PredictedErrors | None,
-                 sorties: int) -> list[str]:
+                 sorties: int, refused: list[str] | None = None) -> list[str]:
     """Write ``schedule.csv``, ``ardupilot_sysid.param`` (where it applies), ``design.json``
     and ``design.md`` into ``folder``; returns the names written."""
     (folder / "schedule.csv").write_text(schedule_csv(design))
@@ -117,7 +121,7 @@ def write_design(folder: Path, design: ExcitationDesign, predicted: PredictedErr
     if params is not None:
         (folder / "ardupilot_sysid.param").write_text(params)
         written.append("ardupilot_sysid.param")
-    data, md = report(design, predicted, sorties, note)
+    data, md = report(design, predicted, sorties, note, refused)
     (folder / "design.json").write_text(json.dumps(data, indent=2, default=_plain) + "\n")
     (folder / "design.md").write_text(md)
     return written + ["design.json", "design.md"]

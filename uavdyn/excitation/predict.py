@@ -21,6 +21,7 @@ from uavdyn.emulation.emulator import Emulator, SensorNoise, dryden_gusts, gust_
 from uavdyn.emulation.missions import schedule_plan
 from uavdyn.excitation.design import ExcitationDesign
 from uavdyn.flightdata import Sortie, csv_columns, write_csv, write_manifest
+from uavdyn.identify.excitation import unexcited
 from uavdyn.identify.prediction import (
     DEFAULT_MAX_WINDOWS,
     PredictedErrors,
@@ -75,6 +76,14 @@ def emulate_design(design: ExcitationDesign, airframe: Airframe, sorties: int, s
                            "seed": [seed, 2, i], "sign": int(sign)},
                           flight.true_states))
     return out
+
+
+def calm_screen(sorties: list[Sortie], names: list[str]) -> list[str]:
+    """What ``uavdyn identify``'s excitation screen (:func:`uavdyn.identify.excitation.unexcited`)
+    would refuse on the calm ones of the emulated ``sorties`` (all of them if none is calm):
+    turbulence must not be what excites a parameter."""
+    calm = [s for s in sorties if s.meta.get("condition") == "calm"] or sorties
+    return unexcited(list(names), calm)
 
 
 def sensor_noise(noise_scale: float = 1.0) -> np.ndarray:
