@@ -170,3 +170,31 @@ def test_cli_fixed_wing_has_no_sysid_file_and_bad_input_is_one_line(tmp_path, ca
     (foreign / "keep.txt").write_text("mine")
     assert main(["design-input", "--airframe", str(TRAINER), "--out", str(foreign)]) == 2
     assert (foreign / "keep.txt").read_text() == "mine"
+
+
+def test_fixed_wing_amplitude_gives_the_stated_peak_alpha(trainer):
+    """Independently of the design's own simulation: scipy's lsim of the linearised airframe
+    on the first inputs of the schedule peaks at the target angle of attack."""
+    from scipy.signal import lsim
+
+    d = design_input(trainer, "mixed", alpha_deg=2.0)
+    point = trim(trainer, trainer.nominal_airspeed)
+    A, B = linearise(trainer, point)
+    second = d.events[1]
+    on = d.time < second["t_s"] + second["length_s"] + 1.0
+    C = np.zeros((1, A.shape[0]))
+    V2 = point.x[0] ** 2 + point.x[1] ** 2
+    C[0, 0], C[0, 1] = -point.x[1] / V2, point.x[0] / V2
+    _, alpha, _ = lsim((A, B[:, [0]], C, np.zeros((1, 1))), d.increments[on, :1],
+                       d.time[on], interp=False)
+    assert np.degrees(np.max(np.abs(alpha))) == pytest.approx(2.0, rel=0.02)
+
+
+def test_the_identify_screen_is_checked_on_the_calm_sorties(trainer):
+    from uavdyn.excitation.predict import calm_screen
+
+    good = design_input(trainer, "mixed", duration_s=12.0)
+    weak = design_input(trainer, "mixed", duration_s=12.0, amplitude=0.004)
+    assert calm_screen(emulate_design(good, trainer, 2, turbulent_fraction=0.0), MOMENTS) == []
+    refused = calm_screen(emulate_design(weak, trainer, 2, turbulent_fraction=0.0), MOMENTS)
+    assert refused and refused[0].startswith("C_m_alpha: the angle of attack")
