@@ -53,8 +53,8 @@ from uavdyn.integrate.inputs import chirp, doublet, multistep_3211
 from uavdyn.linear import trim
 
 __all__ = ["DEFAULT_ALTITUDE", "GAINS", "MISSIONS", "FlightPlan", "MissionError",
-           "MissionUnflyable", "missions_for", "piecewise", "plan_mission", "schedule_plan",
-           "speed_range", "trim_schedule", "unflyable_missions"]
+           "MissionUnflyable", "missions_for", "piecewise", "plan_mission", "speed_range",
+           "trim_schedule", "unflyable_missions"]
 
 # Default autopilot gains (see uavdyn.emulator.autopilot), tuned on the presets.
 GAINS = {
@@ -338,22 +338,6 @@ def sysid_3211(airframe: Airframe, t: np.ndarray, rng: np.random.Generator) -> F
 def sysid_chirp(airframe: Airframe, t: np.ndarray, rng: np.random.Generator) -> FlightPlan:
     """Frequency sweeps (0.1 Hz to 1.5-3 Hz) on the pitch (sometimes thrust) channel."""
     return _sysid(airframe, t, rng, "chirp")
-
-
-def schedule_plan(airframe: Airframe, t: np.ndarray, speed: float,
-                  increments: np.ndarray, hands_off: np.ndarray,
-                  name: str = "designed_input") -> FlightPlan:
-    """A flight plan that flies a given input schedule: level flight at ``speed`` (m/s; a
-    multirotor's ground speed, 0 = hover) at the default altitude, with ``increments``
-    (``N x 2``, added to the trim feed-forward of each control) and the autopilot's gains set
-    to zero where ``hands_off`` (``N`` booleans: open-loop response, as a pilot flies a
-    fixed wing's inputs) and kept elsewhere (a multirotor's attitude loop stays on: the inputs
-    are then injected at the mixer)."""
-    h0 = DEFAULT_ALTITUDE[airframe.kind]
-    ref = _base_references(airframe, t, np.full_like(t, speed), np.full_like(t, h0))
-    ref[:, REF["ff0"]:REF["ff1"] + 1] += np.asarray(increments, float)
-    ref[np.asarray(hands_off, bool), REF["K_theta"]:] = 0.0
-    return _plan(airframe, name, ref, speed, h0, {"speed_mps": round(float(speed), 3)})
 
 
 def high_alpha(airframe: Airframe, t: np.ndarray, rng: np.random.Generator) -> FlightPlan:

@@ -17,8 +17,14 @@ import numpy as np
 
 from uavdyn.airframes import Airframe
 from uavdyn.emulation.datagen import SPLITS
-from uavdyn.emulation.emulator import Emulator, SensorNoise, dryden_gusts, gust_span
-from uavdyn.emulation.missions import schedule_plan
+from uavdyn.emulation.emulator import (
+    REFERENCE_NAMES,
+    Emulator,
+    SensorNoise,
+    dryden_gusts,
+    gust_span,
+)
+from uavdyn.emulation.missions import DEFAULT_ALTITUDE, GAINS, FlightPlan, trim_schedule
 from uavdyn.excitation.design import ExcitationDesign
 from uavdyn.flightdata import Sortie, csv_columns, write_csv, write_manifest
 from uavdyn.identify.excitation import unexcited
@@ -27,10 +33,30 @@ from uavdyn.identify.prediction import (
     PredictedErrors,
     predict_standard_errors,
 )
+from uavdyn.linear import trim
 
 MISSION = "designed_input"
 TURBULENCE = (0.5, 2.0)   # x light turbulence, as the emulator's recipes
 MEAN_WIND = (0.0, 6.0)    # m/s inertial head wind on turbulent sorties
+
+
+def schedule_plan(airframe: Airframe, t: np.ndarray, speed: float, increments: np.ndarray,
+                  hands_off: np.ndarray) -> FlightPlan:
+    """The emulator's flight plan for a schedule: level flight at ``speed`` at the missions'
+    default altitude with the autopilot's trim feed-forward (as every mission flies), the
+    ``increments`` (``N x 2``) added to it, and the autopilot's gains zero where
+    ``hands_off`` (a multirotor's loops stay on: its inputs are injected at the mixer)."""
+    ref = np.zeros((len(t), len(REFERENCE_NAMES)))
+    col = {name: i for i, name in enumerate(REFERENCE_NAMES)}
+    theta, ctrl = trim_schedule(airframe, np.full_like(t, speed))
+    h0 = DEFAULT_ALTITUDE[airframe.kind]
+    ref[:, col["ff0"]:col["ff1"] + 1] = ctrl + np.asarray(increments, float)
+    ref[:, col["theta_ref"]], ref[:, col["speed_ref"]], ref[:, col["h_ref"]] = theta, speed, h0
+    ref[:, col["K_theta"]:] = GAINS[airframe.kind]
+    ref[np.asarray(hands_off, bool), col["K_theta"]:] = 0.0
+    return FlightPlan(mission=MISSION, kind=airframe.kind, x0=trim(airframe, speed).x.copy(),
+                      u0=ctrl[0], altitude=h0, references=ref,
+                      params={"speed_mps": round(float(speed), 3)})
 
 
 def emulate_design(design: ExcitationDesign, airframe: Airframe, sorties: int, seed: int = 0,
@@ -53,7 +79,7 @@ def emulate_design(design: ExcitationDesign, airframe: Airframe, sorties: int, s
         rng = np.random.default_rng([seed, 2, i])
         sign = 1.0 if i % 2 == 0 else -1.0
         plan = schedule_plan(airframe, t, design.speed, sign * design.increments,
-                             design.hands_off, MISSION)
+                             design.hands_off)
         turbulent = (i * n_turb) // sorties != ((i + 1) * n_turb) // sorties
         x0 = emulator.initial_state(plan.x0, plan.u0, plan.altitude)
         gusts = wind = None
