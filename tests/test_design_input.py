@@ -198,3 +198,9 @@ def test_the_identify_screen_is_checked_on_the_calm_sorties(trainer):
     assert calm_screen(emulate_design(good, trainer, 2, turbulent_fraction=0.0), MOMENTS) == []
     refused = calm_screen(emulate_design(weak, trainer, 2, turbulent_fraction=0.0), MOMENTS)
     assert refused and refused[0].startswith("C_m_alpha: the angle of attack")
+
+
+def test_a_given_mode_frequency_times_the_inputs(trainer):
+    d = design_input(trainer, "3211", mode_hz=1.0)
+    assert d.unit_s == pytest.approx(round(1.6 / (2 * np.pi) / 0.01) * 0.01)
+    json.dumps(d.summary(), allow_nan=False)  # strict JSON: no NaN for the unknown damping

@@ -124,7 +124,8 @@ class ExcitationDesign:
             "timed_from": {"mode": self.mode.name,
                            "natural_frequency_rad_s": self.mode.natural_frequency,
                            "natural_frequency_hz": self.mode.natural_frequency / (2 * math.pi),
-                           "damping": self.mode.damping, "source": self.mode.source},
+                           "damping": self.mode.damping if math.isfinite(self.mode.damping)
+                           else None, "source": self.mode.source},
             "timing_rule": self.rule, "time_step_s": self.unit_s,
             "amplitude": self.amplitude, "amplitude_rule": self.amplitude_why,
             "band_hz": list(self.band_hz), "sortie_duration_s": self.duration_s,
@@ -354,7 +355,7 @@ def design_input(airframe: Airframe, signal: str = "mixed", duration_s: float = 
     return ExcitationDesign(
         airframe=airframe.name, kind=kind, signal=signal, controls=CONTROLS[kind],
         channel=channel, speed=speed, trim_controls=(float(point.u[0]), float(point.u[1])),
-        mode=mode, rule=rule[signal] + " (Jategaonkar 2015, sec. 2.5)"
+        mode=mode, rule=rule[signal] + " (Jategaonkar 2015, ch. 2)"
         if signal != "multisine" else rule[signal] + " (Morelli 2003)",
         unit_s=unit_3211 if signal in ("3211", "mixed") else unit_doublet
         if signal == "doublet" else 1.0 / band[1],

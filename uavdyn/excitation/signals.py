@@ -2,7 +2,7 @@
 Schroeder-phased multisine and its relative peak factor, and the timing rules that tie the
 3-2-1-1 and the doublet to a mode's natural frequency.
 
-Timing rules (Jategaonkar, *Flight Vehicle System Identification*, 2nd ed., AIAA 2015, sec. 2.5;
+Timing rules (Jategaonkar, *Flight Vehicle System Identification*, 2nd ed., AIAA 2015, ch. 2;
 Plaetschke and Schulz, AGARD-LS-104, 1979):
 
 * doublet: pulse width ``dt = 2.3 / omega_n``. A doublet of pulse width ``dt`` has its energy
