@@ -15,6 +15,7 @@ from uavdyn import __version__
 from uavdyn.airframes import AirframeError
 from uavdyn.cli import data_commands, fit_commands, model_commands, pipeline_commands
 from uavdyn.cli.common import CliError, OneLineParser
+from uavdyn.cli.design_command import add_design_input
 from uavdyn.cli.montecarlo import add_parser as add_montecarlo_parser
 from uavdyn.cli.mpc import add_parser as add_mpc_parser
 from uavdyn.cli.split_command import add_split
@@ -26,7 +27,7 @@ from uavdyn.linear import TrimError
 REGISTER = (model_commands.add_airframes, model_commands.add_trim, model_commands.add_modes,
             model_commands.add_simulate, data_commands.add_generate_data,
             model_commands.add_export_c, data_commands.add_import_log, add_split,
-            fit_commands.add_identify, pipeline_commands.add_reproduce,
+            fit_commands.add_identify, add_design_input, pipeline_commands.add_reproduce,
             pipeline_commands.add_evaluate, fit_commands.add_train, add_montecarlo_parser,
             add_mpc_parser)
 

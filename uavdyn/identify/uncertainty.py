@@ -118,19 +118,8 @@ def estimate_uncertainty(J, r: np.ndarray, n_theta: int, n_windows: int, length:
     resid = r[:n_data].reshape(n_windows, length, N_BODY)
     sigma = np.sqrt(np.mean(resid**2, axis=(0, 1)))
     scale = 1.0 / np.maximum(sigma, 1e-300)  # data rows in units of their own residual RMS
-    J = J.tocsr()
-    A = np.asarray(J[:n_data, :n_theta].todense()).reshape(n_windows, length * N_BODY, n_theta)
-    A = A * np.tile(scale, length)[None, :, None]
-    if estimate_x0:
-        A, extra = _profile_start_states(J, A, scale, n_theta, n_windows, length)
-    else:
-        extra = np.zeros((n_theta, n_theta))
-    M = np.einsum("wia,wib->ab", A, A) + extra  # the Schur complement of the start states
-    try:
-        M_inv = np.linalg.inv(M)
-    except np.linalg.LinAlgError:
-        raise IdentifyError("the data cannot tell the parameters apart (singular information "
-                            "matrix): fit fewer of them") from None
+    A, extra, M = information(J, scale, n_theta, n_windows, length, estimate_x0)
+    M_inv = _inverse(M)
     v = resid * scale
     R = _autocovariance(v)
     T = _block_toeplitz(R)
@@ -145,6 +134,33 @@ def estimate_uncertainty(J, r: np.ndarray, n_theta: int, n_windows: int, length:
                        residual_sigma=sigma, correlation_time_s=_correlation_time(R, interval),
                        condition_indices=conditions, variance_proportions=proportions,
                        collinear_groups=groups)
+
+
+def information(J, scale: np.ndarray, n_theta: int, n_windows: int, length: int,
+                estimate_x0: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The parameters' sensitivities ``A`` (``W x 4L x n_theta``, data rows times ``scale``
+    per body state, start states profiled out), the start-state prior's share ``extra`` and
+    the information matrix ``M = sum A^T A + extra`` of the first ``n_theta`` unknowns (the
+    Cramer-Rao bound is ``M^-1`` when ``scale`` is one over the white noise's standard
+    deviation per state). Arguments as :func:`estimate_uncertainty`."""
+    n_data = N_BODY * length * n_windows
+    J = J.tocsr()
+    A = np.asarray(J[:n_data, :n_theta].todense()).reshape(n_windows, length * N_BODY, n_theta)
+    A = A * np.tile(scale, length)[None, :, None]
+    if estimate_x0:
+        A, extra = _profile_start_states(J, A, scale, n_theta, n_windows, length)
+    else:
+        extra = np.zeros((n_theta, n_theta))
+    M = np.einsum("wia,wib->ab", A, A) + extra  # the Schur complement of the start states
+    return A, extra, M
+
+
+def _inverse(M: np.ndarray) -> np.ndarray:
+    try:
+        return np.linalg.inv(M)
+    except np.linalg.LinAlgError:
+        raise IdentifyError("the data cannot tell the parameters apart (singular information "
+                            "matrix): fit fewer of them") from None
 
 
 def _between_sorties(A: np.ndarray, v: np.ndarray, sortie_of_window: np.ndarray
