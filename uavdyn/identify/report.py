@@ -43,6 +43,8 @@ def airframe_toml(airframe: Airframe, header: list[str]) -> str:
         f"nominal_airspeed = {_toml_number(airframe.nominal_airspeed)}"]
     if airframe.atmosphere != "constant":
         lines.append(f"atmosphere = {_toml_string(airframe.atmosphere)}")
+    if airframe.relaxed_stability:
+        lines.append("relaxed_stability = true")
     lines.append("")
     optional = OPTIONAL_PARAMS[airframe.kind]
     for name in param_names(airframe.kind):
