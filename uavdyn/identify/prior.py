@@ -1,0 +1,93 @@
+"""A priori information in an output-error fit: a Gaussian prior on each fitted parameter
+around the airframe file's value, the estimate then the maximum a posteriori (Morelli and
+Klein, *Aircraft System Identification*, "a priori information"; Jategaonkar's "a priori
+values").
+
+The prior of a parameter has the standard deviation ``rel_sd x`` its file value's magnitude
+(a parameter whose file value is 0: ``rel_sd x`` the unit of its fit, 1 for a coefficient,
+0.1 s for a time constant, 0.5 s per unit for a slew time). In the fit's scaled unknowns
+(``theta = (p - p_file) / scale``) that is ``rel_sd`` for every parameter, and the prior
+adds the residual rows ``w_j theta_j`` to the least squares.
+
+The data rows are weighted as if their residuals were white; real residuals are coloured and
+the data then hold less information than the Cramer-Rao bound says (the corrected standard
+error is larger, :mod:`uavdyn.identify.uncertainty`). Weighed against the white-residual data,
+the prior would count for too little. So its rows carry ``w_j = f_j / rel_sd`` with ``f_j``
+the ratio of the corrected to the Cramer-Rao standard error of the data-only fit (at least
+1): for one parameter, the maximum a posteriori is then exactly the inverse-variance mean of
+the data-only estimate (with its corrected variance) and the prior. The posterior covariance
+is ``(C_data^-1 + P^-1)^-1`` with ``C_data`` the corrected covariance of the data (each
+variance at least the data-only fit's, halves check included), so every posterior standard
+error is below both the prior's and the data's.
+
+The pull of the prior is reported as its share of the information on each parameter,
+``1 - var_posterior / var_data`` (0: the data alone set the value, 1: the prior alone), with
+the data-only estimate beside the posterior one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from uavdyn.identify.errors import IdentifyError
+from uavdyn.identify.result import Estimate
+
+PRIOR_SD_DEFAULT = 0.3   # relative standard deviation of ``--prior nominal`` without a value
+
+
+def check_prior_sd(rel_sd: float) -> float:
+    """``rel_sd`` as a float, refused unless finite and > 0."""
+    if isinstance(rel_sd, bool) or not isinstance(rel_sd, (int, float)) \
+            or not math.isfinite(rel_sd) or rel_sd <= 0:
+        raise IdentifyError(f"the prior's relative standard deviation must be a finite "
+                            f"number > 0, got {rel_sd!r}")
+    return float(rel_sd)
+
+
+def prior_weights(std_corrected: np.ndarray, std_cramer_rao: np.ndarray, rel_sd: float
+                  ) -> np.ndarray:
+    """The prior rows' weights ``f_j / rel_sd`` in the scaled unknowns (module docstring)."""
+    f = np.maximum(np.asarray(std_corrected) / np.maximum(np.asarray(std_cramer_rao), 1e-300),
+                   1.0)
+    return f / rel_sd
+
+
+def posterior(cov_data: np.ndarray, rel_sd: float) -> np.ndarray:
+    """``(C_data^-1 + I / rel_sd^2)^-1``: the covariance of the scaled unknowns with the prior."""
+    n = cov_data.shape[0]
+    info = np.linalg.pinv(cov_data, hermitian=True) + np.eye(n) / rel_sd**2
+    cov = np.linalg.inv(info)
+    return 0.5 * (cov + cov.T)
+
+
+def covariance_of(estimates: list[Estimate], correlation: np.ndarray, scale: np.ndarray
+                  ) -> np.ndarray:
+    """The corrected covariance of the scaled unknowns from a result's estimates (their
+    corrected standard errors, halves check included) and correlation."""
+    std = np.array([e.std_error_corrected for e in estimates]) / scale
+    return correlation * np.outer(std, std)
+
+
+def with_data_verdicts(posterior_estimates: list[Estimate], data_estimates: list[Estimate]
+                       ) -> list[Estimate]:
+    """The posterior estimates with what the data alone say about each parameter: whether the
+    data determine it (their flags and the excitation that would), the data-only value and
+    the prior's share of the information (:data:`Estimate.prior_share`)."""
+    data = {e.name: e for e in data_estimates}
+    out = []
+    for e in posterior_estimates:
+        d = data.get(e.name)
+        if d is None or e.searched:
+            out.append(e)
+            continue
+        var_post, var_data = e.std_error_corrected ** 2, d.std_error_corrected ** 2
+        share = 1.0 - var_post / var_data if var_data > 0 else 1.0
+        out.append(dataclasses.replace(
+            e, undetermined=d.undetermined or ((f"the data alone ended on its "
+                                                f"{d.at_bound} bound",) if d.at_bound else ()),
+            excitation=d.excitation, data_value=d.value,
+            prior_share=float(min(max(share, 0.0), 1.0))))
+    return out
