@@ -57,8 +57,6 @@ def cmd_identify(args: argparse.Namespace) -> int:
                        f"{', '.join(nominal.param_names + tuple(delays))}")
     refuse_unused(args, ("--max-delay",), any(n in delays for n in names),
                   "with a delay_<control> name in --params")
-    refuse_unused(args, ("--keep-undetermined",), args.prior is None,
-                  "without --prior (with it, undetermined parameters are fitted under it)")
     stray = sorted(set(args.bounds or {}) - set(names) | set(args.bounds or {}) & set(delays))
     if stray:
         raise CliError(f"--bounds {', '.join(stray)}: only a continuous parameter named in "
@@ -273,7 +271,8 @@ def add_identify(sub) -> None:
     p.add_argument("--keep-undetermined", action="store_true",
                    help="write every fitted value, also of parameters the data do not "
                         "determine (default: they keep the file's value and the others are "
-                        "refitted with them fixed; with --prior they are fitted under it)")
+                        "refitted with them fixed; with --prior they are fitted under it, and "
+                        "only one still on a bound keeps the file's value)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_identify)
 

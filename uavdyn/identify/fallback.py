@@ -1,10 +1,13 @@
 """What an identification writes for a parameter the data do not determine: the airframe file's
 value, not the fit's. A parameter whose corrected interval spans zero, that is collinear with
-others, that ended on a bound (a sign bound included) or on which the two halves of the data
-disagree is reset to its file value, and the others, fitted jointly with it, are refitted with
-it fixed, so the written model is consistent. The estimate keeps the fit's value as
-``data_value`` and says why in ``kept``; ``identify(..., keep_undetermined=True)`` (``uavdyn
-identify --keep-undetermined``) writes the raw fit instead."""
+others or that ended on a bound (a sign bound included) is reset to its file value, and the
+others, fitted jointly with it, are refitted with it fixed, so the written model is
+consistent. (Halves of the data disagreeing is a flag on the model structure, not a sign that
+the data cannot determine the value: such an estimate stays, flagged.) The estimate keeps the
+fit's value as ``data_value`` and says why in ``kept``; ``identify(...,
+keep_undetermined=True)`` (``uavdyn identify --keep-undetermined``) writes the raw fit
+instead. Under a prior, only an estimate still on a bound keeps the file's value (the prior
+decides the others)."""
 
 from __future__ import annotations
 
@@ -16,7 +19,19 @@ import numpy as np
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
 from uavdyn.identify.result import Estimate, IdentificationResult
+from uavdyn.identify.uncertainty import zero_spanned
 from uavdyn.identify.windows import fit_summary
+
+
+def not_determined(estimate: Estimate, groups: list[list[str]], prior: bool = False) -> bool:
+    """Whether a continuous estimate is not to be written: on a bound, or (without a
+    ``prior``) its corrected interval spanning zero or in a collinear group (names)."""
+    if estimate.searched:
+        return False
+    if estimate.at_bound or prior:
+        return bool(estimate.at_bound)
+    return bool(zero_spanned(estimate.value, estimate.std_error_corrected)
+                or any(estimate.name in g for g in groups))
 
 
 def kept_reason(estimate: Estimate) -> str:
@@ -53,7 +68,9 @@ def keep_file_values(identify: Callable[..., IdentificationResult],
     IdentificationResult
         ``result`` itself when every parameter is determined.
     """
-    kept = {e.name: e for e in result.estimates if not e.searched and not e.determined}
+    groups = result.diagnostics.get("collinear_groups", [])
+    prior = options.get("prior_sd") is not None
+    kept = {e.name: e for e in result.estimates if not_determined(e, groups, prior)}
     if not kept:
         return result
     rest = [n for n in names if n not in kept]

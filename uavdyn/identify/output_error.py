@@ -30,6 +30,7 @@ What each kind of name means:
 
 from __future__ import annotations
 
+import math
 import time
 from itertools import combinations
 
@@ -55,15 +56,15 @@ from uavdyn.identify.fitstate import (
 from uavdyn.identify.freerun import free_run_check
 from uavdyn.identify.prior import (
     check_prior_sd,
-    covariance_of,
     posterior,
+    prior_share,
     prior_weights,
     with_data_verdicts,
 )
 from uavdyn.identify.problem import COMPILE_FLAGS, _check_excitation
 from uavdyn.identify.result import DEFAULT_SUBSTEPS, Estimate, IdentificationResult
 from uavdyn.identify.search import RECHECK_STEPS, SEARCH_ROUNDS, _recheck_delays, _search
-from uavdyn.identify.uncertainty import _larger_variances, estimate_uncertainty, undetermined
+from uavdyn.identify.uncertainty import estimate_uncertainty, undetermined
 from uavdyn.identify.unknowns import (
     DELAY_PREFIX,
     TAU_BOUNDS,
@@ -165,10 +166,10 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         (:mod:`uavdyn.identify.prior`). A parameter the data do not determine is then fitted
         under the prior. Default: no prior.
     keep_undetermined : bool
-        Without a prior, a parameter the data do not determine (interval spanning zero,
-        collinear, on a bound, halves disagreeing) keeps the airframe file's value and the
-        others are refitted with it fixed (:mod:`uavdyn.identify.fallback`; default). True:
-        the raw fit, every value as fitted (flagged).
+        False (default): a parameter the data do not determine (interval spanning zero,
+        collinear, on a bound; under a prior: on a bound) keeps the airframe file's value and
+        the others are refitted with it fixed (:mod:`uavdyn.identify.fallback`). True: the
+        raw fit, every value as fitted (flagged).
     free_run : bool
         Fly each train sortie open loop from its first state with the nominal and the
         identified model and record which depart (:mod:`uavdyn.identify.freerun`; default).
@@ -203,14 +204,14 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     if prior_sd is not None and continuous:
         result = _with_prior(fit, outcome, result, prior_sd, names, max_delay, train,
                              validation, max_iterations, progress, t_start)
-    elif not keep_undetermined:
+    if not keep_undetermined:
         result = keep_file_values(
             identify, result, airframe, train, validation, names,
             {"window_s": window_s, "dt": dt, "relative_bound": relative_bound,
              "bounds": bounds, "max_iterations": max_iterations, "estimate_x0": estimate_x0,
              "max_windows": max_windows, "max_delay": max_delay, "substeps": substeps,
              "progress": progress, "check_halves": check_halves, "preroll": preroll,
-             "screen": False})
+             "screen": False, "prior_sd": prior_sd})
     if free_run:
         result.fit["free_run"] = free_run_check(airframe, result.airframe, train,
                                                 result.substeps)
@@ -220,9 +221,10 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
 
 def _result(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
             train: list[Sortie], validation: list[Sortie], t_start: float,
-            prior: tuple[float, np.ndarray] | None = None) -> IdentificationResult:
-    """The result of a solved fit: estimates, their uncertainty (with ``prior`` = ``(rel_sd,
-    the data's corrected covariance floor)``: the posterior's) and the fit per split."""
+            prior: float | None = None) -> IdentificationResult:
+    """The result of a solved fit: estimates, their uncertainty (with a ``prior`` relative
+    standard deviation: the posterior's; whether the data determine each parameter: the
+    data's at the estimate) and the fit per split."""
     airframe = fit.airframe
     fitted, estimates, corr, flagged, sigma_w, diagnostics = _estimates(
         fit, outcome, names, max_delay, prior)
@@ -269,9 +271,7 @@ def _with_prior(fit: _Fit, outcome: _Outcome, data_only: IdentificationResult,
     n_data = r.size - fit.problem.n_theta  # the prior's rows are not data
     outcome_map = _Outcome(z, delays, r[:n_data], J[:n_data], outcome.cost_initial,
                            outcome.iterations + iterations, stats, log)
-    floor = covariance_of(data, data_only.correlation, u.scale)
-    result = _result(fit, outcome_map, names, max_delay, train, validation, t_start,
-                     (rel_sd, floor))
+    result = _result(fit, outcome_map, names, max_delay, train, validation, t_start, rel_sd)
     result.estimates = with_data_verdicts(result.estimates, data_only.estimates)
     result.diagnostics["data_only"] = data_only.to_dict()["estimates"]
     return result
@@ -388,7 +388,7 @@ def _residual_weights(fit: _Fit, z: np.ndarray, delays: list[int]
 
 
 def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
-               prior: tuple[float, np.ndarray] | None = None
+               prior: float | None = None
                ) -> tuple[Airframe, list[Estimate], np.ndarray, list[tuple[str, str, float]],
                           np.ndarray, dict]:
     """The fitted airframe, the estimates in the order of ``names`` (each projected onto its
@@ -401,13 +401,16 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
                                    fit.L, fit.estimate_x0, fit.interval,
                                    np.array([i for i, _ in fit.windows.starts]))
         cov_cr, cov_c, sigma_w = unc.cramer_rao, unc.corrected, unc.residual_sigma
-        if prior is not None:  # the posterior (uavdyn.identify.prior)
-            cov_cr = posterior(cov_cr, prior[0])
-            cov_c = posterior(_larger_variances(cov_c, prior[1]), prior[0])
     else:
         unc = None
         cov_cr = cov_c = np.zeros((0, 0))
         sigma_w = np.sqrt(np.mean(outcome.r.reshape(-1, N_BODY) ** 2, axis=0))
+    std_data = np.sqrt(np.maximum(np.diag(cov_c), 0.0)) * u.scale  # what the data say
+    share = np.full(len(continuous), math.nan)
+    if prior is not None and continuous:  # the posterior (uavdyn.identify.prior)
+        cov_cr, cov_post = posterior(cov_cr, prior), posterior(cov_c, prior)
+        share = prior_share(cov_c, cov_post)
+        cov_c = cov_post
     std = np.sqrt(np.maximum(np.diag(cov_cr), 0.0)) * u.scale
     std_c = np.sqrt(np.maximum(np.diag(cov_c), 0.0)) * u.scale
     d = np.sqrt(np.maximum(np.diag(cov_c), 1e-300))
@@ -425,11 +428,12 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
     groups = [[continuous[j] for j in g] for g in (unc.collinear_groups if unc else [])]
     by_name = {}
     for j, (n, i) in enumerate(zip(continuous, u.index)):
-        why, group = undetermined(n, float(p_fit[i]), float(std_c[j]), groups)
+        why, group = undetermined(n, float(p_fit[i]), float(std_data[j]), groups)
         by_name[n] = Estimate(n, float(u.p_nom[i]), float(p_fit[i]), float(std[j]),
                               at_bound=_at_bound(theta[j], u.lo[j], u.hi[j]),
                               std_error_corrected=float(std_c[j]), undetermined=why,
-                              excitation=excitation_for(n, group) if why else "")
+                              excitation=excitation_for(n, group) if why else "",
+                              prior_share=float(share[j]))
     nominal_delays = fit.airframe.delay_samples()
     for c in fit.searched:
         k = controls.index(c)

@@ -16,13 +16,16 @@ the prior would count for too little. So its rows carry ``w_j = f_j / rel_sd`` w
 the ratio of the corrected to the Cramer-Rao standard error of the data-only fit (at least
 1): for one parameter, the maximum a posteriori is then exactly the inverse-variance mean of
 the data-only estimate (with its corrected variance) and the prior. The posterior covariance
-is ``(C_data^-1 + P^-1)^-1`` with ``C_data`` the corrected covariance of the data (each
-variance at least the data-only fit's, halves check included), so every posterior standard
-error is below both the prior's and the data's.
+is ``(C_data^-1 + P^-1)^-1`` with ``C_data`` the corrected covariance of the data at the
+estimate, so every posterior standard error is below both the prior's and the data's. Whether
+the data determine a parameter is judged on ``C_data`` (its interval spanning zero, collinear
+groups) and on the estimate (on a bound); the halves check's flags of the data-only fit are
+kept. A parameter still on a bound under the prior keeps the file's value (the others
+refitted under the prior, :mod:`uavdyn.identify.fallback`).
 
-The pull of the prior is reported as its share of the information on each parameter,
-``1 - var_posterior / var_data`` (0: the data alone set the value, 1: the prior alone), with
-the data-only estimate beside the posterior one.
+The pull of the prior is reported as its share of the information on each parameter at the
+estimate, ``1 - var_posterior / var_data`` (0: the data alone set the value, 1: the prior
+alone), with the data-only estimate beside the posterior one.
 """
 
 from __future__ import annotations
@@ -63,19 +66,18 @@ def posterior(cov_data: np.ndarray, rel_sd: float) -> np.ndarray:
     return 0.5 * (cov + cov.T)
 
 
-def covariance_of(estimates: list[Estimate], correlation: np.ndarray, scale: np.ndarray
-                  ) -> np.ndarray:
-    """The corrected covariance of the scaled unknowns from a result's estimates (their
-    corrected standard errors, halves check included) and correlation."""
-    std = np.array([e.std_error_corrected for e in estimates]) / scale
-    return correlation * np.outer(std, std)
+def prior_share(cov_data: np.ndarray, cov_posterior: np.ndarray) -> np.ndarray:
+    """Each parameter's prior share of the information, ``1 - var_posterior / var_data``
+    (both at the estimate; in [0, 1])."""
+    var_data = np.maximum(np.diag(cov_data), 1e-300)
+    return np.clip(1.0 - np.diag(cov_posterior) / var_data, 0.0, 1.0)
 
 
 def with_data_verdicts(posterior_estimates: list[Estimate], data_estimates: list[Estimate]
                        ) -> list[Estimate]:
-    """The posterior estimates with what the data alone say about each parameter: whether the
-    data determine it (their flags and the excitation that would), the data-only value and
-    the prior's share of the information (:data:`Estimate.prior_share`)."""
+    """The posterior estimates with the data-only estimate beside each, and the data-only
+    fit's flags that are not about the estimate's interval (the halves of the data
+    disagreeing: a flag on the model structure) added to its own."""
     data = {e.name: e for e in data_estimates}
     out = []
     for e in posterior_estimates:
@@ -83,11 +85,8 @@ def with_data_verdicts(posterior_estimates: list[Estimate], data_estimates: list
         if d is None or e.searched:
             out.append(e)
             continue
-        var_post, var_data = e.std_error_corrected ** 2, d.std_error_corrected ** 2
-        share = 1.0 - var_post / var_data if var_data > 0 else 1.0
-        out.append(dataclasses.replace(
-            e, undetermined=d.undetermined or ((f"the data alone ended on its "
-                                                f"{d.at_bound} bound",) if d.at_bound else ()),
-            excitation=d.excitation, data_value=d.value,
-            prior_share=float(min(max(share, 0.0), 1.0))))
+        extra = tuple(w for w in d.undetermined if "halves" in w and w not in e.undetermined)
+        out.append(dataclasses.replace(e, undetermined=e.undetermined + extra,
+                                       excitation=e.excitation or d.excitation,
+                                       data_value=d.value))
     return out
