@@ -15,6 +15,7 @@ import argparse
 import contextlib
 import io
 import json
+import math
 import platform
 import shutil
 import sys
@@ -158,6 +159,11 @@ def build(args: argparse.Namespace) -> int:
     return 0
 
 
+def _rad(value: float) -> str:
+    """An RMSE as printed on the page ("diverged" where the model's prediction did)."""
+    return f"{value:.4f} rad" if math.isfinite(value) else "diverged"
+
+
 def render(steps: list[tuple[str, str]], ladder: dict, folds: list[dict], seconds: float,
            train_s: float) -> str:
     """The tutorial page."""
@@ -192,12 +198,12 @@ def render(steps: list[tuple[str, str]], ladder: dict, folds: list[dict], second
         "## What the figures say",
         "",
         f"- **Held-out test segment, 1 s pitch RMSE:** nominal physics {nominal:.4f} rad -> "
-        f"identified physics {identified:.4f} rad "
+        f"identified physics {_rad(identified)} "
         f"({'better' if identified < nominal else 'worse'}; {one['sorties']} test "
         f"segment(s), the fit trained on {train_s:.1f} s of train segments).",
         f"- **The same with `--prior nominal`** (a Gaussian prior of 30 % around each file "
         f"value, maximum a posteriori): nominal physics {nominal:.4f} rad -> identified "
-        f"physics {with_prior:.4f} rad "
+        f"physics {_rad(with_prior)} "
         f"({'not worse' if with_prior <= nominal else 'worse'}). "
         + ("" if with_prior <= nominal else
            "Why: the data alone put the estimates far from the file (the data-only values "

@@ -123,7 +123,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
               "(maximum a posteriori; standard errors the posterior's)"
               + (f"; set under the prior, not by the data: {', '.join(under)}" if under
                  else ""))
-    departed = departure_line(result.fit.get("free_run", {}), len(ds.train))
+    departed = departure_line(result.fit, len(ds.train))
     if departed:
         print("  " + departed)
     for line in structure_lines(log) if log else []:

@@ -6,6 +6,8 @@ is not one to design a controller on, whatever its 1 s windows say."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from uavdyn.airframes import Airframe
@@ -55,13 +57,28 @@ def free_run_check(nominal: Airframe, identified: Airframe, sorties: list[Sortie
             "identified_departed": [r["sortie"] for r in rows if r["identified_s"] is not None]}
 
 
-def departure_line(check: dict, of: int) -> str:
-    """The headline's flag when the identified model's free run departs (empty if not)."""
+def departure_line(fit: dict, of: int) -> str:
+    """The headline's flag when the identified model's free run departs on the train sorties,
+    or its prediction over the fit's own windows stops being finite (empty if neither)."""
+    check = fit.get("free_run") or {}
     gone = check.get("identified_departed") or []
-    if not gone:
+    windows = [r["sortie"] for r in (fit.get("train") or {}).get("per_sortie", [])
+               if not math.isfinite(r["theta_rmse_identified"])
+               and math.isfinite(r["theta_rmse_nominal"])]
+    lines = []
+    if gone:
+        nominal = len(check.get("nominal_departed") or [])
+        lines.append(f"the identified model's free run departs (pitch error past "
+                     f"{check['departure_rad']:g} rad) on {len(gone)} of {of} train sorties "
+                     f"({_names(gone)}); the nominal model's on {nominal}")
+    if windows:
+        lines.append(f"the identified model diverges within the fit's windows on "
+                     f"{len(windows)} of {of} train sorties ({_names(windows)}), where the "
+                     "nominal model does not")
+    if not lines:
         return ""
-    nominal = len(check.get("nominal_departed") or [])
-    return (f"WARNING: the identified model's free run departs (pitch error past "
-            f"{check['departure_rad']:g} rad) on {len(gone)} of {of} train sorties "
-            f"({', '.join(gone[:4])}{', ...' if len(gone) > 4 else ''}); the nominal model's "
-            f"on {nominal}. Do not design on it without checking why.")
+    return "WARNING: " + "; ".join(lines) + ". Do not design on it without checking why."
+
+
+def _names(names: list[str]) -> str:
+    return ", ".join(names[:4]) + (", ..." if len(names) > 4 else "")
