@@ -256,8 +256,10 @@ def add_identify(sub) -> None:
                         "delay_<control> names (default 5)")
     p.add_argument("--bounds", type=bound_list, default=None,
                    help="NAME=LOW:HIGH[,...]: narrow a fitted parameter's range (default: its "
-                        "physical range by meaning and sign convention, e.g. a coefficient "
-                        "of either sign, a time constant >= 0, a share in [0, 1])")
+                        "physical range by meaning and sign convention: C_L_alpha > 0, "
+                        "C_m_q < 0, C_m_delta_e < 0, C_m_alpha < 0 unless the airframe file "
+                        "declares relaxed_stability, other coefficients of either sign, a "
+                        "time constant >= 0, a share in [0, 1])")
     p.add_argument("--structure", choices=("given", "auto"), default="given",
                    help="given (default): fit --params; auto: also try the model's optional "
                         "terms and a C_m(alpha) table, keeping those that lower the validation "

@@ -128,7 +128,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     relative_bound : float, optional
         Keep each parameter with a nonzero nominal value within ``(1 +- relative_bound) x``
         it (sign kept). Default: no such bound; every parameter stays inside its physical
-        range only (the schema's bound by its meaning and sign convention: a coefficient may
+        range only (the schema's bound by its meaning and sign convention: the derivatives
+        of :data:`uavdyn.airframes.SIGNS` keep their physical sign, other coefficients may
         change sign, a time constant is >= 0 (:data:`TAU_BOUNDS`), a share lies in [0, 1];
         table values: the table's value limit).
     bounds : dict, optional
