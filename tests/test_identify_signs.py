@@ -124,3 +124,17 @@ def test_bad_prior_is_refused_in_one_line(value, capsys):
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "argument --prior" in err[0] and "REL_SD" in err[0]
+
+
+def test_posterior_is_tighter_than_the_prior_and_the_data_and_a_zero_file_value_has_none():
+    from uavdyn.identify.prior import posterior, prior_precision
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(4, 4))
+    cov = a @ a.T + 0.1 * np.eye(4)
+    precision = prior_precision(np.array([-2.7, 0.0, 5.6, -38.0]), 0.3)
+    assert precision[1] == 0.0 and precision[0] == pytest.approx(1 / 0.09)
+    post = posterior(cov, precision)
+    assert np.all(np.diag(post) < np.diag(cov))
+    assert np.all(np.diag(post)[precision > 0] < 1 / precision[precision > 0])
+    assert np.allclose(posterior(cov, np.zeros(4)), cov)

@@ -118,7 +118,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
         print(f"  kept the airframe file's value (not determined; the others refitted with "
               f"them fixed; --keep-undetermined writes the raw fit): {', '.join(kept)}")
     if args.prior is not None:
-        under = [e.name for e in undetermined if not e.searched]
+        under = [e.name for e in undetermined if not e.searched and not e.kept]
         print(f"  prior: Gaussian around the file's values, relative s.d. {args.prior:g} "
               "(maximum a posteriori; standard errors the posterior's)"
               + (f"; set under the prior, not by the data: {', '.join(under)}" if under
@@ -267,9 +267,9 @@ def add_identify(sub) -> None:
     p.add_argument("--prior", type=prior_option, default=None, metavar="nominal[:REL_SD]",
                    help="a Gaussian prior on each fitted parameter around the airframe file's "
                         "value, standard deviation REL_SD x its magnitude (default "
-                        f"{PRIOR_SD_DEFAULT:g}; REL_SD x the fit's unit for a value of 0): the "
-                        "maximum a posteriori, with each parameter's prior share of the "
-                        "information reported")
+                        f"{PRIOR_SD_DEFAULT:g}; none for a file value of 0): the maximum a "
+                        "posteriori, with each parameter's prior share of the information "
+                        "reported")
     p.add_argument("--keep-undetermined", action="store_true",
                    help="write every fitted value, also of parameters the data do not "
                         "determine (default: they keep the file's value and the others are "

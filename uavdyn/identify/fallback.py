@@ -6,8 +6,8 @@ consistent. (Halves of the data disagreeing is a flag on the model structure, no
 the data cannot determine the value: such an estimate stays, flagged.) The estimate keeps the
 fit's value as ``data_value`` and says why in ``kept``; ``identify(...,
 keep_undetermined=True)`` (``uavdyn identify --keep-undetermined``) writes the raw fit
-instead. Under a prior, only an estimate still on a bound keeps the file's value (the prior
-decides the others)."""
+instead. Under a prior, only an estimate still on a bound (or one without a prior, its file
+value 0) keeps the file's value (the prior decides the others)."""
 
 from __future__ import annotations
 
@@ -25,10 +25,11 @@ from uavdyn.identify.windows import fit_summary
 
 def not_determined(estimate: Estimate, groups: list[list[str]], prior: bool = False) -> bool:
     """Whether a continuous estimate is not to be written: on a bound, or (without a
-    ``prior``) its corrected interval spanning zero or in a collinear group (names)."""
+    ``prior``, or with one but a file value of 0, which has none) its corrected interval
+    spanning zero or in a collinear group (names)."""
     if estimate.searched:
         return False
-    if estimate.at_bound or prior:
+    if estimate.at_bound or (prior and estimate.nominal != 0):
         return bool(estimate.at_bound)
     return bool(zero_spanned(estimate.value, estimate.std_error_corrected)
                 or any(estimate.name in g for g in groups))

@@ -57,6 +57,7 @@ from uavdyn.identify.freerun import free_run_check
 from uavdyn.identify.prior import (
     check_prior_sd,
     posterior,
+    prior_precision,
     prior_share,
     prior_weights,
     with_data_verdicts,
@@ -162,8 +163,9 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         with room to grow); never shorter than the lags need.
     prior_sd : float, optional
         A Gaussian prior on each fitted parameter around the file's value with this relative
-        standard deviation: the estimate is the maximum a posteriori, its standard errors
-        the posterior's, each estimate says the prior's share of the information
+        standard deviation (none on a parameter whose file value is 0): the estimate is the
+        maximum a posteriori, its standard errors the posterior's, each estimate says the
+        prior's share of the information
         (:mod:`uavdyn.identify.prior`). A parameter the data do not determine is then fitted
         under the prior. Default: no prior.
     keep_undetermined : bool
@@ -222,10 +224,10 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
 
 def _result(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
             train: list[Sortie], validation: list[Sortie], t_start: float,
-            prior: float | None = None) -> IdentificationResult:
-    """The result of a solved fit: estimates, their uncertainty (with a ``prior`` relative
-    standard deviation: the posterior's; whether the data determine each parameter: the
-    data's at the estimate) and the fit per split."""
+            prior: np.ndarray | None = None) -> IdentificationResult:
+    """The result of a solved fit: estimates, their uncertainty (with a ``prior``, the
+    precision of each scaled unknown's prior: the posterior's; whether the data determine
+    each parameter: the data's at the estimate) and the fit per split."""
     airframe = fit.airframe
     fitted, estimates, corr, flagged, sigma_w, diagnostics = _estimates(
         fit, outcome, names, max_delay, prior)
@@ -258,8 +260,9 @@ def _with_prior(fit: _Fit, outcome: _Outcome, data_only: IdentificationResult,
     u = fit.unknowns
     by_name = {e.name: e for e in data_only.estimates}
     data = [by_name[n] for n in fit.continuous]
+    precision = prior_precision(u.p_nom[u.index], rel_sd)
     fit.prior = prior_weights(np.array([e.std_error_corrected for e in data]),
-                              np.array([e.std_error for e in data]), rel_sd)
+                              np.array([e.std_error for e in data]), precision)
     fit.data_cache.clear()
     log = [*outcome.log, {"step": "prior", "relative_sd": rel_sd,
                           "weights": fit.prior.tolist()}]
@@ -272,7 +275,8 @@ def _with_prior(fit: _Fit, outcome: _Outcome, data_only: IdentificationResult,
     n_data = r.size - fit.problem.n_theta  # the prior's rows are not data
     outcome_map = _Outcome(z, delays, r[:n_data], J[:n_data], outcome.cost_initial,
                            outcome.iterations + iterations, stats, log)
-    result = _result(fit, outcome_map, names, max_delay, train, validation, t_start, rel_sd)
+    result = _result(fit, outcome_map, names, max_delay, train, validation, t_start,
+                     precision)
     result.estimates = with_data_verdicts(result.estimates, data_only.estimates)
     result.diagnostics["data_only"] = data_only.to_dict()["estimates"]
     return result
@@ -389,7 +393,7 @@ def _residual_weights(fit: _Fit, z: np.ndarray, delays: list[int]
 
 
 def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
-               prior: float | None = None
+               prior: np.ndarray | None = None
                ) -> tuple[Airframe, list[Estimate], np.ndarray, list[tuple[str, str, float]],
                           np.ndarray, dict]:
     """The fitted airframe, the estimates in the order of ``names`` (each projected onto its
@@ -410,7 +414,7 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
     share = np.full(len(continuous), math.nan)
     if prior is not None and continuous:  # the posterior (uavdyn.identify.prior)
         cov_cr, cov_post = posterior(cov_cr, prior), posterior(cov_c, prior)
-        share = prior_share(cov_c, cov_post)
+        share = np.where(prior > 0, prior_share(cov_c, cov_post), math.nan)
         cov_c = cov_post
     std = np.sqrt(np.maximum(np.diag(cov_cr), 0.0)) * u.scale
     std_c = np.sqrt(np.maximum(np.diag(cov_c), 0.0)) * u.scale

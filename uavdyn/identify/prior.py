@@ -3,11 +3,14 @@ around the airframe file's value, the estimate then the maximum a posteriori (Mo
 Klein, *Aircraft System Identification*, "a priori information"; Jategaonkar's "a priori
 values").
 
-The prior of a parameter has the standard deviation ``rel_sd x`` its file value's magnitude
-(a parameter whose file value is 0: ``rel_sd x`` the unit of its fit, 1 for a coefficient,
-0.1 s for a time constant, 0.5 s per unit for a slew time). In the fit's scaled unknowns
-(``theta = (p - p_file) / scale``) that is ``rel_sd`` for every parameter, and the prior
-adds the residual rows ``w_j theta_j`` to the least squares.
+The prior of a parameter has the standard deviation ``rel_sd x`` its file value's magnitude.
+In the fit's scaled unknowns (``theta = (p - p_file) / scale``) that is ``rel_sd`` for every
+parameter, and the prior adds the residual rows ``w_j theta_j`` to the least squares. A
+parameter whose file value is 0 has no prior (a flat one): 0 there means "no such term" (no
+lag, no alpha-dot moment), not a value known to some relative accuracy, and any absolute
+width would be a guess (measured: a prior of 0 +- 0.3 on the trainer's ``C_m_alpha_dot``,
+whose emulated truth is -6, pulled every other moment derivative 30 % off); without a prior it
+is judged like a data-only estimate (not determined: it keeps the file's 0).
 
 The data rows are weighted as if their residuals were white; real residuals are coloured and
 the data then hold less information than the Cramer-Rao bound says (the corrected standard
@@ -50,18 +53,24 @@ def check_prior_sd(rel_sd: float) -> float:
     return float(rel_sd)
 
 
-def prior_weights(std_corrected: np.ndarray, std_cramer_rao: np.ndarray, rel_sd: float
-                  ) -> np.ndarray:
+def prior_precision(file_values: np.ndarray, rel_sd: float) -> np.ndarray:
+    """The prior's precision on each scaled unknown: ``1 / rel_sd^2``, 0 (no prior) where the
+    file value is 0."""
+    return np.where(np.asarray(file_values) != 0, 1.0 / rel_sd**2, 0.0)
+
+
+def prior_weights(std_corrected: np.ndarray, std_cramer_rao: np.ndarray,
+                  precision: np.ndarray) -> np.ndarray:
     """The prior rows' weights ``f_j / rel_sd`` in the scaled unknowns (module docstring)."""
     f = np.maximum(np.asarray(std_corrected) / np.maximum(np.asarray(std_cramer_rao), 1e-300),
                    1.0)
-    return f / rel_sd
+    return f * np.sqrt(precision)
 
 
-def posterior(cov_data: np.ndarray, rel_sd: float) -> np.ndarray:
-    """``(C_data^-1 + I / rel_sd^2)^-1``: the covariance of the scaled unknowns with the prior."""
-    n = cov_data.shape[0]
-    info = np.linalg.pinv(cov_data, hermitian=True) + np.eye(n) / rel_sd**2
+def posterior(cov_data: np.ndarray, precision: np.ndarray) -> np.ndarray:
+    """``(C_data^-1 + P^-1)^-1`` with ``P^-1 = diag(precision)``: the covariance of the
+    scaled unknowns with the prior."""
+    info = np.linalg.pinv(cov_data, hermitian=True) + np.diag(precision)
     cov = np.linalg.inv(info)
     return 0.5 * (cov + cov.T)
 
