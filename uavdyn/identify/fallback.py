@@ -37,8 +37,10 @@ def not_determined(estimate: Estimate, groups: list[list[str]], prior: bool = Fa
 
 def kept_reason(estimate: Estimate) -> str:
     """Why an estimate keeps the file's value (its flags)."""
+    # an open sign bound at 0 is held just inside it (a denormal): say 0
+    value = "0" if abs(estimate.value) < 1e-300 else f"{estimate.value:.6g}"
     return ("kept the airframe file's value: " + "; ".join(estimate.flags())
-            + f" (the fit gave {estimate.value:.6g} +- {estimate.std_error_corrected:.2g})")
+            + f" (the fit gave {value} +- {estimate.std_error_corrected:.2g})")
 
 
 def keep_file_values(identify: Callable[..., IdentificationResult],

@@ -131,8 +131,9 @@ def estimate_line(e: Estimate) -> str:
             f"{change})")
     flags = e.flags()
     if e.kept:
+        fit = "0" if abs(e.data_value) < 1e-300 else f"{e.data_value:.6g}"  # a sign bound
         return (f"{e.name} = {e.value:.6g}: the airframe file's value, KEPT: not determined by "
-                f"these data ({'; '.join(flags)}; the fit gave {e.data_value:.6g} +- "
+                f"these data ({'; '.join(flags)}; the fit gave {fit} +- "
                 f"{e.std_error_corrected:.2g})"
                 + (f". Would need: {e.excitation}" if e.excitation else ""))
     if e.pull():
