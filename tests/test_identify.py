@@ -139,7 +139,9 @@ def test_bound_flag_marks_estimates_on_a_bound_not_small_interior_ones():
 def test_a_fit_ending_on_its_bound_writes_its_file_and_says_so(tmp_path, aerosonde, truth,
                                                                 capsys):
     """--bounds below the truth: the optimum is on the bound, the estimate is the bound
-    (projected, never outside it), the file is written and loads, and the headline flags it."""
+    (projected, never outside it), the file is written and loads, and the headline flags it;
+    by default the file keeps the airframe file's value (a value on a bound is not determined
+    by the data), with --keep-undetermined it holds the bound."""
     from uavdyn.flightdata import write_csv, write_manifest
 
     data = tmp_path / "data"
@@ -157,6 +159,11 @@ def test_a_fit_ending_on_its_bound_writes_its_file_and_says_so(tmp_path, aeroson
     assert main(["identify", "--airframe", "aerosonde", "--dataset", str(data), "--params",
                  "C_m_alpha", "--bounds", f"C_m_alpha={low}:{high}", "--out", str(out),
                  "--quiet"]) == 0
+    assert load_airframe(out).params.C_m_alpha == nominal
+    assert "kept the airframe file's value" in capsys.readouterr().out
+    assert main(["identify", "--airframe", "aerosonde", "--dataset", str(data), "--params",
+                 "C_m_alpha", "--bounds", f"C_m_alpha={low}:{high}", "--out", str(out),
+                 "--quiet", "--keep-undetermined", "--force"]) == 0
     value = load_airframe(out).params.C_m_alpha
     edge = low if true < low else high
     assert low <= value <= high and value == pytest.approx(edge, rel=1e-6)

@@ -10,8 +10,11 @@ from uavdyn.airframes.bounds import (
     BOUNDS,
     NONNEGATIVE_KEYS,
     POSITIVE_KEYS,
+    SIGNS,
     Bound,
+    Sign,
     alpha_dot_denominator,
+    sign_range,
 )
 from uavdyn.airframes.errors import AirframeError
 from uavdyn.airframes.limits import CONTROL_RANGES, DELAY_MAX_SAMPLES, RATE_SUFFIX
@@ -46,8 +49,10 @@ from uavdyn.airframes.presets import ALIASES, PERTURBATION_KEYS, PRESETS, list_p
 __all__ = ["AIRFRAME_MAX_BYTES", "ALIASES", "ALPHA_DOT_DENOMINATOR_MIN", "ATMOSPHERES", "BOUNDS",
            "CONTROL_RANGES", "DELAY_MAX_SAMPLES", "KINDS", "NAME_PATTERN", "NOMINAL_AIRSPEED_MAX",
            "NONNEGATIVE_KEYS", "OPTIONAL_PARAMS", "PARAM_CLASSES", "PARAM_ENTRY_KEYS",
-           "PERTURBATION_KEYS", "POSITIVE_KEYS", "PRESETS", "RATE_SUFFIX", "TOP_LEVEL_KEYS",
+           "PERTURBATION_KEYS", "POSITIVE_KEYS", "PRESETS", "RATE_SUFFIX", "SIGNS",
+           "TOP_LEVEL_KEYS",
            "Airframe", "AirframeError", "Bound", "FixedWingParams", "MultirotorParams",
-           "ParamsType", "alpha_dot_denominator", "list_presets", "load_airframe",
-           "param_names", "perturb", "to_toml_dict", "tomllib", "AirframePlausibilityWarning",
+           "ParamsType", "Sign", "alpha_dot_denominator", "list_presets", "load_airframe",
+           "param_names", "perturb", "sign_range", "to_toml_dict", "tomllib",
+           "AirframePlausibilityWarning",
            "check_plausible", "has_pitch_authority", "plausibility_findings"]

@@ -41,6 +41,9 @@ class Airframe:
     # atmosphere at the sortie's altitude (manifest 'altitude_m') or at the h state.
     atmosphere: str = "constant"
     tables: dict[str, Table] = field(default_factory=dict)
+    # The file declares the airframe statically unstable by design (C_m_alpha may be >= 0 in a
+    # fit); a constraint of identification, not of the model (not in param_hash).
+    relaxed_stability: bool = False
 
     @property
     def param_names(self) -> tuple[str, ...]:

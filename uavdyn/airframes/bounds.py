@@ -121,6 +121,45 @@ BOUNDS: dict[str, dict[str, Bound]] = {
     },
 }
 
+# The signs physics gives some derivatives by their meaning and this project's sign convention
+# (elevator positive trailing edge down, a nose-down moment; q positive nose up). A fit keeps
+# them (:func:`sign_range`); a file may hold any value inside BOUNDS. Multirotor: its damping
+# and drag parameters already have their sign in BOUNDS (>= 0); M_u and M_0 take either sign.
+@dataclass(frozen=True)
+class Sign:
+    """The sign a derivative has by meaning: ``+1`` (> 0) or ``-1`` (< 0), why, and whether an
+    airframe file's ``relaxed_stability = true`` lifts it."""
+
+    sign: int
+    why: str
+    relaxable: bool = False
+
+
+SIGNS: dict[str, dict[str, Sign]] = {
+    "fixed_wing": {
+        "C_L_alpha": Sign(+1, "lift-curve slope: lift grows with angle of attack (> 0)"),
+        "C_m_q": Sign(-1, "pitch damping: a pitch rate makes a moment against it (< 0)"),
+        "C_m_delta_e": Sign(-1, "elevator effectiveness: a positive elevator (trailing edge "
+                                "down) pitches the nose down (< 0)"),
+        "C_m_alpha": Sign(-1, "static stability: a nose-up angle of attack makes a nose-down "
+                              "moment (< 0; an airframe file declaring relaxed_stability = "
+                              "true lets it take either sign)", relaxable=True),
+    },
+    "multirotor": {},
+}
+
+
+def sign_range(kind: str, name: str, relaxed_stability: bool = False
+               ) -> tuple[float, float] | None:
+    """The open half-line ``(0, inf)`` or ``(-inf, 0)`` a derivative's sign keeps it in
+    (:data:`SIGNS`), or None where its sign is free (also a relaxable one under
+    ``relaxed_stability``)."""
+    sign = SIGNS.get(kind, {}).get(name)
+    if sign is None or (sign.relaxable and relaxed_stability):
+        return None
+    return (0.0, math.inf) if sign.sign > 0 else (-math.inf, 0.0)
+
+
 # Keys that must be strictly positive / non-negative (derived from BOUNDS; kept for callers).
 POSITIVE_KEYS: dict[str, tuple[str, ...]] = {
     kind: tuple(n for n, b in table.items() if b.low == 0 and b.low_open)

@@ -44,6 +44,9 @@ Optional model structure (absent: none of it)::
 
     atmosphere = "isa"         # rho is then the sea-level density, scaled by the standard
                                # atmosphere at each sortie's manifest 'altitude_m' (or the h state)
+    relaxed_stability = true   # statically unstable by design: identification lets C_m_alpha
+                               # take either sign (default false: C_m_alpha < 0 in a fit;
+                               # uavdyn.airframes.bounds.SIGNS)
     [delays]
     elevator = 2               # integer transport delay per control, in samples of the step
     [tables.C_L]               # breakpoint tables (see uavdyn.airframes.tables)
@@ -92,7 +95,7 @@ AIRFRAME_MAX_BYTES = 2**20          # a parameter file with sources is a few kB
 NOMINAL_AIRSPEED_MAX = 150.0        # m/s; the flight-data speed limit is 100 m/s
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
 TOP_LEVEL_KEYS = ("name", "kind", "params", "description", "nominal_airspeed", "limits",
-                  "delays", "atmosphere", "tables")
+                  "delays", "atmosphere", "tables", "relaxed_stability")
 ATMOSPHERES = ("constant", "isa")
 PARAM_ENTRY_KEYS = ("value", "source")
 
@@ -236,6 +239,10 @@ def _parse(data: dict, origin: str) -> Airframe:
     if not isinstance(atmosphere, str) or atmosphere not in ATMOSPHERES:
         raise AirframeError(f"{origin}: key 'atmosphere' is {_short(atmosphere)}; expected one "
                             f"of {ATMOSPHERES}")
+    relaxed = data.get("relaxed_stability", False)
+    if not isinstance(relaxed, bool):
+        raise AirframeError(f"{origin}: key 'relaxed_stability' must be true or false, got "
+                            f"{_short(relaxed)}")
     try:
         tables = parse_tables(data["tables"], kind, origin) if "tables" in data else {}
     except TableError as exc:
@@ -243,7 +250,7 @@ def _parse(data: dict, origin: str) -> Airframe:
     return Airframe(
         name=name, kind=kind, params=PARAM_CLASSES[kind](**values), sources=sources,
         description=description, nominal_airspeed=float(nominal), origin=origin, limits=limits,
-        delays=delays, atmosphere=atmosphere, tables=tables,
+        delays=delays, atmosphere=atmosphere, tables=tables, relaxed_stability=relaxed,
     )
 
 
@@ -333,6 +340,8 @@ def to_toml_dict(airframe: Airframe) -> dict:
         out["delays"] = {k: v for k, v in airframe.delays.items() if v}
     if airframe.atmosphere != "constant":
         out["atmosphere"] = airframe.atmosphere
+    if airframe.relaxed_stability:
+        out["relaxed_stability"] = True
     if airframe.tables:
         out["tables"] = {n: t.to_file() for n, t in sorted(airframe.tables.items())}
     return out

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import re
 import sys
 from pathlib import Path
 
@@ -29,6 +31,8 @@ from uavdyn.cli.common import (
 )
 from uavdyn.flightdata import Sortie, load_dataset
 from uavdyn.identify import identify, write_outputs
+from uavdyn.identify.freerun import departure_line
+from uavdyn.identify.prior import PRIOR_SD_DEFAULT
 from uavdyn.identify.report import estimate_line, structure_lines
 from uavdyn.identify.selection import select_structure
 from uavdyn.identify.unknowns import DELAY_PREFIX, control_names
@@ -73,7 +77,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
               file=sys.stderr)
     max_delay = 5 if args.max_delay is None else args.max_delay
     options = {"window_s": args.window, "dt": args.dt, "max_delay": max_delay,
-               "bounds": args.bounds, "progress": not args.quiet}
+               "bounds": args.bounds, "progress": not args.quiet, "prior_sd": args.prior,
+               "keep_undetermined": args.keep_undetermined}
     log = None
     if args.structure == "auto":
         if not ds.validation:
@@ -108,6 +113,19 @@ def cmd_identify(args: argparse.Namespace) -> int:
           "parameters determined by these data"
           + (f"; flagged: {'; '.join(_why_flagged(e) for e in undetermined)}"
              if undetermined else ""))
+    kept = [e.name for e in result.estimates if e.kept]
+    if kept:
+        print(f"  kept the airframe file's value (not determined; the others refitted with "
+              f"them fixed; --keep-undetermined writes the raw fit): {', '.join(kept)}")
+    if args.prior is not None:
+        under = [e.name for e in undetermined if not e.searched and not e.kept]
+        print(f"  prior: Gaussian around the file's values, relative s.d. {args.prior:g} "
+              "(maximum a posteriori; standard errors the posterior's)"
+              + (f"; set under the prior, not by the data: {', '.join(under)}" if under
+                 else ""))
+    departed = departure_line(result.fit, len(ds.train))
+    if departed:
+        print("  " + departed)
     for line in structure_lines(log) if log else []:
         print("  " + line)
     for split in ("train", "validation"):
@@ -118,6 +136,22 @@ def cmd_identify(args: argparse.Namespace) -> int:
                   f"{fit['theta_rmse']['identified']:.3g} rad")
     print(f"wrote {paths['airframe']}, {paths['json']} and {paths['png']}")
     return 0
+
+
+PRIOR_FORM = re.compile(r"nominal(?::([0-9]+(?:\.[0-9]*)?(?:[eE][+-]?[0-9]+)?))?")
+
+
+def prior_option(text: str) -> float:
+    """``nominal[:REL_SD]``: a Gaussian prior around the file's values with relative standard
+    deviation REL_SD (a finite number > 0; default :data:`PRIOR_SD_DEFAULT`)."""
+    found = PRIOR_FORM.fullmatch(text.strip())
+    value = (float(found.group(1)) if found and found.group(1) else PRIOR_SD_DEFAULT) \
+        if found else math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(
+            f"must be 'nominal' or 'nominal:REL_SD' with REL_SD a number > 0 (the prior's "
+            f"standard deviation relative to each file value), got {text!r}")
+    return value
 
 
 def _why_flagged(estimate) -> str:
@@ -222,12 +256,25 @@ def add_identify(sub) -> None:
                         "delay_<control> names (default 5)")
     p.add_argument("--bounds", type=bound_list, default=None,
                    help="NAME=LOW:HIGH[,...]: narrow a fitted parameter's range (default: its "
-                        "physical range by meaning and sign convention, e.g. a coefficient "
-                        "of either sign, a time constant >= 0, a share in [0, 1])")
+                        "physical range by meaning and sign convention: C_L_alpha > 0, "
+                        "C_m_q < 0, C_m_delta_e < 0, C_m_alpha < 0 unless the airframe file "
+                        "declares relaxed_stability, other coefficients of either sign, a "
+                        "time constant >= 0, a share in [0, 1])")
     p.add_argument("--structure", choices=("given", "auto"), default="given",
                    help="given (default): fit --params; auto: also try the model's optional "
                         "terms and a C_m(alpha) table, keeping those that lower the validation "
                         "1 s pitch error by >= 2 %% (needs a validation split)")
+    p.add_argument("--prior", type=prior_option, default=None, metavar="nominal[:REL_SD]",
+                   help="a Gaussian prior on each fitted parameter around the airframe file's "
+                        "value, standard deviation REL_SD x its magnitude (default "
+                        f"{PRIOR_SD_DEFAULT:g}; none for a file value of 0): the maximum a "
+                        "posteriori, with each parameter's prior share of the information "
+                        "reported")
+    p.add_argument("--keep-undetermined", action="store_true",
+                   help="write every fitted value, also of parameters the data do not "
+                        "determine (default: they keep the file's value and the others are "
+                        "refitted with them fixed; with --prior they are fitted under it, and "
+                        "only one still on a bound keeps the file's value)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_identify)
 

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
 from itertools import combinations
 
 import numpy as np
@@ -42,7 +41,28 @@ from uavdyn.flightdata import Sortie
 from uavdyn.identify.consistency import compare_halves
 from uavdyn.identify.errors import IdentifyError
 from uavdyn.identify.excitation import excitation_for, refuse_unexcited
-from uavdyn.identify.problem import COMPILE_FLAGS, _check_excitation, _Problem
+from uavdyn.identify.fallback import keep_file_values
+from uavdyn.identify.fitstate import (
+    PREROLL_MIN_S,
+    PREROLL_TAUS,
+    STATE_WEIGHT_FLOOR,
+    _Fit,
+    _nominal_weights,
+    _Outcome,
+    _preroll_samples,
+    _time_grid,
+    measurement_noise,
+)
+from uavdyn.identify.freerun import free_run_check
+from uavdyn.identify.prior import (
+    check_prior_sd,
+    posterior,
+    prior_precision,
+    prior_share,
+    prior_weights,
+    with_data_verdicts,
+)
+from uavdyn.identify.problem import COMPILE_FLAGS, _check_excitation
 from uavdyn.identify.result import DEFAULT_SUBSTEPS, Estimate, IdentificationResult
 from uavdyn.identify.search import RECHECK_STEPS, SEARCH_ROUNDS, _recheck_delays, _search
 from uavdyn.identify.uncertainty import estimate_uncertainty, undetermined
@@ -52,7 +72,6 @@ from uavdyn.identify.unknowns import (
     TAU_GRID,
     TAU_NAMES,
     TAU_SCALE,
-    Unknowns,
     _at_bound,
     _check_request,
     control_names,
@@ -61,14 +80,11 @@ from uavdyn.identify.unknowns import (
 )
 from uavdyn.identify.windows import (
     N_BODY,
-    Windows,
     fit_summary,
-    physics_windows,
     training_windows,
     window_density_ratios,
 )
-from uavdyn.integrate import EvalGrid, substeps_for
-from uavdyn.model import LAG_PARAMS, ModelStructure, structure_of
+from uavdyn.model import LAG_PARAMS, structure_of
 
 __all__ = ["COMPILE_FLAGS", "CORRELATION_FLAG", "DEFAULT_SUBSTEPS", "DELAY_PREFIX",
            "PREROLL_GROWTH", "PREROLL_MIN_S", "PREROLL_TAUS", "RECHECK_STEPS",
@@ -77,24 +93,11 @@ __all__ = ["COMPILE_FLAGS", "CORRELATION_FLAG", "DEFAULT_SUBSTEPS", "DELAY_PREFI
            "TAU_SCALE", "Estimate", "IdentificationResult", "control_names", "identify",
            "measurement_noise"]
 
-STATE_WEIGHT_FLOOR = 1e-6
 CORRELATION_FLAG = 0.9
-PREROLL_TAUS = 8.0       # the lag pre-roll covers this many time constants (exp(-8) = 3e-4) ...
-PREROLL_MIN_S = 1.0      # ... and at least this long
 PREROLL_GROWTH = 4.0     # the first pre-roll covers lags up to this many times their start
 HALF_ITERATIONS = 30     # the halves start from the whole fit: a few steps move them
 REWEIGHT_PASSES = 1      # refits with each state weighted by its residual after the fit ...
 REWEIGHT_FLOOR = 1e-3    # ... down to this fraction of the nominal model's residual
-
-
-def measurement_noise(sorties: list[Sortie]) -> np.ndarray:
-    """Per-state standard deviation of white measurement noise, from the second differences
-    of the logged states (``var(d2 y) = 6 sigma^2`` for white noise; a smooth flight signal adds
-    little at logging rates), floored so noise-free data pin the start states."""
-    d2 = np.concatenate([np.diff(s.states, 2, axis=0) for s in sorties])
-    sigma = np.sqrt(np.mean(d2**2, axis=0) / 6.0)
-    return np.maximum(sigma, 1e-9 * (1.0 + np.abs(np.concatenate([s.states for s in sorties]))
-                                     .max(axis=0)))
 
 
 def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
@@ -103,8 +106,9 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
              bounds: dict[str, tuple[float, float]] | None = None, max_iterations: int = 60,
              estimate_x0: bool = True, max_windows: int | None = 120, max_delay: int = 5,
              substeps: int | None = None, progress: bool = True,
-             check_halves: bool = True, preroll: int | None = None, screen: bool = True
-             ) -> IdentificationResult:
+             check_halves: bool = True, preroll: int | None = None, screen: bool = True,
+             prior_sd: float | None = None, keep_undetermined: bool = False,
+             free_run: bool = True) -> IdentificationResult:
     """Fit the parameters ``names`` of ``airframe`` to ``train`` sorties by output error.
 
     Parameters
@@ -125,7 +129,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     relative_bound : float, optional
         Keep each parameter with a nonzero nominal value within ``(1 +- relative_bound) x``
         it (sign kept). Default: no such bound; every parameter stays inside its physical
-        range only (the schema's bound by its meaning and sign convention: a coefficient may
+        range only (the schema's bound by its meaning and sign convention: the derivatives
+        of :data:`uavdyn.airframes.SIGNS` keep their physical sign, other coefficients may
         change sign, a time constant is >= 0 (:data:`TAU_BOUNDS`), a share lies in [0, 1];
         table values: the table's value limit).
     bounds : dict, optional
@@ -156,6 +161,21 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     preroll : int, optional
         Samples of lag pre-roll before each window (default: enough for the time constants,
         with room to grow); never shorter than the lags need.
+    prior_sd : float, optional
+        A Gaussian prior on each fitted parameter around the file's value with this relative
+        standard deviation (none on a parameter whose file value is 0): the estimate is the
+        maximum a posteriori, its standard errors the posterior's, each estimate says the
+        prior's share of the information
+        (:mod:`uavdyn.identify.prior`). A parameter the data do not determine is then fitted
+        under the prior. Default: no prior.
+    keep_undetermined : bool
+        False (default): a parameter the data do not determine (interval spanning zero,
+        collinear, on a bound; under a prior: on a bound) keeps the airframe file's value and
+        the others are refitted with it fixed (:mod:`uavdyn.identify.fallback`). True: the
+        raw fit, every value as fitted (flagged).
+    free_run : bool
+        Fly each train sortie open loop from its first state with the nominal and the
+        identified model and record which depart (:mod:`uavdyn.identify.freerun`; default).
 
     Returns
     -------
@@ -169,13 +189,48 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     """
     t_start = time.perf_counter()
     continuous, searched = _check_request(airframe, names, train, max_delay)
+    if prior_sd is not None:
+        prior_sd = check_prior_sd(prior_sd)
     if screen:
         refuse_unexcited(continuous, train)
     fit = _prepare(airframe, train, continuous, searched, window_s, dt, substeps,
                    max_windows, relative_bound, bounds, estimate_x0, preroll)
     outcome = _solve(fit, max_delay, max_iterations, progress)
-    fitted, estimates, corr, flagged, sigma_w, diagnostics = _estimates(fit, outcome, names,
-                                                                        max_delay)
+    result = _result(fit, outcome, names, max_delay, train, validation, t_start)
+    if check_halves and continuous and len(train) >= 4:
+        compare_halves(identify, result, train, continuous, max(1, fit.windows.count // 2),
+                      {"window_s": window_s, "dt": dt, "bounds": bounds,
+                       "max_iterations": min(max_iterations, HALF_ITERATIONS),
+                       "estimate_x0": estimate_x0, "keep_undetermined": True,
+                       "free_run": False, "substeps": substeps, "progress": False,
+                       "check_halves": False, "preroll": fit.problem.M or None})
+    if prior_sd is not None and continuous:
+        result = _with_prior(fit, outcome, result, prior_sd, names, max_delay, train,
+                             validation, max_iterations, progress, t_start)
+    if not keep_undetermined:
+        result = keep_file_values(
+            identify, result, airframe, train, validation, names,
+            {"window_s": window_s, "dt": dt, "relative_bound": relative_bound,
+             "bounds": bounds, "max_iterations": max_iterations, "estimate_x0": estimate_x0,
+             "max_windows": max_windows, "max_delay": max_delay, "substeps": substeps,
+             "progress": progress, "check_halves": check_halves, "preroll": preroll,
+             "screen": False, "prior_sd": prior_sd})
+    if free_run:
+        result.fit["free_run"] = free_run_check(airframe, result.airframe, train,
+                                                result.substeps)
+    result.seconds = time.perf_counter() - t_start
+    return result
+
+
+def _result(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
+            train: list[Sortie], validation: list[Sortie], t_start: float,
+            prior: np.ndarray | None = None) -> IdentificationResult:
+    """The result of a solved fit: estimates, their uncertainty (with a ``prior``, the
+    precision of each scaled unknown's prior: the posterior's; whether the data determine
+    each parameter: the data's at the estimate) and the fit per split."""
+    airframe = fit.airframe
+    fitted, estimates, corr, flagged, sigma_w, diagnostics = _estimates(
+        fit, outcome, names, max_delay, prior)
     summary = {"train": fit_summary(airframe, fitted, train, fit.interval, fit.substeps,
                                      fit.L, fit.stride),
                "validation": fit_summary(airframe, fitted, validation, fit.interval,
@@ -186,128 +241,45 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
                **fit.envelope,
                "preroll_samples": fit.problem.M}
     r = outcome.r
-    result = IdentificationResult(
+    return IdentificationResult(
         airframe=fitted, estimates=estimates, correlation=corr, flagged_pairs=flagged,
         state_sigma=1.0 / fit.weights * sigma_w, cost_initial=outcome.cost_initial,
         cost_final=0.5 * float(r @ r), iterations=outcome.iterations,
         seconds=time.perf_counter() - t_start, window_s=fit.L * fit.interval,
         dt=fit.interval / fit.substeps, fit=summary, substeps=fit.substeps,
         search=outcome.log, diagnostics=diagnostics)
-    if check_halves and continuous and len(train) >= 4:
-        compare_halves(identify, result, train, continuous, max(1, fit.windows.count // 2),
-                      {"window_s": window_s, "dt": dt, "bounds": bounds,
-                       "max_iterations": min(max_iterations, HALF_ITERATIONS),
-                       "estimate_x0": estimate_x0,
-                       "substeps": substeps, "progress": False, "check_halves": False,
-                       "preroll": fit.problem.M or None})
-        result.seconds = time.perf_counter() - t_start
+
+
+def _with_prior(fit: _Fit, outcome: _Outcome, data_only: IdentificationResult,
+                rel_sd: float, names: list[str], max_delay: int, train: list[Sortie],
+                validation: list[Sortie], max_iterations: int, progress: bool,
+                t_start: float) -> IdentificationResult:
+    """The maximum a posteriori fit from the data-only one (:mod:`uavdyn.identify.prior`):
+    the prior's rows added to the least squares, refitted from the data-only estimate, the
+    posterior covariance, and each estimate with the data's verdict and the prior's pull."""
+    u = fit.unknowns
+    by_name = {e.name: e for e in data_only.estimates}
+    data = [by_name[n] for n in fit.continuous]
+    precision = prior_precision(u.p_nom[u.index], rel_sd)
+    fit.prior = prior_weights(np.array([e.std_error_corrected for e in data]),
+                              np.array([e.std_error for e in data]), precision)
+    fit.data_cache.clear()
+    log = [*outcome.log, {"step": "prior", "relative_sd": rel_sd,
+                          "weights": fit.prior.tolist()}]
+    lower = np.concatenate([u.lo, np.full(fit.problem.n_dx, -np.inf)])
+    upper = np.concatenate([u.hi, np.full(fit.problem.n_dx, np.inf)])
+    z, delays, iterations, stats = _fit_and_recheck(
+        fit, outcome.z, list(outcome.delays), lower, upper, max_delay, max_iterations,
+        progress, 0, {}, log)
+    r, J = fit.problem.evaluate(z, fit.data_for(delays))
+    n_data = r.size - fit.problem.n_theta  # the prior's rows are not data
+    outcome_map = _Outcome(z, delays, r[:n_data], J[:n_data], outcome.cost_initial,
+                           outcome.iterations + iterations, stats, log)
+    result = _result(fit, outcome_map, names, max_delay, train, validation, t_start,
+                     precision)
+    result.estimates = with_data_verdicts(result.estimates, data_only.estimates)
+    result.diagnostics["data_only"] = data_only.to_dict()["estimates"]
     return result
-
-
-@dataclass
-class _Fit:
-    """What the stages of one identification share: the request, the training windows on the
-    time grid, the scaled unknowns, the state weights and the compiled problem (rebuilt when
-    the lag pre-roll grows), with its data vectors cached per delay candidate."""
-
-    airframe: Airframe
-    continuous: list[str]
-    searched: list[str]
-    structure: ModelStructure
-    windows: Windows
-    L: int
-    interval: float
-    substeps: int
-    stride: int
-    unknowns: Unknowns
-    rho_index: int | None
-    ratios: np.ndarray
-    noise: np.ndarray
-    weights: np.ndarray
-    weights_nominal: np.ndarray
-    estimate_x0: bool
-    envelope: dict = field(default_factory=dict)
-    problem: _Problem | None = None
-    data_cache: dict[tuple, np.ndarray] = field(default_factory=dict)
-
-    @property
-    def controls(self) -> tuple[str, ...]:
-        return control_names(self.airframe.kind)
-
-    def new_problem(self, preroll: int) -> _Problem:
-        """The problem with a lag pre-roll of ``preroll`` samples (the data cache keys on it)."""
-        self.problem = _Problem(self.structure, self.unknowns.index, self.windows.count,
-                                self.L, preroll, self.interval, self.substeps, self.rho_index,
-                                self.estimate_x0)
-        return self.problem
-
-    def data_for(self, d) -> np.ndarray:
-        """The data vector of the current problem with the commands delayed by ``d``."""
-        key = (tuple(d), self.problem.M)
-        if key not in self.data_cache:
-            u = self.unknowns
-            self.data_cache[key] = self.problem.pack(self.windows, self.structure, d,
-                                                     self.ratios, self.weights, self.noise,
-                                                     u.p_nom, u.scale)
-        return self.data_cache[key]
-
-    def with_dx(self, th: np.ndarray) -> np.ndarray:
-        """The unknowns with the recorded start states."""
-        return np.concatenate([th, np.zeros(self.problem.n_dx)])
-
-    def taus_of(self, th: np.ndarray) -> np.ndarray:
-        """The structure's time constants at the scaled unknowns ``th``; a rate-limited
-        actuator's at least the one whose pre-roll also covers a slew over its full travel."""
-        p = self.unknowns.p_of(th)
-        bounds = self.airframe.control_bounds()
-        return np.array([max(p[i], 0.0 if k is None else p[k] * (bounds[c][1] - bounds[c][0])
-                             / PREROLL_TAUS)
-                         for c, i, k in zip(self.structure.lag_indices,
-                                            self.structure.tau_indices,
-                                            self.structure.slew_indices)])
-
-
-@dataclass
-class _Outcome:
-    """The solved fit: unknowns ``z``, delays, residual and Jacobian there, and its history."""
-
-    z: np.ndarray
-    delays: list[int]
-    r: np.ndarray
-    J: object  # scipy.sparse matrix
-    cost_initial: float
-    iterations: int
-    stats: dict
-    log: list[dict]
-
-
-MAX_DEFAULT_DT = 0.005  # default RK step: the log interval in whole sub-steps of at most this
-
-
-def _time_grid(train: list[Sortie], dt: float | None, substeps: int | None
-               ) -> tuple[float, int, int]:
-    """The log interval of the data, the RK steps per grid interval and the grid's stride in
-    log samples (``dt`` longer than the log interval: several samples per step)."""
-    sample_dt = float(np.median(np.diff(train[0].time)))
-    if dt is not None:
-        grid = EvalGrid(sample_dt, dt)
-        S, stride = grid.substeps, grid.stride
-    else:
-        S, stride = int(substeps or substeps_for(sample_dt, MAX_DEFAULT_DT, DEFAULT_SUBSTEPS)), 1
-        if S < 1:
-            raise IdentifyError(f"substeps must be >= 1, got {substeps}")
-    return sample_dt, S, stride
-
-
-def _nominal_weights(airframe: Airframe, windows: Windows, interval: float, substeps: int
-                     ) -> np.ndarray:
-    """State weights: the nominal model's residual RMS per state (puts every state on one
-    scale)."""
-    resid0 = (physics_windows(airframe, windows, interval, substeps)
-              - windows.y).reshape(-1, N_BODY)
-    with np.errstate(all="ignore"):
-        rms0 = np.sqrt(np.nanmean(np.where(np.abs(resid0) < 1e6, resid0, np.nan)**2, axis=0))
-    return 1.0 / np.maximum(np.nan_to_num(rms0, nan=1.0), STATE_WEIGHT_FLOOR)
 
 
 def _prepare(airframe: Airframe, train: list[Sortie], continuous: list[str],
@@ -420,7 +392,8 @@ def _residual_weights(fit: _Fit, z: np.ndarray, delays: list[int]
     return rms, floor, 1.0 / np.maximum(rms, floor)
 
 
-def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int
+def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
+               prior: np.ndarray | None = None
                ) -> tuple[Airframe, list[Estimate], np.ndarray, list[tuple[str, str, float]],
                           np.ndarray, dict]:
     """The fitted airframe, the estimates in the order of ``names`` (each projected onto its
@@ -437,6 +410,12 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int
         unc = None
         cov_cr = cov_c = np.zeros((0, 0))
         sigma_w = np.sqrt(np.mean(outcome.r.reshape(-1, N_BODY) ** 2, axis=0))
+    std_data = np.sqrt(np.maximum(np.diag(cov_c), 0.0)) * u.scale  # what the data say
+    share = np.full(len(continuous), math.nan)
+    if prior is not None and continuous:  # the posterior (uavdyn.identify.prior)
+        cov_cr, cov_post = posterior(cov_cr, prior), posterior(cov_c, prior)
+        share = np.where(prior > 0, prior_share(cov_c, cov_post), math.nan)
+        cov_c = cov_post
     std = np.sqrt(np.maximum(np.diag(cov_cr), 0.0)) * u.scale
     std_c = np.sqrt(np.maximum(np.diag(cov_c), 0.0)) * u.scale
     d = np.sqrt(np.maximum(np.diag(cov_c), 1e-300))
@@ -454,11 +433,12 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int
     groups = [[continuous[j] for j in g] for g in (unc.collinear_groups if unc else [])]
     by_name = {}
     for j, (n, i) in enumerate(zip(continuous, u.index)):
-        why, group = undetermined(n, float(p_fit[i]), float(std_c[j]), groups)
+        why, group = undetermined(n, float(p_fit[i]), float(std_data[j]), groups)
         by_name[n] = Estimate(n, float(u.p_nom[i]), float(p_fit[i]), float(std[j]),
                               at_bound=_at_bound(theta[j], u.lo[j], u.hi[j]),
                               std_error_corrected=float(std_c[j]), undetermined=why,
-                              excitation=excitation_for(n, group) if why else "")
+                              excitation=excitation_for(n, group) if why else "",
+                              prior_share=float(share[j]))
     nominal_delays = fit.airframe.delay_samples()
     for c in fit.searched:
         k = controls.index(c)
@@ -468,12 +448,3 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int
                                              else "", std_error_corrected=0.0)
     diagnostics = {} if unc is None else unc.diagnostics(continuous, std, std_c)
     return fitted, [by_name[n] for n in names], corr, flagged, sigma_w, diagnostics
-
-
-def _preroll_samples(tau: float, interval: float) -> int:
-    """Samples of lag pre-roll for a time constant ``tau``, rounded up to a power of two (a
-    few lengths only: each is a compiled library)."""
-    need = math.ceil(max(PREROLL_MIN_S, PREROLL_TAUS * tau) / interval)
-    return 1 << (int(need) - 1).bit_length()
-
-

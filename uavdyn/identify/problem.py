@@ -133,10 +133,17 @@ class _Problem:
 
     def residual(self, z: np.ndarray, data: dict) -> np.ndarray:
         """The weighted residual: ``(predicted - recorded) * weights`` (sample-major, the body
-        states per sample, window after window), then the start-state prior ``dx``."""
+        states per sample, window after window), then the start-state prior ``dx``, then (where
+        ``data`` has a ``"prior"`` weight per parameter) the parameters' prior
+        ``prior * theta`` (centred on the file's values, ``theta = 0``)."""
         pred = self._call(self.predict, z, data)["y"]
         r = ((pred - data["y"]) * data["weights"][:, None]).ravel(order="F")
-        return np.concatenate([r, z[self.n_theta:]])
+        return np.concatenate([r, z[self.n_theta:], *self._prior_rows(z, data)])
+
+    def _prior_rows(self, z: np.ndarray, data: dict) -> list[np.ndarray]:
+        """The parameters' prior residual (:meth:`residual`), if ``data`` has one."""
+        prior = data.get("prior")
+        return [] if prior is None else [np.asarray(prior) * z[:self.n_theta]]
 
     def cost(self, z: np.ndarray, data: dict) -> float:
         r = self.residual(z, data)
@@ -150,7 +157,7 @@ class _Problem:
         pred, dy = out["y"], out["dy"]
         w = data["weights"]
         r = np.concatenate([((pred - data["y"]) * w[:, None]).ravel(order="F"),
-                            z[self.n_theta:]])
+                            z[self.n_theta:], *self._prior_rows(z, data)])
         rows = N_BODY * self.L
         n_u = self.n_theta + (N_BODY if self.estimate_x0 else 0)
         blocks = dy.reshape(rows, self.W, n_u) * np.tile(w, self.L)[:, None, None]
@@ -162,6 +169,10 @@ class _Problem:
             J = sp.vstack([sp.hstack([parts[0], dx_part]), self._prior], format="csr")
         else:
             J = parts[0]
+        if data.get("prior") is not None:  # the parameters' prior rows, after all others
+            J = sp.vstack([J, sp.hstack([sp.diags(np.asarray(data["prior"], float)),
+                                         sp.csr_matrix((self.n_theta, self.n_dx))])],
+                          format="csr")
         return r, J
 
     def solve(self, z0: np.ndarray, data: dict, lower: np.ndarray, upper: np.ndarray,

@@ -43,6 +43,8 @@ def airframe_toml(airframe: Airframe, header: list[str]) -> str:
         f"nominal_airspeed = {_toml_number(airframe.nominal_airspeed)}"]
     if airframe.atmosphere != "constant":
         lines.append(f"atmosphere = {_toml_string(airframe.atmosphere)}")
+    if airframe.relaxed_stability:
+        lines.append("relaxed_stability = true")
     lines.append("")
     optional = OPTIONAL_PARAMS[airframe.kind]
     for name in param_names(airframe.kind):
@@ -102,6 +104,20 @@ def provenance(result: IdentificationResult, nominal: Airframe, dataset: str, co
         lines.append("  " + estimate_line(e))
     for a, b, c in result.flagged_pairs:
         lines.append(f"  highly correlated: {a} and {b} (r = {c:+.3f})")
+    prior = next((s for s in result.search if s.get("step") == "prior"), None)
+    if prior:
+        lines.append(f"  prior: Gaussian around the file's values, relative s.d. "
+                     f"{prior['relative_sd']:g} (maximum a posteriori)")
+    kept = [e.name for e in result.estimates if e.kept]
+    if kept:
+        lines.append(f"  kept the file's value (not determined by these data): "
+                     f"{', '.join(kept)}")
+    free = result.fit.get("free_run")
+    if free:
+        lines.append(f"  free run of the {len(free['per_sortie'])} train sorties (pitch error "
+                     f"past {free['departure_rad']:g} rad): identified departs on "
+                     f"{len(free['identified_departed'])}, nominal on "
+                     f"{len(free['nominal_departed'])}")
     return lines
 
 
@@ -114,8 +130,17 @@ def estimate_line(e: Estimate) -> str:
             f"correlated residuals; Cramer-Rao {e.std_error:.2g}; nominal {e.nominal:.6g}"
             f"{change})")
     flags = e.flags()
+    if e.kept:
+        fit = "0" if abs(e.data_value) < 1e-300 else f"{e.data_value:.6g}"  # a sign bound
+        return (f"{e.name} = {e.value:.6g}: the airframe file's value, KEPT: not determined by "
+                f"these data ({'; '.join(flags)}; the fit gave {fit} +- "
+                f"{e.std_error_corrected:.2g})"
+                + (f". Would need: {e.excitation}" if e.excitation else ""))
+    if e.pull():
+        text = text[:-1] + f"; {e.pull()})"
     if e.undetermined:
-        text += " NOT DETERMINED by these data: " + "; ".join(flags)
+        text += (" NOT DETERMINED by these data" + (", SET UNDER THE PRIOR" if e.pull() else "")
+                 + ": " + "; ".join(flags))
         text += f". Would need: {e.excitation}"
     elif flags:
         text += " FLAGGED: " + "; ".join(flags)
@@ -130,6 +155,12 @@ def identified_airframe(result: IdentificationResult, nominal: Airframe, dataset
         if e.searched or e.name not in param_names(nominal.kind):
             continue  # delays and table values have no source entry
         flags = f"; {'; '.join(e.flags())}" if e.flags() else ""
+        if e.kept:
+            sources[e.name] = (f"{e.kept}; not identified from {dataset}; was: "
+                               f"{nominal.sources.get(e.name, '')}")
+            continue
+        if e.pull():
+            flags += f"; maximum a posteriori, {e.pull()}"
         sources[e.name] = (f"identified from {dataset}: {e.value:.6g} +- "
                            f"{e.std_error_corrected:.2g} (corrected s.e.{flags}; nominal "
                            f"{e.nominal:.6g}; was: {nominal.sources.get(e.name, '')})")
@@ -198,7 +229,7 @@ def _plot(result: IdentificationResult, path: Path, title: str = "") -> Path:
     ax.set_xlabel("change from nominal (%); bars: +-2 corrected standard errors")
     ax.set_title("estimates against the nominal airframe", fontsize=10)
     ax = axes[1]
-    names = [e.name for e in est if not e.searched]
+    names = result.fitted_names
     im = ax.imshow(result.correlation if names else np.zeros((1, 1)), vmin=-1, vmax=1,
                    cmap="coolwarm")
     ax.set_xticks(range(len(names)), names, rotation=45, ha="right", fontsize=8)

@@ -20,7 +20,12 @@ class Estimate:
     ``std_error`` is the Cramer-Rao bound (white residuals), ``std_error_corrected`` the one
     corrected for the residuals' autocorrelation (:mod:`uavdyn.identify.uncertainty`): the one
     to use. ``undetermined`` says why the data do not determine the value (empty: they do) and
-    ``excitation`` what flight data would."""
+    ``excitation`` what flight data would. ``kept`` says why ``value`` is the airframe file's
+    value rather than the fit's (a parameter the data do not determine keeps it by default;
+    the others were refitted with it fixed). Under a prior (maximum a posteriori),
+    ``data_value`` is the data-only estimate, ``prior_share`` the prior's share of the
+    information, ``1 - var_posterior / var_data`` (corrected variances: 0 = the data alone,
+    1 = the prior alone), and the standard errors are the posterior's."""
 
     name: str
     nominal: float
@@ -31,6 +36,9 @@ class Estimate:
     std_error_corrected: float = math.nan
     undetermined: tuple[str, ...] = ()
     excitation: str = ""
+    kept: str = ""
+    data_value: float = math.nan
+    prior_share: float = math.nan
 
     @property
     def determined(self) -> bool:
@@ -42,6 +50,13 @@ class Estimate:
         if self.at_bound:
             out.append(f"the fit ended on its {self.at_bound} bound")
         return out
+
+    def pull(self) -> str:
+        """How much a prior set the value (empty without one)."""
+        if not math.isfinite(self.prior_share):
+            return ""
+        return (f"prior {100 * self.prior_share:.0f} % of the information; data alone "
+                f"{self.data_value:.6g}")
 
     @property
     def relative_change(self) -> float:
@@ -68,11 +83,17 @@ class IdentificationResult:
     search: list[dict] = field(default_factory=list)
     diagnostics: dict = field(default_factory=dict)
 
+    @property
+    def fitted_names(self) -> list[str]:
+        """The continuous parameters of the final fit (the rows of ``correlation``): not the
+        searched delays, nor those that kept the file's value."""
+        return [e.name for e in self.estimates if not e.searched and not e.kept]
+
     def to_dict(self) -> dict:
         def number(v: float):
             return None if not math.isfinite(v) else v
 
-        names = [e.name for e in self.estimates if not e.searched]
+        names = self.fitted_names
         return {
             "airframe": self.airframe.name,
             "estimates": [{"name": e.name, "nominal": e.nominal, "value": e.value,
@@ -81,6 +102,10 @@ class IdentificationResult:
                            "relative_change": number(e.relative_change),
                            "determined": e.determined, "flags": e.flags(),
                            **({"excitation": e.excitation} if e.excitation else {}),
+                           **({"kept_file_value": e.kept} if e.kept else {}),
+                           **({"data_only_value": e.data_value,
+                               "prior_share": e.prior_share}
+                              if math.isfinite(e.prior_share) else {}),
                            **({"searched": True} if e.searched else {}),
                            **({"at_bound": e.at_bound} if e.at_bound else {})}
                           for e in self.estimates],

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavdyn.airframes import BOUNDS, CONTROL_RANGES, DELAY_MAX_SAMPLES, Airframe
+from uavdyn.airframes import BOUNDS, CONTROL_RANGES, DELAY_MAX_SAMPLES, SIGNS, Airframe, sign_range
 from uavdyn.airframes.tables import VALUE_LIMITS
 from uavdyn.flightdata import Sortie
 from uavdyn.identify.errors import IdentifyError
@@ -64,6 +64,7 @@ def _check_request(airframe: Airframe, names: list[str], sorties: list[Sortie],
         raise IdentifyError(f"sortie(s) {wrong[:3]} are of another kind than airframe "
                             f"'{airframe.name}' ({airframe.kind})")
     continuous = [n for n in names if n not in delay_names]
+    check_signs(airframe, continuous)
     searched = [n[len(DELAY_PREFIX):] for n in names if n in delay_names]
     return continuous, searched
 
@@ -124,18 +125,41 @@ def _at_bound(value: float, low: float, high: float) -> str:
 
 def _bound_of(airframe: Airframe, name: str) -> tuple[float, float, bool, bool]:
     """The physical range of a parameter ``(low, high, low_open, high_open)``: the schema's
-    bound (its physical meaning and sign convention: a coefficient may take either sign, a
-    time constant is >= 0, a share lies in [0, 1]), a table's value limit, or
-    :data:`TAU_BOUNDS` / :data:`SLEW_BOUNDS` for a time constant / slew time."""
+    bound, narrowed to the sign physics gives the derivative by its meaning and the sign
+    convention (:data:`uavdyn.airframes.SIGNS`: ``C_L_alpha > 0``, ``C_m_q < 0``,
+    ``C_m_delta_e < 0``, ``C_m_alpha < 0`` unless the file declares ``relaxed_stability``;
+    other coefficients may take either sign, a time constant is >= 0, a share lies in
+    [0, 1]), a table's value limit, or :data:`TAU_BOUNDS` / :data:`SLEW_BOUNDS` for a time
+    constant / slew time."""
     if name in START_GRIDS:
         return (*START_GRIDS[name][2], False, False)
     if name in BOUNDS[airframe.kind]:
         bound = BOUNDS[airframe.kind][name]
-        return bound.low, bound.high, bound.low_open, bound.high_open
+        low, high, low_open, high_open = bound.low, bound.high, bound.low_open, bound.high_open
+        signed = sign_range(airframe.kind, name, airframe.relaxed_stability)
+        if signed is not None and signed[0] > low:
+            low, low_open = signed[0], True
+        if signed is not None and signed[1] < high:
+            high, high_open = signed[1], True
+        return low, high, low_open, high_open
     table = name.split("_table_")[0]
     if table in VALUE_LIMITS:
         return -VALUE_LIMITS[table], VALUE_LIMITS[table], False, False
     return -math.inf, math.inf, True, True
+
+
+def check_signs(airframe: Airframe, names: list[str]) -> None:
+    """Refuse a fit starting from a file value of the wrong sign (:data:`SIGNS`)."""
+    for name in names:
+        signed = sign_range(airframe.kind, name, airframe.relaxed_stability)
+        value = float(getattr(airframe.params, name)) if signed is not None else 0.0
+        if signed is not None and not signed[0] < value < signed[1]:
+            sign = SIGNS[airframe.kind][name]
+            hint = (" (an airframe unstable by design: declare relaxed_stability = true in "
+                    "the file)" if sign.relaxable else "")
+            raise IdentifyError(f"the fit of '{name}' starts from its value {value:g} in the "
+                                f"airframe file '{airframe.name}', of the wrong sign: "
+                                f"{sign.why}{hint}")
 
 
 def _theta_bounds(airframe: Airframe, names: list[str], p_nom: np.ndarray, scale: np.ndarray,
