@@ -23,7 +23,13 @@ from uavdyn.flightdata.csvio import write_csv
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.flightlog import FlightLog
 from uavdyn.flightdata.manifest import write_manifest
-from uavdyn.flightdata.segments import SegmentReport, SegmentRules, find_segments, segment_sorties
+from uavdyn.flightdata.segments import (
+    SegmentReport,
+    SegmentRules,
+    find_segments,
+    lateral_record,
+    segment_sorties,
+)
 from uavdyn.flightdata.split import assign_split, split_rule
 from uavdyn.flightdata.timeline import draw_timeline
 
@@ -182,6 +188,8 @@ def log_record(flight: FlightLog, report: SegmentReport | None, files: list[str]
         record["grid"] = meta["grid"]
     if report is not None:
         record["segmentation"] = report.as_dict()
+        if report.rules.turns:  # the channels fed to the model as recorded inputs
+            record["lateral_inputs"] = lateral_record(flight)
     else:
         record["no_segment"] = reason
     return record
