@@ -2,7 +2,8 @@
 
 CSV header: fixed wing ``time,u,w,q,theta,elevator,throttle``; multirotor
 ``time,u,w,q,theta,collective,pitch_cmd``; either optionally followed by the recorded
-turning-flight columns ``phi,p,r,beta`` (rad, rad/s, rad/s, rad: inputs like the controls). SI units, radians, body axes (x forward, z down).
+turning-flight columns ``phi,p,r,beta`` (rad, rad/s, rad/s, rad: inputs like the controls).
+SI units, radians, body axes (x forward, z down).
 Row k's controls are held over [t_k, t_k+1) (zero-order hold). Files are plain ASCII; a UTF-8
 byte-order mark and CRLF line ends are accepted (they parse unambiguously). A file larger than
 :data:`CSV_MAX_BYTES` is refused before any byte is read.
