@@ -62,6 +62,11 @@ class Airframe:
         lateral = [getattr(self.params, n) for n in LATERAL_PARAMS] if self.lateral else []
         return np.array(core + table_values + lateral, dtype=float)
 
+    def for_inputs(self, lateral: bool) -> Airframe:
+        """This airframe with (or without) the lateral inputs the data carry: ``self`` when
+        it already matches (see :meth:`with_lateral`)."""
+        return self if bool(lateral) == self.lateral else self.with_lateral(bool(lateral))
+
     def with_lateral(self, on: bool = True) -> Airframe:
         """A copy whose model takes (``on``) or not the lateral inputs of turning flight. On
         needs the roll and yaw inertias ``Jx``, ``Jz`` (kg m^2) in the file's ``[params]``."""

@@ -123,7 +123,6 @@ class Dataset:
         """Whether the sorties carry the recorded lateral inputs (turning flight)."""
         return bool(self.sorties) and self.sorties[0].lateral
 
-    @property
     def normalisation(self) -> Normalisation:
         """Normalisation statistics from the training split only (never validation/test)."""
         return normalisation(self.train)
