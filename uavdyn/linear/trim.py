@@ -264,6 +264,8 @@ def trim_many(airframes: Sequence[Airframe], airspeeds: Sequence[float | None],
     """
     if len(airspeeds) != len(airframes):
         raise ValueError(f"{len(airspeeds)} airspeeds for {len(airframes)} airframes")
+    # trims are wings level: an airframe taking lateral inputs is trimmed with them at zero
+    airframes = [a.for_inputs(False) for a in airframes]
     outcomes: list[TrimPoint | TrimError | None] = [None] * len(airframes)
     speeds = np.zeros(len(airframes))
     groups: dict[ModelStructure, list[int]] = {}
