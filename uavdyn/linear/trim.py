@@ -218,6 +218,13 @@ def _initial_guess(airframe: Airframe, V: float, gamma: float, rho: float) -> np
     return np.array([-0.05 if V > 0 else 0.0, (omega - P.omega_b) / P.C_R, 0.0])
 
 
+def step_inputs(airframe: Airframe, u) -> np.ndarray:
+    """A trim command as the input of ``airframe``'s step: with lateral inputs (turning
+    flight) the controls followed by ``phi = p = r = beta = 0`` (trims are wings level)."""
+    u = np.asarray(u, float).ravel()
+    return np.concatenate([u, np.zeros(4)]) if airframe.lateral and u.size == 2 else u
+
+
 def trim(airframe: Airframe, airspeed: float | None = None, gamma: float = 0.0,
          altitude_m: float | None = None) -> TrimPoint:
     """Trim ``airframe`` at ``airspeed`` (m/s; default its nominal speed) and flight-path angle
