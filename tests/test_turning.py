@@ -286,3 +286,37 @@ def test_mixed_lateral_and_wings_level_sorties_are_refused(tmp_path, trainer):
                                            for s in (a, b)])
     with pytest.raises(FlightDataError, match="all have them or none"):
         load_dataset(tmp_path)
+
+
+def test_export_c_with_the_lateral_inputs(tmp_path):
+    out = tmp_path / "bundle"
+    assert main(["export-c", "--airframe", str(TRAINER), "--model", "rk4", "--lateral",
+                 "--out", str(out)]) == 0
+    header = (out / "uav_step.h").read_text()
+    assert "#define UAV_STEP_NU 6" in header
+    assert "u = [elevator, throttle, phi, p, r, beta]" in header
+
+
+def test_a_weight_file_records_the_lateral_inputs(tmp_path, trainer):
+    """n_controls = 6 survives the file; a network for 6 inputs refuses a wings-level step."""
+    from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights, save_weights
+    from uavdyn.model import structure_of as structure
+
+    al = trainer.with_lateral()
+    n_state = structure(al).nx()
+    n_in = n_state + 6
+    rng = np.random.default_rng(0)
+    widths = [n_in, 8, 8, 8, 3]
+    net = CorrectionNet(
+        formulation="improved", activation="tanh", kind="fixed_wing",
+        airframe_hash=al.param_hash(), dt=0.05, n_state=n_state, n_controls=6,
+        weights=tuple(rng.normal(size=(widths[i + 1], widths[i])) for i in range(4)),
+        biases=tuple(np.zeros(widths[i + 1]) for i in range(4)),
+        in_mean=np.zeros(n_in), in_scale=np.ones(n_in), out_mean=np.zeros(3),
+        out_scale=np.ones(3))
+    path = save_weights(net, tmp_path / "w.npz")
+    back = load_weights(path)
+    assert back.n_controls == 6 and back.n_in == n_in
+    assert back.layout(structure(al)).nu == 6
+    with pytest.raises(WeightFileError, match="n_controls"):
+        back.layout(structure(trainer))
