@@ -57,6 +57,45 @@ def per_segment(result: dict) -> list[tuple[str, float, float]]:
     return [(s, c["nominal physics"], c["identified physics"]) for s, c in sorted(cells.items())]
 
 
+def sums(result: dict) -> dict[str, dict[str, tuple[float, int]]]:
+    """sortie -> model -> (sum of squared 1 s pitch errors, count)."""
+    out: dict[str, dict] = {}
+    for row in result["ladder"]["per_sortie"]:
+        h = row["horizon_1s"]
+        out.setdefault(row["sortie"], {})[row["model"]] = (float(h["sse"]), int(h["n"]))
+    return out
+
+
+def stretches(data: Path, out: Path, bank_deg: float = 10.0, min_s: float = 3.0
+              ) -> tuple[Path, dict[str, float]]:
+    """The test sorties of a ``--turns`` dataset cut into wings-level (``|phi| <= bank_deg``)
+    and turning stretches of at least ``min_s``, as a dataset whose sorties are all test."""
+    from uavdyn.flightdata import Sortie, load_dataset
+    from uavdyn.flightdata.csvio import write_csv
+    from uavdyn.flightdata.manifest import write_manifest
+
+    ds = load_dataset(data)
+    entries = []
+    for s in ds.test:
+        turning = np.abs(np.degrees(s.controls[:, 2])) > bank_deg
+        edges = np.flatnonzero(np.diff(turning.astype(int))) + 1
+        bounds = [0, *edges.tolist(), len(s.time)]
+        counts = {"level": 0, "turn": 0}
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            if (b - a - 1) * s.dt < min_s:
+                continue
+            what = "turn" if turning[a] else "level"
+            counts[what] += 1
+            piece = Sortie(f"{s.name}_{what}{counts[what]:02d}", s.kind,
+                           s.time[a:b] - s.time[a], s.states[a:b], s.controls[a:b])
+            write_csv(piece, out / f"{piece.name}.csv")
+            entries.append({"file": f"{piece.name}.csv", "mission": what,
+                            "duration_s": round(piece.duration, 6), "split": "test"})
+    write_manifest(out, airframe="", kind=ds.kind, sample_rate_hz=ds.sample_rate_hz,
+                   source=f"stretches of the test sorties of {data.name}", sorties=entries)
+    return out, {e["file"][:-4]: e["duration_s"] for e in entries}
+
+
 def pooled(result: dict) -> tuple[float, float]:
     head = next(h for h in result["ladder"]["headline"] if h["mode"] == "horizon_1s")
     return (head["models"]["nominal physics"]["rmse"],
@@ -94,7 +133,37 @@ def case(work: Path, flights: Path, name: str, turns: bool) -> dict:
             "pooled": pooled(result)}
 
 
-def page(flights, level: dict, turn: dict, cross: dict, estimates: list, took: float) -> str:
+def stretch_lines(split: dict) -> list[str]:
+    """The held-out flight's wings-level and turning stretches: 1 s pitch RMSE of the nominal
+    airframe and of each identified one, all with the lateral inputs."""
+    lines = ["### The held-out flight in wings-level and turning stretches", "",
+             "The test log's `--turns` segment cut at `|phi| = 10 deg` into stretches of at "
+             "least 3 s, each scored by `uavdyn evaluate` with the lateral inputs (so the "
+             "turns through the model's bank and turn-rate terms): the nominal airframe, the "
+             "one identified without item 2 (on wings-level segments only) and the one "
+             "identified with it (on the whole train flights).", "",
+             "| stretch | seconds | nominal (rad) | identified without item 2 (rad) | identified "
+             "with item 2 (rad) |", "|---|---|---|---|---|"]
+    level, turn, seconds = split["level"], split["turn"], split["seconds"]
+    pools: dict[str, list] = {}
+    for name in sorted(level, key=lambda n: (n.split("_")[-1][:-2], n)):
+        nom, n = level[name]["nominal physics"]
+        a = level[name]["identified physics"][0]
+        b = turn[name]["identified physics"][0]
+        what = "turn" if "_turn" in name else "level"
+        pools.setdefault(what, []).append((nom, a, b, n, seconds[name]))
+        lines.append(f"| {name} | {seconds[name]:.1f} | {np.sqrt(nom / n):.4f} | "
+                     f"{np.sqrt(a / n):.4f} | {np.sqrt(b / n):.4f} |")
+    for what, rows in sorted(pools.items()):
+        n = sum(r[3] for r in rows)
+        nom, a, b = (np.sqrt(sum(r[i] for r in rows) / n) for i in range(3))
+        total = sum(r[4] for r in rows)
+        lines.append(f"| **pooled {what}** | {total:.1f} | {nom:.4f} | {a:.4f} | {b:.4f} |")
+    return lines + [""]
+
+
+def page(flights, level: dict, turn: dict, cross: dict, estimates: list, took: float,
+         split: dict) -> str:
     durations = {f"flight{k}_{f.rate_hz:g}hz": f.duration for k, f in enumerate(flights, 1)}
     total = sum(durations.values())
     k_level, k_turn = kept_by_log(level["manifest"]), kept_by_log(turn["manifest"])
@@ -148,6 +217,7 @@ def page(flights, level: dict, turn: dict, cross: dict, estimates: list, took: f
             lines.append(f"| {name} | {nom:.4f} | {ident:.4f} | {ident / nom:.2f} |")
         p = c["pooled"]
         lines += [f"| **pooled** | {p[0]:.4f} | {p[1]:.4f} | {p[1] / p[0]:.2f} |", ""]
+    lines += stretch_lines(split)
     lines += ["## Estimates against the truth", "",
               "| parameter | nominal | truth | without item 2 | with item 2 |",
               "|---|---|---|---|---|"]
@@ -184,12 +254,20 @@ def main() -> int:
              turn["data"], "--out", work / "eval_cross.json"])
         cross_result = json.loads((work / "eval_cross.json").read_text())
         cross = {"segments": per_segment(cross_result), "pooled": pooled(cross_result)}
+        pieces, seconds = stretches(turn["data"], work / "stretches")
+        split = {}
+        for name, fitted in (("level", level["fitted"]), ("turn", turn["fitted"])):
+            run(["evaluate", "--airframe", AIRFRAME, "--identified", fitted, "--dataset",
+                 pieces, "--out", work / f"eval_pieces_{name}.json"])
+            split[name] = sums(json.loads((work / f"eval_pieces_{name}.json").read_text()))
+        split["seconds"] = seconds
         nominal = load_airframe(AIRFRAME)
         truth = truth_airframe(nominal)
         a, b = load_airframe(level["fitted"]), load_airframe(turn["fitted"])
         estimates = [(n, getattr(nominal.params, n), getattr(truth.params, n),
                       getattr(a.params, n), getattr(b.params, n)) for n in PARAMS.split(",")]
-        text = page(flights, level, turn, cross, estimates, time.perf_counter() - start)
+        text = page(flights, level, turn, cross, estimates, time.perf_counter() - start,
+                    split)
     print(text)
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
