@@ -320,3 +320,23 @@ def test_a_weight_file_records_the_lateral_inputs(tmp_path, trainer):
     assert back.layout(structure(al)).nu == 6
     with pytest.raises(WeightFileError, match="n_controls"):
         back.layout(structure(trainer))
+
+
+def test_the_emulator_with_zero_lateral_inputs_flies_the_wings_level_truth(trainer):
+    """The truth's turning terms vanish with the lateral inputs at zero, and a bank makes the
+    truth need more lift (it sinks without more elevator)."""
+    from uavdyn.emulation.autopilot import open_loop_references
+    from uavdyn.emulation.emulator import Emulator
+
+    point = trim(trainer, 15.0)
+    emulator = Emulator(trainer, sample_rate_hz=50.0, internal_dt=0.005, compiled=False)
+    n = 101
+    ref = open_loop_references(np.tile(point.u, (n, 1)))
+    x0 = emulator.initial_state(point.x, point.u, 100.0)
+    plain = emulator.fly(x0, ref)
+    zero = emulator.fly(x0, ref, lateral=np.zeros((n, 4)))
+    assert np.array_equal(plain.true_states, zero.true_states)
+    bank = np.tile([math.radians(30.0), 0.0, G * math.tan(math.radians(30.0)) / 15.0
+                    * math.cos(math.radians(30.0)), 0.0], (n, 1))
+    turned = emulator.fly(x0, ref, lateral=bank)
+    assert turned.aux["h"][-1] < plain.aux["h"][-1] - 0.5
