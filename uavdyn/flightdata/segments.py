@@ -66,15 +66,15 @@ class SegmentRules:
     max_bank_deg: float = 60.0
 
     def __post_init__(self) -> None:
-        if self.max_bank_deg >= 90.0:
-            raise FlightDataError(f"segment rule max_bank_deg must be below 90 deg, got "
-                                  f"{self.max_bank_deg!r}")
         for key in ("max_roll_deg", "max_yaw_rate_deg_s", "max_sideslip_deg", "min_duration_s",
                     "max_bank_deg"):
             value = getattr(self, key)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise FlightDataError(f"segment rule {key} must be a positive number, got "
                                       f"{value!r}")
+        if self.max_bank_deg >= 90.0:
+            raise FlightDataError(f"segment rule max_bank_deg must be below 90 deg, got "
+                                  f"{self.max_bank_deg!r}")
         if self.min_speed_m_s is not None and not (math.isfinite(self.min_speed_m_s)
                                                    and self.min_speed_m_s >= 0):
             raise FlightDataError(f"segment rule min_speed_m_s must be >= 0, got "
@@ -184,8 +184,9 @@ def rule_masks(flight: FlightLog, rules: SegmentRules) -> tuple[dict[str, np.nda
             unchecked.append("sideslip (the velocities are not air relative)")
         if flight.airborne is None and floor == 0:
             unchecked.append("airborne (the log has no in-air flag; give --min-speed)")
-        used = np.column_stack([flight.states(), c["roll"], c["r"], flight.controls]
-                               + ([c["p"]] if rules.turns else []))
+        lateral = ([c["p"]] + ([c["v"]] if flight.velocity_reference == "air" else [])
+                   if rules.turns else [])  # what the lateral inputs are made of
+        used = np.column_stack([flight.states(), c["roll"], c["r"], flight.controls, *lateral])
         masks["sensor gap or invalid value"] = ~np.all(np.isfinite(used), axis=1)
         limits = state_limits(flight.kind)
         states = flight.states()
