@@ -151,6 +151,10 @@ def plan_log_dataset(flights: FlightLog | list[FlightLog], rules: SegmentRules |
         if own and abs(own * flight.dt - 1.0) > 1e-6:
             lines += [f"  logged at {own:.6g} Hz, resampled to {1 / flight.dt:.6g} Hz"]
         lines += [f"  control map: {text}" for text in control_map_text(flight.meta)]
+        if report is not None and report.rules.turns:
+            fed = lateral_record(flight)
+            lines += ["  turning flight used: the model's lateral inputs are "
+                      + "; ".join(f"{k} = {v}" for k, v in fed.items())]
         lines += [f"  grid: {flight.meta['grid']}"] if flight.meta.get("grid") else []
     lines += [f"split: {_split_counts(splits, sorties)} (by {rule['by']}"
               + (f"; {rule['note']})" if rule.get("note") else ")")]
