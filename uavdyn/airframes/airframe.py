@@ -14,6 +14,7 @@ from uavdyn.airframes.bounds import _as_number, _check_values
 from uavdyn.airframes.errors import AirframeError
 from uavdyn.airframes.limits import CONTROL_RANGES, RATE_SUFFIX, _parse_delays
 from uavdyn.airframes.params import (
+    LATERAL_PARAMS,
     OPTIONAL_PARAMS,
     PARAM_CLASSES,
     ParamsType,
@@ -44,20 +45,39 @@ class Airframe:
     # The file declares the airframe statically unstable by design (C_m_alpha may be >= 0 in a
     # fit); a constraint of identification, not of the model (not in param_hash).
     relaxed_stability: bool = False
+    # The model takes the recorded lateral channels (phi, p, r, beta) as inputs (turning
+    # flight; :meth:`with_lateral`). Not a file key: set from the data the model is fed.
+    lateral: bool = False
 
     @property
     def param_names(self) -> tuple[str, ...]:
         """Names of ``p``: the kind's parameters, then the values of each table (sorted by
-        table name, row-major)."""
+        table name, row-major), then with lateral inputs ``Jx, Jz, Jxz``."""
         return param_names(self.kind) + tuple(
-            n for name in sorted(self.tables) for n in self.tables[name].value_names())
+            n for name in sorted(self.tables) for n in self.tables[name].value_names()) + (
+            LATERAL_PARAMS if self.lateral else ())
 
     @property
     def p(self) -> np.ndarray:
         """The numeric parameter vector in model order."""
         core = [getattr(self.params, n) for n in param_names(self.kind)]
         table_values = [v for name in sorted(self.tables) for v in self.tables[name].values]
-        return np.array(core + table_values, dtype=float)
+        lateral = [getattr(self.params, n) for n in LATERAL_PARAMS] if self.lateral else []
+        return np.array(core + table_values + lateral, dtype=float)
+
+    def for_inputs(self, lateral: bool) -> Airframe:
+        """This airframe with (or without) the lateral inputs the data carry: ``self`` when
+        it already matches (see :meth:`with_lateral`)."""
+        return self if bool(lateral) == self.lateral else self.with_lateral(bool(lateral))
+
+    def with_lateral(self, on: bool = True) -> Airframe:
+        """A copy whose model takes (``on``) or not the lateral inputs of turning flight. On
+        needs the roll and yaw inertias ``Jx``, ``Jz`` (kg m^2) in the file's ``[params]``."""
+        if on and not (self.params.Jx > 0.0 and self.params.Jz > 0.0):
+            raise AirframeError(
+                f"airframe '{self.name}': turning flight (lateral inputs phi, p, r, beta) needs "
+                "the roll and yaw inertias Jx and Jz (kg m^2, and Jxz if not 0) in [params]")
+        return dataclasses.replace(self, lateral=bool(on))
 
     def delay_samples(self) -> tuple[int, ...]:
         """The transport delay of each control in model order (samples of the step)."""
@@ -97,6 +117,8 @@ class Airframe:
             doc["delays"] = delays
         if self.atmosphere != "constant":
             doc["atmosphere"] = self.atmosphere
+        if self.lateral:
+            doc["lateral"] = [repr(float(getattr(self.params, n))) for n in LATERAL_PARAMS]
         if self.tables:
             doc["tables"] = {n: [list(map(list, (b for _, b in t.axes))),
                                  [a for a, _ in t.axes], [repr(v) for v in t.values]]

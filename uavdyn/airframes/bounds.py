@@ -199,6 +199,7 @@ def _check_values(values: dict[str, float], kind: str, origin: str) -> None:
         if problem:
             raise AirframeError(f"{origin}: parameter '{name}' {problem}, got {values[name]!r} "
                                 f"(allowed {bound.describe()}: {bound.why})")
+    _check_lateral_inertias(values, origin)
     if kind == "fixed_wing":
         denominator = alpha_dot_denominator(values)
         if not denominator >= ALPHA_DOT_DENOMINATOR_MIN:
@@ -208,3 +209,16 @@ def _check_values(values: dict[str, float], kind: str, origin: str) -> None:
                 f"below {ALPHA_DOT_DENOMINATOR_MIN:g}: a negative alpha-dot lift that large "
                 "is not a physical airframe (the closed form would amplify alpha_dot "
                 f"{1 / max(denominator, 1e-300):.3g}-fold)")
+
+
+def _check_lateral_inertias(values: dict[str, float], origin: str) -> None:
+    """The optional roll/yaw inertias (turning-flight inputs): ``Jx``, ``Jz`` >= 0 and, where
+    both are given, a positive-definite roll/yaw inertia ``Jxz^2 < Jx Jz``."""
+    jx, jz, jxz = (values.get(k, 0.0) for k in ("Jx", "Jz", "Jxz"))
+    for name, value in (("Jx", jx), ("Jz", jz)):
+        if value < 0.0 or value > 1e6:
+            raise AirframeError(f"{origin}: parameter '{name}' must be in [0, 1e6] kg m^2, got "
+                                f"{value!r}")
+    if jx > 0.0 and jz > 0.0 and not jxz * jxz < jx * jz:
+        raise AirframeError(f"{origin}: parameter 'Jxz' = {jxz!r} makes the roll/yaw inertia "
+                            f"not positive definite (need Jxz^2 < Jx Jz = {jx * jz:.4g})")

@@ -77,6 +77,7 @@ from uavdyn.airframes.errors import AirframeError, _display, _short
 from uavdyn.airframes.limits import _parse_delays, _parse_limits
 from uavdyn.airframes.params import (
     KINDS,
+    LATERAL_PARAMS,
     OPTIONAL_PARAMS,
     PARAM_CLASSES,
     param_names,
@@ -289,12 +290,12 @@ def _parse_params(raw: object, kind: str, origin: str
     if not isinstance(raw, dict):
         raise AirframeError(f"{origin}: key 'params' must be a table of parameters, got "
                             f"{_short(raw)}")
-    names = param_names(kind)
+    names = param_names(kind) + LATERAL_PARAMS
     unknown = set(raw) - set(names)
     if unknown:
         raise AirframeError(f"{origin}: unknown parameter key(s) {_key_list(unknown)} for kind "
                             f"'{kind}'")
-    optional = OPTIONAL_PARAMS[kind]
+    optional = {**OPTIONAL_PARAMS[kind], **dict.fromkeys(LATERAL_PARAMS, 0.0)}
     missing = [n for n in names if n not in raw and n not in optional]
     if missing:
         raise AirframeError(f"{origin}: missing parameter key(s) {missing}")
@@ -303,7 +304,9 @@ def _parse_params(raw: object, kind: str, origin: str
     for name_ in names:
         if name_ not in raw:
             values[name_] = float(optional[name_])
-            sources[name_] = f"optional key not set: default {optional[name_]!r} (no effect)"
+            sources[name_] = (f"optional key not set: default {optional[name_]!r} (no effect)"
+                              if name_ not in LATERAL_PARAMS else
+                              "optional key not set (needed only with turning-flight inputs)")
             continue
         entry = raw[name_]
         if isinstance(entry, dict):
@@ -333,6 +336,10 @@ def to_toml_dict(airframe: Airframe) -> dict:
         "params": {n: {"value": getattr(airframe.params, n), "source": airframe.sources.get(n, "")}
                    for n in param_names(airframe.kind)},
     }
+    for n in LATERAL_PARAMS:  # written only when set, so a preset's copy is unchanged
+        if getattr(airframe.params, n) != 0.0:
+            out["params"][n] = {"value": getattr(airframe.params, n),
+                                "source": airframe.sources.get(n, "")}
     if airframe.limits:  # written only when set, so a preset's copy is unchanged
         out["limits"] = {k: list(v) if isinstance(v, tuple) else v
                          for k, v in airframe.limits.items()}

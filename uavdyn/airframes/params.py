@@ -58,6 +58,10 @@ class FixedWingParams:
     eta_slipstream: float = 0.0
     C_D_Re: float = 0.0
     C_m_Re: float = 0.0
+    # Turning-flight inertias (kg m^2): read only with lateral inputs; see LATERAL_PARAMS.
+    Jx: float = 0.0
+    Jz: float = 0.0
+    Jxz: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -82,19 +86,30 @@ class MultirotorParams:
     k_inflow: float = 0.0
     M_u: float = 0.0
     M_0: float = 0.0
+    # Turning-flight inertias (kg m^2): read only with lateral inputs; see LATERAL_PARAMS.
+    Jx: float = 0.0
+    Jz: float = 0.0
+    Jxz: float = 0.0
 
 
 ParamsType = Union[FixedWingParams, MultirotorParams]  # noqa: UP007 (runtime alias, py3.10)
 PARAM_CLASSES: dict[str, type] = {"fixed_wing": FixedWingParams, "multirotor": MultirotorParams}
 
+# The roll/yaw inertias the turning-flight terms need (SPEC section 2, lateral inputs): optional
+# keys of every kind, outside ``p`` (and the hash) unless the model takes lateral inputs, where
+# they follow the table values (:attr:`uavdyn.airframes.Airframe.param_names`).
+LATERAL_PARAMS = ("Jx", "Jz", "Jxz")
+
 # Optional parameters per kind and their defaults: the dataclass fields that have a default. A
 # file may leave them out; at their default they change nothing (see Airframe.param_hash).
 OPTIONAL_PARAMS: dict[str, dict[str, float]] = {
-    kind: {f.name: f.default for f in fields(cls) if f.default is not dataclasses.MISSING}
+    kind: {f.name: f.default for f in fields(cls)
+           if f.default is not dataclasses.MISSING and f.name not in LATERAL_PARAMS}
     for kind, cls in PARAM_CLASSES.items()}
 
 
-_PARAM_NAMES = {kind: tuple(f.name for f in fields(cls)) for kind, cls in PARAM_CLASSES.items()}
+_PARAM_NAMES = {kind: tuple(f.name for f in fields(cls) if f.name not in LATERAL_PARAMS)
+                for kind, cls in PARAM_CLASSES.items()}
 
 
 def param_names(kind: str) -> tuple[str, ...]:

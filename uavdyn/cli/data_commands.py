@@ -164,7 +164,8 @@ def cmd_import_log(args: argparse.Namespace) -> int:
                                 args.rate)
     rules = SegmentRules(max_roll_deg=args.max_roll, max_yaw_rate_deg_s=args.max_yaw_rate,
                          max_sideslip_deg=args.max_sideslip, min_duration_s=args.min_duration,
-                         min_speed_m_s=args.min_speed, kinematic=not args.no_kinematic_check)
+                         min_speed_m_s=args.min_speed, kinematic=not args.no_kinematic_check,
+                         turns=args.turns, max_bank_deg=args.max_bank)
     said = rate.reason if len(flights) > 1 or args.rate else ""  # one log: its own line
     planned = plan_log_dataset(flights, rules, split_options_from(args), said)  # refusals first
     with output_folder(args.out, "import-log", args.force) as tmp:
@@ -286,6 +287,14 @@ def add_import_log(sub) -> None:
     p.add_argument("--min-speed", type=number(0.0, 200.0, name="speed"), default=None,
                    help="not flying below this body speed, m/s (default 5 for a fixed wing, "
                         "none for a multirotor; the log's in-air flag also applies)")
+    p.add_argument("--turns", action="store_true",
+                   help="keep turning and climbing flight: the bank, roll and yaw rates and "
+                        "sideslip become recorded inputs (columns phi, p, r, beta) of the "
+                        "model, and the log is cut only where unusable or beyond --max-bank "
+                        "(--max-roll and --max-yaw-rate then do not apply; the airframe file "
+                        "needs Jx, Jz, Jxz)")
+    p.add_argument("--max-bank", type=positive(89.0, "angle", "deg"), default=60.0,
+                   help="with --turns: |roll| at most this, deg (default 60)")
     p.add_argument("--no-kinematic-check", action="store_true",
                    help="keep segments whose pitch and pitch rate disagree (not advised)")
     p.add_argument("--control-map", action="append", type=control_map, default=None,

@@ -189,6 +189,8 @@ def cmd_export_c(args: argparse.Namespace) -> int:
 
     refuse_unused(args, ("--weights",), args.model != "rk4", "with --model hybrid")
     airframe = load_airframe(args.airframe)
+    if args.lateral:  # turning flight: the step takes phi, p, r, beta after the controls
+        airframe = airframe.with_lateral()
     chosen = args.model or ("hybrid" if args.weights or args.airframe in list_presets()
                             else "rk4")
     if args.model is None and chosen == "rk4":
@@ -282,6 +284,10 @@ def add_export_c(sub) -> None:
                    f"0..{MAX_ROLLOUT} (default 0: one step)")
     p.add_argument("--dt", type=STEP, default=0.005, help="default step in s, 1e-6..1 "
                    "(default 0.005)")
+    p.add_argument("--lateral", action="store_true",
+                   help="the step with the turning-flight inputs phi, p, r, beta after the "
+                        "controls (needs Jx, Jz, Jxz in the airframe file; the weights of a "
+                        "correction trained on turning-flight data need it)")
     p.add_argument("--name", default="uav_step", type=c_identifier,
                    help="C name of the exported function (a C identifier)")
     p.add_argument("--out", default="results/c_bundle", type=folder_to_write,

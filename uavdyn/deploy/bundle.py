@@ -22,6 +22,7 @@ import numpy as np
 from uavdyn.integrate import DiscreteModel, generate_c
 from uavdyn.integrate.c_loop import loop_work_sizes, write_loop_source
 from uavdyn.linear import TrimPoint, point_params
+from uavdyn.linear.trim import step_inputs
 from uavdyn.outputs import output_folder
 
 C_FLAGS = "-std=c99 -O2 -Wall -Wextra -Werror"
@@ -75,9 +76,9 @@ def model_bundle_spec(name: str, model: DiscreteModel, point: TrimPoint, dt: flo
     x = np.asarray(point.x, float)
     if model.layout.with_position:
         x = np.concatenate([x, [0.0, point.altitude_m or 0.0]])
+    u = step_inputs(model.airframe, point.u)  # lateral inputs (turning flight): wings level
     return BundleSpec(name, model.state_names, model.control_names, model.param_names, p,
-                      model.initial_state(x, point.u, p, dt), np.asarray(point.u, float), dt,
-                      **options)
+                      model.initial_state(x, u, p, dt), u, dt, **options)
 
 
 def _state_notes(state_names: tuple[str, ...]) -> list[str]:

@@ -144,25 +144,28 @@ class SensorNoise:
 
 
 @cache
-def log_interval_step(kind: str, substeps: int) -> ca.Function:
+def log_interval_step(kind: str, substeps: int, lateral: bool = False) -> ca.Function:
     """One log interval: autopilot command (held), then ``substeps`` RK4 steps of the emulator.
     Signature ``(z=[x; pe; dt_log; limits; cmd_prev], r=[ref; gust; wind]) -> (z_next, cmd,
     aux)`` for ``mapaccum``: the command is saturated at the travel and rate ``limits``
     (:data:`COMMAND_LIMIT_NAMES`) from the previous command ``cmd_prev`` (which ``z_next``
     carries on); gust and inertial wind are held over the interval, the wind's body
-    components follow the pitch inside every RK4 stage."""
-    f = emulator_rhs(kind, with_wind=True)
+    components follow the pitch inside every RK4 stage. ``lateral``: ``r`` ends with the
+    prescribed ``[phi, p, r, beta]`` held over the interval, and ``pe`` with ``[Jx, Jz, Jxz]``
+    (turning flight, :func:`uavdyn.emulation.truth.emulator_rhs`)."""
+    f = emulator_rhs(kind, with_wind=True, lateral=lateral)
     step = rk4_step(f, "emulator_rk4")
     nx, n_pe, n_lim = f.size1_in(0), f.size1_in(2), len(COMMAND_LIMIT_NAMES)
+    n_d = len(GUST_NAMES) + len(WIND_NAMES)
     z = ca.SX.sym("z", nx + n_pe + 1 + n_lim + 2)
-    r = ca.SX.sym("r", len(REFERENCE_NAMES) + len(GUST_NAMES) + len(WIND_NAMES))
+    r = ca.SX.sym("r", len(REFERENCE_NAMES) + n_d + (4 if lateral else 0))
     x, pe, dt_log = z[:nx], z[nx:nx + n_pe], z[nx + n_pe]
     limits, previous = z[nx + n_pe + 1:nx + n_pe + 1 + n_lim], z[nx + n_pe + 1 + n_lim:]
-    disturbance = r[len(REFERENCE_NAMES):]
+    disturbance = r[len(REFERENCE_NAMES):len(REFERENCE_NAMES) + n_d]
     cmd = autopilot(kind, x, r[:len(REFERENCE_NAMES)], disturbance, limits)
     cmd = rate_limit(cmd, previous, limits[4:], dt_log)
-    v = ca.vertcat(cmd, disturbance)
-    aux = emulator_aux(kind, with_wind=True)(x, v, pe)
+    v = ca.vertcat(cmd, r[len(REFERENCE_NAMES):])
+    aux = emulator_aux(kind, with_wind=True, lateral=lateral)(x, v, pe)
     h = dt_log / substeps
     xk = x
     for _ in range(substeps):
@@ -173,14 +176,14 @@ def log_interval_step(kind: str, substeps: int) -> ca.Function:
 
 
 @cache
-def emulator_rollout(kind: str, n_intervals: int, substeps: int, compiled: bool = True
-                     ) -> ca.Function:
+def emulator_rollout(kind: str, n_intervals: int, substeps: int, compiled: bool = True,
+                     lateral: bool = False) -> ca.Function:
     """ONE Function for a whole sortie: ``(x0, pe, dt_log, R[15 x N], limits[6], cmd0[2]) ->
     (X[nx x N+1], CMD[2 x N], AUX[4 x N])`` built with ``mapaccum`` (a loop in the generated
     C) and compiled (cached on disk by content hash). ``limits`` are the autopilot's command
     limits (:data:`COMMAND_LIMIT_NAMES`), ``cmd0`` the command before the first interval
     (where the rate limit starts from)."""
-    body = log_interval_step(kind, substeps)
+    body = log_interval_step(kind, substeps, lateral)
     nx = 6 + len(EXTRA_STATE_NAMES[kind])
     n_lim = len(COMMAND_LIMIT_NAMES)
     n_pe = body.size1_in(0) - nx - 1 - n_lim - 2
@@ -190,7 +193,8 @@ def emulator_rollout(kind: str, n_intervals: int, substeps: int, compiled: bool 
     R = ca.MX.sym("R", body.size1_in(1), n_intervals)
     Z, CMD, AUX = acc(ca.vertcat(x0, pe, dt, limits, cmd0), R)
     X = ca.horzcat(x0, Z[:nx, :])
-    func = ca.Function(f"emulator_{kind}_{n_intervals}_{substeps}",
+    func = ca.Function(f"emulator_{kind}_{n_intervals}_{substeps}"
+                       + ("_lateral" if lateral else ""),
                        [x0, pe, dt, R, limits, cmd0], [X, CMD, AUX],
                        ["x0", "pe", "dt", "R", "limits", "cmd0"], ["X", "cmd", "aux"])
     return compile_function(func) if compiled else func
@@ -313,14 +317,21 @@ class Emulator:
 
     def fly(self, x0: np.ndarray, references: np.ndarray, gusts: np.ndarray | None = None,
             rng: np.random.Generator | None = None, noise_scale: float = 1.0, *,
-            wind: np.ndarray | None = None) -> EmulatedFlight:
+            wind: np.ndarray | None = None, lateral: np.ndarray | None = None
+            ) -> EmulatedFlight:
         """Fly one sortie. ``references`` is ``N x 10`` (:data:`REFERENCE_NAMES`, row k held over
         log interval k); ``gusts`` ``N x 3`` body-axis turbulence or None (none); ``wind`` the
         inertial mean wind ``[W_x, W_z]`` (m/s, x forward/north, z down: a head wind of 5 m/s
         is ``[-5, 0]``), constant or ``N x 2`` (row k held over interval k), or None (calm).
         ``x0`` is the full inertial emulator state (:meth:`initial_state`). Logged: N rows at
         t_k = k dt_log, states at t_k (``u, w`` air-relative, ``q, theta`` inertial) and the
-        command held over [t_k, t_k+1). Noise needs ``rng``."""
+        command held over [t_k, t_k+1). Noise needs ``rng``.
+
+        ``lateral`` (``N x 4``, row k held over interval k): the prescribed bank angle, roll
+        and yaw rates and sideslip ``[phi, p, r, beta]`` of turning flight, which the truth's
+        longitudinal equations then feel (the bank/turn-rate terms of
+        :mod:`uavdyn.model.equations`, with the airframe's ``Jx, Jz, Jxz``); the lateral motion
+        itself is given, not simulated (no coupling back: not a full 6-DoF simulator)."""
         references = np.atleast_2d(np.asarray(references, float))
         n = references.shape[0]
         if references.shape[1] != len(REFERENCE_NAMES):
@@ -339,10 +350,20 @@ class Emulator:
                 raise ValueError(f"wind must be [W_x, W_z] or {n} x 2, got {wind.shape}")
         if not (np.all(np.isfinite(gusts)) and np.all(np.isfinite(wind))):
             raise ValueError("gusts and wind must be finite")
-        func = emulator_rollout(self.kind, n, self.substeps, self.compiled)
-        R = np.hstack([references, gusts, wind]).T
+        pe, blocks = self.pe, [references, gusts, wind]
+        if lateral is not None:
+            lateral = np.asarray(lateral, float)
+            if lateral.shape != (n, 4) or not np.all(np.isfinite(lateral)):
+                raise ValueError(f"lateral must be finite {n} x 4 [phi, p, r, beta], got "
+                                 f"{lateral.shape}")
+            P = self.airframe.params
+            pe = np.concatenate([pe, [P.Jx, P.Jz, P.Jxz]])
+            blocks.append(lateral)
+        func = emulator_rollout(self.kind, n, self.substeps, self.compiled,
+                                lateral is not None)
+        R = np.hstack(blocks).T
         x0 = np.asarray(x0, float)
-        X, CMD, AUX = func(x0, self.pe, self.dt_log, R, self.command_limits,
+        X, CMD, AUX = func(x0, pe, self.dt_log, R, self.command_limits,
                            self.actuator_command(x0))
         X, CMD, AUX = np.asarray(X).T[:n], np.asarray(CMD).T, np.asarray(AUX).T
         # Logged velocities are air-relative (what the aerodynamics see), at the same instant

@@ -11,6 +11,7 @@ from uavdyn.airframes import param_names
 from uavdyn.model import (
     CASADI_OPS,
     CONTROL_BOUNDS,
+    LATERAL_INPUT_NAMES,
     fixed_wing_forces,
     multirotor_forces,
     rigid_body_rates,
@@ -139,9 +140,11 @@ def _with_param(p, kind: str, **values):
     return ca.vertcat(*entries)
 
 
-def _fixed_wing_rates(x, cmd, gust, p, e):
+def _fixed_wing_rates(x, cmd, gust, p, e, lateral=None, inertias=None):
     """Continuous dynamics of the fixed-wing emulator (10 states); ``gust`` is
-    ``[u_g, w_g, q_g, W_x, W_z]`` (:func:`air_relative`)."""
+    ``[u_g, w_g, q_g, W_x, W_z]`` (:func:`air_relative`); ``lateral`` = ``(phi, p, r, beta)``
+    prescribed and ``inertias`` = ``(Jx, Jz, Jxz)`` add the turning-flight terms of
+    :mod:`uavdyn.model.equations` to the rigid body (turning flight)."""
     P = symbolic_params("fixed_wing", p)
     body, elev, thr, alpha_f, sigma = x[:6], x[6], x[7], x[8], x[9]
     x_air = air_relative(x, gust)
@@ -168,7 +171,8 @@ def _fixed_wing_rates(x, cmd, gust, p, e):
                              + e["C_m_stall"] * sigma)
     sigma_target = stall_blend(alpha - e["tau_hyst"] * alpha_dot, P.M_blend, P.alpha0)
     (e_lo, e_hi), (t_lo, t_hi) = CONTROL_BOUNDS["fixed_wing"]
-    rates = rigid_body_rates(body, X, Z, M, P.mass, P.Jy, P.gravity, with_position=True)
+    rates = rigid_body_rates(body, X, Z, M, P.mass, P.Jy, P.gravity, with_position=True,
+                             lateral=lateral, inertias=inertias)
     extra = ca.vertcat(
         rate_limited_lag(elev, soft_clip(cmd[0], e_lo, e_hi), e["tau_elevator"],
                          e["rate_elevator"]),
@@ -180,9 +184,10 @@ def _fixed_wing_rates(x, cmd, gust, p, e):
     return ca.vertcat(rates, extra), ca.vertcat(alpha, V, elev, thr)
 
 
-def _multirotor_rates(x, cmd, gust, p, e):
+def _multirotor_rates(x, cmd, gust, p, e, lateral=None, inertias=None):
     """Continuous dynamics of the quadrotor emulator (8 states); ``gust`` is
-    ``[u_g, w_g, q_g, W_x, W_z]`` (:func:`air_relative`)."""
+    ``[u_g, w_g, q_g, W_x, W_z]`` (:func:`air_relative`); ``lateral``, ``inertias`` as for
+    :func:`_fixed_wing_rates`."""
     P = symbolic_params("multirotor", p)
     body, s_front, s_rear = x[:6], x[6], x[7]
     x_air = air_relative(x, gust)
@@ -204,7 +209,8 @@ def _multirotor_rates(x, cmd, gust, p, e):
     X = X0 - e["k_rotor_drag"] * omega_sum * u_air
     Z = Z0 - (d_thrust[0] + d_thrust[1])
     M = M0 + (d_thrust[0] - d_thrust[1]) * lever + e["k_flap"] * omega_sum * u_air
-    rates = rigid_body_rates(body, X, Z, M, P.mass, P.Jy, P.gravity, with_position=True)
+    rates = rigid_body_rates(body, X, Z, M, P.mass, P.Jy, P.gravity, with_position=True,
+                             lateral=lateral, inertias=inertias)
     mix_front = soft_clip(cmd[0] + P.pitch_mix * cmd[1], 0.0, 1.0)
     mix_rear = soft_clip(cmd[0] - P.pitch_mix * cmd[1], 0.0, 1.0)
 
@@ -219,32 +225,45 @@ def _multirotor_rates(x, cmd, gust, p, e):
 
 
 @cache
-def _emulator_expressions(kind: str, with_wind: bool = True):
+def _emulator_expressions(kind: str, with_wind: bool = True, lateral: bool = False):
     """Symbols and expressions of the emulator's dynamics, built once per kind. ``v`` is
-    ``[cmd (2); gust (3); wind (2)]``, or ``[cmd; gust]`` with the wind zero."""
+    ``[cmd (2); gust (3); wind (2)]``, or ``[cmd; gust]`` with the wind zero; ``lateral``
+    appends the prescribed ``[phi, p, r, beta]`` to ``v`` and ``[Jx, Jz, Jxz]`` to ``pe``
+    (turning flight: the truth integrates the longitudinal equations with the bank and
+    turn-rate terms, the lateral motion given)."""
     n_p, n_e = len(param_names(kind)), len(truth_param_names(kind))
     nx = 6 + len(EXTRA_STATE_NAMES[kind])
-    n_v = 2 + len(GUST_NAMES) + (len(WIND_NAMES) if with_wind else 0)
-    x, v, pe = ca.SX.sym("x", nx), ca.SX.sym("v", n_v), ca.SX.sym("pe", n_p + n_e)
+    n_d = len(GUST_NAMES) + (len(WIND_NAMES) if with_wind else 0)
+    n_lat = len(LATERAL_INPUT_NAMES) if lateral else 0
+    x, v = ca.SX.sym("x", nx), ca.SX.sym("v", 2 + n_d + n_lat)
+    pe = ca.SX.sym("pe", n_p + n_e + (3 if lateral else 0))
     e = {name: pe[n_p + i] for i, name in enumerate(truth_param_names(kind))}
     rates = _fixed_wing_rates if kind == "fixed_wing" else _multirotor_rates
-    disturbance = v[2:] if with_wind else ca.vertcat(v[2:], 0, 0)
-    xdot, aux = rates(x, v[:2], disturbance, pe[:n_p], e)
+    disturbance = v[2:2 + n_d] if with_wind else ca.vertcat(v[2:2 + n_d], 0, 0)
+    if lateral:
+        k = 2 + n_d
+        lat = (v[k], v[k + 1], v[k + 2], v[k + 3])
+        j = n_p + n_e
+        xdot, aux = rates(x, v[:2], disturbance, pe[:n_p], e, lat, (pe[j], pe[j + 1],
+                                                                     pe[j + 2]))
+    else:
+        xdot, aux = rates(x, v[:2], disturbance, pe[:n_p], e)
     return x, v, pe, xdot, aux
 
 
 @cache
-def emulator_rhs(kind: str, with_wind: bool = False) -> ca.Function:
+def emulator_rhs(kind: str, with_wind: bool = False, lateral: bool = False) -> ca.Function:
     """The emulator's continuous dynamics ``(x, v, pe=[p; truth]) -> (xdot)`` as an SX
     Function with the RK4-step signature of :mod:`uavdyn.integrators`: ``v = [cmd; gust]``
-    (calm mean wind), or with ``with_wind`` ``v = [cmd; gust; W_x; W_z]`` (inertial wind)."""
-    x, v, pe, xdot, _ = _emulator_expressions(kind, with_wind)
+    (calm mean wind), or with ``with_wind`` ``v = [cmd; gust; W_x; W_z]`` (inertial wind);
+    ``lateral`` as in :func:`_emulator_expressions`."""
+    x, v, pe, xdot, _ = _emulator_expressions(kind, with_wind, lateral)
     return ca.Function("emulator_f", [x, v, pe], [xdot], ["x", "u", "p"], ["xdot"])
 
 
 @cache
-def emulator_aux(kind: str, with_wind: bool = False) -> ca.Function:
+def emulator_aux(kind: str, with_wind: bool = False, lateral: bool = False) -> ca.Function:
     """``(x, v, pe) -> [alpha_air, V_air, actuator0, actuator1]`` for logging (``v`` as in
     :func:`emulator_rhs`)."""
-    x, v, pe, _, aux = _emulator_expressions(kind, with_wind)
+    x, v, pe, _, aux = _emulator_expressions(kind, with_wind, lateral)
     return ca.Function("emulator_aux", [x, v, pe], [aux])

@@ -50,6 +50,10 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
     if ds.kind != airframe.kind:
         raise ValueError(f"dataset {dataset} is of kind '{ds.kind}' but airframe "
                          f"'{airframe.name}' is '{airframe.kind}'")
+    # turning-flight sorties carry the lateral inputs: every model scored takes them too
+    airframe = airframe.for_inputs(ds.lateral)
+    if identified is not None:
+        identified = identified.for_inputs(ds.lateral)
     sorties = ds.sorties if all_sorties else ds.split(split)
     if not sorties:
         raise ValueError(f"{dataset}: no '{split}' sorties (manifest split column); give "

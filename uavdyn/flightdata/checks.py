@@ -72,7 +72,8 @@ def check_values(path: str | Path, kind: str, time: np.ndarray, states: np.ndarr
     FlightDataError
         The first problem, naming ``path``, the data row and the column.
     """
-    columns = csv_columns(kind)
+    lateral = controls.ndim == 2 and controls.shape[1] > 2
+    columns = csv_columns(kind, lateral)
     _check_finite(path, np.column_stack([time, states, controls]), columns)
     if len(time) < MIN_ROWS:
         raise FlightDataError(f"only {len(time)} data row(s); a sortie needs at least "
@@ -111,7 +112,18 @@ def check_values(path: str | Path, kind: str, time: np.ndarray, states: np.ndarr
             raise FlightDataError(f"value {controls[r, j]:.6g} is outside the control range "
                                   f"[{lo:g}, {hi:g}]", path, r + 1, name)
     if kinematic:
-        check_kinematics(path, time, states)
+        check_kinematics(path, time, pitch_kinematics(states, controls))
+
+
+def pitch_kinematics(states: np.ndarray, controls: np.ndarray) -> np.ndarray:
+    """``states`` with ``q`` replaced by the Euler pitch rate ``q cos(phi) - r sin(phi)`` where
+    the controls carry the lateral inputs (turning flight), else ``states`` itself."""
+    if controls.ndim != 2 or controls.shape[1] <= 2:
+        return states
+    phi, r = controls[:, 2], controls[:, 4]
+    out = np.array(states, dtype=float, copy=True)
+    out[:, 2] = states[:, 2] * np.cos(phi) - r * np.sin(phi)
+    return out
 
 
 def kinematic_residual(time: np.ndarray, states: np.ndarray,

@@ -1,7 +1,9 @@
 """The interchange-format CSV of one sortie: strict reading into a Sortie, and writing.
 
 CSV header: fixed wing ``time,u,w,q,theta,elevator,throttle``; multirotor
-``time,u,w,q,theta,collective,pitch_cmd``. SI units, radians, body axes (x forward, z down).
+``time,u,w,q,theta,collective,pitch_cmd``; either optionally followed by the recorded
+turning-flight columns ``phi,p,r,beta`` (rad, rad/s, rad/s, rad: inputs like the controls).
+SI units, radians, body axes (x forward, z down).
 Row k's controls are held over [t_k, t_k+1) (zero-order hold). Files are plain ASCII; a UTF-8
 byte-order mark and CRLF line ends are accepted (they parse unambiguously). A file larger than
 :data:`CSV_MAX_BYTES` is refused before any byte is read.
@@ -37,7 +39,7 @@ def write_csv(sortie: Sortie, path: str | Path) -> Path:
     """Write one sortie in the interchange CSV format (17 significant digits: lossless)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    header = ",".join(csv_columns(sortie.kind))
+    header = ",".join(csv_columns(sortie.kind, sortie.lateral))
     np.savetxt(path, sortie.to_array(), delimiter=",", header=header, comments="", fmt="%.17g")
     return path
 
@@ -172,9 +174,9 @@ def _load_csv(shown: Path, real: str | Path, kind: str | None, sample_rate_hz: f
                               ) from None
     if kind is None:
         kind = _kind_from_header(header, shown)
-    expected = csv_columns(kind)
+    expected = csv_columns(kind, lateral="phi" in header)
     _check_header(header, expected, shown)
-    time, states, controls = data[:, 0], data[:, 1:5], data[:, 5:7]
+    time, states, controls = data[:, 0], data[:, 1:5], data[:, 5:]
     if check:
         check_values(shown, kind, time, states, controls, sample_rate_hz)
     else:

@@ -118,6 +118,11 @@ class Dataset:
         """Held-out test sorties (final figures only)."""
         return self.split("test")
 
+    @property
+    def lateral(self) -> bool:
+        """Whether the sorties carry the recorded lateral inputs (turning flight)."""
+        return bool(self.sorties) and self.sorties[0].lateral
+
     def normalisation(self) -> Normalisation:
         """Normalisation statistics from the training split only (never validation/test)."""
         return normalisation(self.train)
@@ -235,5 +240,12 @@ def load_dataset(path: str | Path, check: bool = True, lowpass_hz: float | None 
         s.meta.update(split=entry.get("split", ""), condition=entry.get("condition", ""),
                       manifest_entry=entry)
         sorties.append(s)
+    mixed = [s.name for s in sorties if s.lateral != sorties[0].lateral]
+    if mixed:
+        raise FlightDataError(f"sortie {mixed[0]} {'has' if sorties[0].lateral else 'lacks'} "
+                              "the lateral columns phi, p, r, beta and "
+                              f"{sorties[0].name} {'lacks' if sorties[0].lateral else 'has'} "
+                              "them: a dataset's sorties all have them or none",
+                              folder / "manifest.json")
     ds = Dataset(folder, manifest, sorties)
     return ds.lowpass(lowpass_hz) if lowpass_hz else ds

@@ -23,7 +23,13 @@ from uavdyn.flightdata.csvio import write_csv
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.flightlog import FlightLog
 from uavdyn.flightdata.manifest import write_manifest
-from uavdyn.flightdata.segments import SegmentReport, SegmentRules, find_segments, segment_sorties
+from uavdyn.flightdata.segments import (
+    SegmentReport,
+    SegmentRules,
+    find_segments,
+    lateral_record,
+    segment_sorties,
+)
 from uavdyn.flightdata.split import assign_split, split_rule
 from uavdyn.flightdata.timeline import draw_timeline
 
@@ -145,6 +151,10 @@ def plan_log_dataset(flights: FlightLog | list[FlightLog], rules: SegmentRules |
         if own and abs(own * flight.dt - 1.0) > 1e-6:
             lines += [f"  logged at {own:.6g} Hz, resampled to {1 / flight.dt:.6g} Hz"]
         lines += [f"  control map: {text}" for text in control_map_text(flight.meta)]
+        if report is not None and report.rules.turns:
+            fed = lateral_record(flight)
+            lines += ["  turning flight used: the model's lateral inputs are "
+                      + "; ".join(f"{k} = {v}" for k, v in fed.items())]
         lines += [f"  grid: {flight.meta['grid']}"] if flight.meta.get("grid") else []
     lines += [f"split: {_split_counts(splits, sorties)} (by {rule['by']}"
               + (f"; {rule['note']})" if rule.get("note") else ")")]
@@ -182,6 +192,8 @@ def log_record(flight: FlightLog, report: SegmentReport | None, files: list[str]
         record["grid"] = meta["grid"]
     if report is not None:
         record["segmentation"] = report.as_dict()
+        if report.rules.turns:  # the channels fed to the model as recorded inputs
+            record["lateral_inputs"] = lateral_record(flight)
     else:
         record["no_segment"] = reason
     return record

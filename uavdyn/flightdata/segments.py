@@ -46,6 +46,14 @@ class SegmentRules:
         has no in-air flag); default 5 m/s for a fixed wing, none for a multirotor.
     kinematic : bool
         Check ``d theta/dt ~ q`` on each segment and drop those that fail (default True).
+    turns : bool
+        Keep turning and climbing flight (issue 41 item 2): the bank, roll and yaw rates and
+        sideslip become recorded inputs of each sortie (columns ``phi, p, r, beta``), so the
+        wings-level rules (``max_roll_deg``, ``max_yaw_rate_deg_s``) are not applied; cut only
+        where the data are unusable (gaps, ground, invalid values) or ``|roll|`` exceeds
+        ``max_bank_deg``. The kinematic check is then ``d theta/dt ~ q cos(phi) - r sin(phi)``.
+    max_bank_deg : float
+        With ``turns``: the stated bank limit (default 60 deg).
     """
 
     max_roll_deg: float = 10.0
@@ -54,13 +62,19 @@ class SegmentRules:
     min_duration_s: float = 5.0
     min_speed_m_s: float | None = None
     kinematic: bool = True
+    turns: bool = False
+    max_bank_deg: float = 60.0
 
     def __post_init__(self) -> None:
-        for key in ("max_roll_deg", "max_yaw_rate_deg_s", "max_sideslip_deg", "min_duration_s"):
+        for key in ("max_roll_deg", "max_yaw_rate_deg_s", "max_sideslip_deg", "min_duration_s",
+                    "max_bank_deg"):
             value = getattr(self, key)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise FlightDataError(f"segment rule {key} must be a positive number, got "
                                       f"{value!r}")
+        if self.max_bank_deg >= 90.0:
+            raise FlightDataError(f"segment rule max_bank_deg must be below 90 deg, got "
+                                  f"{self.max_bank_deg!r}")
         if self.min_speed_m_s is not None and not (math.isfinite(self.min_speed_m_s)
                                                    and self.min_speed_m_s >= 0):
             raise FlightDataError(f"segment rule min_speed_m_s must be >= 0, got "
@@ -154,10 +168,14 @@ def rule_masks(flight: FlightLog, rules: SegmentRules) -> tuple[dict[str, np.nda
         floor = rules.speed_floor(flight.kind)
         if floor > 0:
             masks[f"slower than {floor:g} m/s"] = np.hypot(c["u"], c["w"]) < floor
-        masks[f"banked above {rules.max_roll_deg:g} deg"] = (
-            np.abs(c["roll"]) > math.radians(rules.max_roll_deg))
-        masks[f"yaw rate above {rules.max_yaw_rate_deg_s:g} deg/s"] = (
-            np.abs(c["r"]) > math.radians(rules.max_yaw_rate_deg_s))
+        if rules.turns:  # turning flight is used: only beyond the stated bank limit
+            masks[f"banked above {rules.max_bank_deg:g} deg (the turning-flight limit)"] = (
+                np.abs(c["roll"]) > math.radians(rules.max_bank_deg))
+        else:
+            masks[f"banked above {rules.max_roll_deg:g} deg"] = (
+                np.abs(c["roll"]) > math.radians(rules.max_roll_deg))
+            masks[f"yaw rate above {rules.max_yaw_rate_deg_s:g} deg/s"] = (
+                np.abs(c["r"]) > math.radians(rules.max_yaw_rate_deg_s))
         if flight.velocity_reference == "air":  # undefined near zero speed (a hover)
             masks[f"sideslip above {rules.max_sideslip_deg:g} deg"] = (
                 (np.abs(np.arctan2(c["v"], c["u"])) > math.radians(rules.max_sideslip_deg))
@@ -166,7 +184,9 @@ def rule_masks(flight: FlightLog, rules: SegmentRules) -> tuple[dict[str, np.nda
             unchecked.append("sideslip (the velocities are not air relative)")
         if flight.airborne is None and floor == 0:
             unchecked.append("airborne (the log has no in-air flag; give --min-speed)")
-        used = np.column_stack([flight.states(), c["roll"], c["r"], flight.controls])
+        lateral = ([c["p"]] + ([c["v"]] if flight.velocity_reference == "air" else [])
+                   if rules.turns else [])  # what the lateral inputs are made of
+        used = np.column_stack([flight.states(), c["roll"], c["r"], flight.controls, *lateral])
         masks["sensor gap or invalid value"] = ~np.all(np.isfinite(used), axis=1)
         limits = state_limits(flight.kind)
         states = flight.states()
@@ -253,9 +273,10 @@ def _segment_problem(flight: FlightLog, seg: Segment, rules: SegmentRules) -> st
     """Why a candidate segment cannot be a sortie (failed value or kinematic check), or None."""
     sl = slice(seg.start, seg.stop)
     time = flight.time[sl] - flight.time[seg.start]
+    controls = (segment_inputs(flight) if rules.turns else flight.controls)[sl]
     try:
         check_values(f"segment {seg.start_s:.2f}-{seg.end_s:.2f} s", flight.kind, time,
-                     flight.states()[sl], flight.controls[sl], kinematic=rules.kinematic)
+                     flight.states()[sl], controls, kinematic=rules.kinematic)
     except FlightDataError as exc:
         return exc.reason
     return None
@@ -277,9 +298,40 @@ def _refusal(report: SegmentReport) -> str:
     return line + " (the thresholds are options of import-log)"
 
 
+def sideslip(flight: FlightLog) -> np.ndarray:
+    """The sideslip ``beta = atan2(v, sqrt(u^2 + w^2))`` (rad) where the velocities are air
+    relative; 0 otherwise (a ground-relative ``v`` is the wind's crab, not sideslip)."""
+    c = flight.channels
+    if flight.velocity_reference != "air":
+        return np.zeros(len(flight.time))
+    return np.arctan2(c["v"], np.hypot(c["u"], c["w"]))
+
+
+def segment_inputs(flight: FlightLog) -> np.ndarray:
+    """The controls followed by the recorded lateral inputs ``phi, p, r, beta`` (``N x 6``):
+    what a turning-flight sortie feeds the model."""
+    c = flight.channels
+    return np.column_stack([flight.controls, c["roll"], c["p"], c["r"], sideslip(flight)])
+
+
+LATERAL_SOURCES = {"phi": "roll", "p": "p", "r": "r",
+                   "beta": "atan2(v, sqrt(u^2 + w^2)) of the air-relative velocities"}
+
+
+def lateral_record(flight: FlightLog) -> dict[str, str]:
+    """Which log channel fed each lateral input (for the manifest)."""
+    out = dict(LATERAL_SOURCES)
+    if flight.velocity_reference != "air":
+        out["beta"] = ("0: the velocities are not air relative (a ground-relative v is the "
+                       "wind's crab angle)")
+    return out
+
+
 def segment_sorties(report: SegmentReport) -> list[Sortie]:
-    """Each kept segment as a :class:`Sortie` (time from 0; its provenance in ``meta``)."""
+    """Each kept segment as a :class:`Sortie` (time from 0; its provenance in ``meta``); with
+    ``rules.turns`` its controls end with the lateral inputs (:func:`segment_inputs`)."""
     f = report.flight
+    inputs = segment_inputs(f) if report.rules.turns else f.controls
     out = []
     for k, seg in enumerate(report.kept, start=1):
         sl = slice(seg.start, seg.stop)
@@ -293,5 +345,5 @@ def segment_sorties(report: SegmentReport) -> list[Sortie]:
             meta["altitude_m"] = round(float(np.mean(f.altitude_m[sl])), 1)
         out.append(Sortie(name=f"{f.name}_s{k:02d}", kind=f.kind,
                           time=f.time[sl] - f.time[seg.start], states=f.states()[sl].copy(),
-                          controls=f.controls[sl].copy(), mission="log segment", meta=meta))
+                          controls=inputs[sl].copy(), mission="log segment", meta=meta))
     return out

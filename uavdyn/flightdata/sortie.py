@@ -7,23 +7,27 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from uavdyn.flightdata.errors import FlightDataError
-from uavdyn.model import CONTROL_NAMES, STATE_NAMES
+from uavdyn.model import CONTROL_NAMES, LATERAL_INPUT_NAMES, STATE_NAMES
 
 SPLIT_NAMES = ("train", "validation", "test")
 
 
-def csv_columns(kind: str) -> tuple[str, ...]:
-    """The interchange-format header for an airframe kind."""
+def csv_columns(kind: str, lateral: bool = False) -> tuple[str, ...]:
+    """The interchange-format header for an airframe kind; ``lateral`` appends the optional
+    recorded turning-flight columns ``phi, p, r, beta`` (SPEC section 3)."""
     if not isinstance(kind, str) or kind not in CONTROL_NAMES:
         raise FlightDataError(f"unknown airframe kind {kind!r}; expected one of "
                               f"{tuple(CONTROL_NAMES)}")
-    return ("time",) + STATE_NAMES + CONTROL_NAMES[kind]
+    return (("time",) + STATE_NAMES + CONTROL_NAMES[kind]
+            + (LATERAL_INPUT_NAMES if lateral else ()))
 
 
 @dataclass
 class Sortie:
-    """One flight: uniformly sampled time, states ``N x 4`` and controls ``N x 2``;
-    ``true_states`` (optional) are the noise-free states of an emulated flight."""
+    """One flight: uniformly sampled time, states ``N x 4`` and controls ``N x 2``, or
+    ``N x 6`` with the recorded lateral inputs ``phi, p, r, beta`` of turning flight after the
+    controls (:attr:`lateral`); ``true_states`` (optional) are the noise-free states of an
+    emulated flight."""
 
     name: str
     kind: str
@@ -57,6 +61,13 @@ class Sortie:
         """``train``/``validation``/``test`` as recorded in the manifest ('' if none)."""
         return str(self.meta.get("split", ""))
 
+    @property
+    def lateral(self) -> bool:
+        """Whether the sortie carries the lateral inputs (turning flight) after its controls."""
+        return self.controls.ndim == 2 and self.controls.shape[1] == 2 + len(
+            LATERAL_INPUT_NAMES)
+
     def to_array(self) -> np.ndarray:
-        """``N x 7`` table in the CSV column order (time, states, controls)."""
+        """``N x 7`` (``N x 11`` with lateral inputs) table in the CSV column order (time,
+        states, controls, then phi, p, r, beta)."""
         return np.column_stack([self.time, self.states, self.controls])

@@ -188,6 +188,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         parameters the data cannot tell apart.
     """
     t_start = time.perf_counter()
+    # turning-flight sorties carry the lateral inputs: the model takes them too
+    airframe = airframe.for_inputs(bool(train) and train[0].lateral)
     continuous, searched = _check_request(airframe, names, train, max_delay)
     if prior_sd is not None:
         prior_sd = check_prior_sd(prior_sd)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from uavdyn.airframes import OPTIONAL_PARAMS, Airframe, param_names
+from uavdyn.airframes.params import LATERAL_PARAMS
 from uavdyn.identify.output_error import IdentificationResult
 from uavdyn.identify.result import Estimate
 from uavdyn.outputs import atomic_file, write_text_atomic
@@ -46,8 +47,8 @@ def airframe_toml(airframe: Airframe, header: list[str]) -> str:
     if airframe.relaxed_stability:
         lines.append("relaxed_stability = true")
     lines.append("")
-    optional = OPTIONAL_PARAMS[airframe.kind]
-    for name in param_names(airframe.kind):
+    optional = {**OPTIONAL_PARAMS[airframe.kind], **dict.fromkeys(LATERAL_PARAMS, 0.0)}
+    for name in param_names(airframe.kind) + LATERAL_PARAMS:
         value = float(getattr(airframe.params, name))
         if name in optional and value == optional[name]:
             continue  # absent = its default, which changes nothing

@@ -101,6 +101,9 @@ def run(args: argparse.Namespace, airframe: Airframe | None = None) -> dict:
     _check_replaceable(out, [hist, not_kept_path(hist)] if out.exists() else [hist],
                        getattr(args, "force", False))
     tr, va, te, source = load_training_sorties(args.dataset, getattr(args, "lowpass_hz", None))
+    # turning-flight sorties carry the lateral inputs: the physics (and the correction's
+    # inputs, which are the step's) take them too
+    airframe = airframe.for_inputs(bool(tr) and tr[0].lateral)
     check_horizons(args, tr + va)
     if args.formulation == "improved" and args.target == "data":
         return _run_safe(args, airframe, tr, va, te, source, out, hist)

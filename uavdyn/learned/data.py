@@ -59,6 +59,10 @@ class Pairs:
 def _check_sortie(s: Sortie, kind: str) -> float:
     if s.kind != kind:
         raise DatasetError(f"sortie '{s.name}' is of kind '{s.kind}', the airframe is '{kind}'")
+    if s.lateral:
+        raise DatasetError(f"sortie '{s.name}' carries the turning-flight inputs phi, p, r, "
+                           "beta: train the safe correction (--formulation improved --target "
+                           "data), the only one that takes them")
     if s.states.shape != (len(s.time), 4) or s.controls.shape != (len(s.time), 2):
         raise DatasetError(f"sortie '{s.name}': states/controls must be N x 4 / N x 2 for "
                            f"{len(s.time)} samples")

@@ -168,7 +168,7 @@ def hybrid_expression(net: CorrectionNet, relu_smoothing: float | None = None,
     layout = net.layout(structure) if form.name == "improved" else None
     f = make_rhs(structure)
     x = ca.SX.sym("x", layout.n_state if layout is not None else 4)
-    u = ca.SX.sym("u", 2)
+    u = ca.SX.sym("u", structure.nu)
     p, dt, t = ca.SX.sym("p", structure.np), ca.SX.sym("dt"), ca.SX.sym("t")
     x_next = form.step(f, x, u, p, dt, lambda inp: net.casadi(inp, relu_smoothing), CASADI_OPS,
                        t if form.takes_time else None, layout)

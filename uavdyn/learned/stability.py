@@ -35,6 +35,7 @@ from uavdyn.flightdata import Sortie
 from uavdyn.integrate import DiscreteModel, StateLayout
 from uavdyn.learned.envelope import Envelope
 from uavdyn.linear import TrimError, point_params, trim
+from uavdyn.linear.trim import step_inputs
 
 BODY = 4
 DEFAULT_MARGIN = 0.5
@@ -108,8 +109,8 @@ def trims_between(airframe: Airframe, lo: float, hi: float, layout: StateLayout,
             skipped.append(f"{v:.3g} m/s, gamma {math.degrees(g):+.3g} deg: {exc}")
             continue
         p = point_params(airframe, point)
-        out.append(TrimSample(float(v), float(g), layout.states(point.x, point.u, p, 1.0)[0],
-                              np.asarray(point.u, float), p))
+        u = step_inputs(airframe, point.u)  # with lateral inputs: wings level, all zero
+        out.append(TrimSample(float(v), float(g), layout.states(point.x, u, p, 1.0)[0], u, p))
     return out, skipped
 
 

@@ -114,6 +114,7 @@ class TorchCorrection(nn.Module):
         extra = {}
         if self.layout is not None:
             extra = {"n_state": self.layout.n_state, "memory_tau": tuple(self.layout.memory_tau),
+                     "n_controls": self.layout.nu,
                      "envelope": self.envelope, "guard": self.layout.guard,
                      "inputs": self.layout.inputs, "output": self.layout.output,
                      "out_bound": (None if self.layout.bound is None

@@ -69,8 +69,10 @@ REQUIRED_KEYS = (
 # designs (absent: 'state' and 'acceleration', as before); 'W_skip' (optional) is the linear
 # path beside the hidden layers
 ENVELOPE_KEYS = ("env_low", "env_high", "env_fade")
+# 'n_controls' (optional, absent: 2): the step's inputs, 6 for a model with the lateral inputs
+# of turning flight (the controls, then phi, p, r, beta), which the network also sees
 OPTIONAL_KEYS = ("info", "t_range", "n_state", "memory_tau", "out_bound", "guard",
-                 "inputs", "output", "W_skip", *ENVELOPE_KEYS)
+                 "inputs", "output", "W_skip", "n_controls", *ENVELOPE_KEYS)
 NAME_KEYS = ("formulation", "activation", "kind", "airframe_hash")
 # the extra network inputs of each input design over the step's state and command
 EXTRA_INPUTS = {("state", "fixed_wing"): 0, ("state", "multirotor"): 0,
@@ -112,6 +114,7 @@ class CorrectionNet:
     inputs: str = "state"
     output: str = "acceleration"
     skip: np.ndarray | None = None
+    n_controls: int = 2
 
     def __post_init__(self) -> None:
         check_consistent(self, "<in memory>")
@@ -132,6 +135,13 @@ class CorrectionNet:
                                       self.guard, self.inputs, self.output)
         except ValueError as exc:
             raise WeightFileError(f"correction network: {exc}") from None
+        if layout.nu != self.n_controls:
+            raise WeightFileError(
+                f"correction network key 'n_controls' is {self.n_controls} but the airframe's "
+                f"step takes {layout.nu} inputs ("
+                + ("with" if layout.nu > 2 else "without")
+                + " the turning-flight inputs phi, p, r, beta): train it on data of the same "
+                "kind (import-log with or without --turns)")
         if layout.n_state != self.n_state:
             raise WeightFileError(
                 f"correction network key 'n_state' is {self.n_state} but the airframe's step "
@@ -147,7 +157,7 @@ class CorrectionNet:
     def n_in(self) -> int:
         if self.formulation != "improved":
             return self.form.n_in
-        return self.n_state + 2 + EXTRA_INPUTS[(self.inputs, self.kind)]
+        return self.n_state + self.n_controls + EXTRA_INPUTS[(self.inputs, self.kind)]
 
     @property
     def n_out(self) -> int:
@@ -219,6 +229,10 @@ def check_consistent(net: CorrectionNet, origin: str) -> None:
         raise WeightFileError(f"{origin}: key 'n_state' must be a whole number of states in "
                               f"4..200 (4 for the '{net.formulation}' formulation), got "
                               f"{show(net.n_state)}")
+    if net.n_controls not in (2, 6) or (net.formulation != "improved" and net.n_controls != 2):
+        raise WeightFileError(f"{origin}: key 'n_controls' must be 2, or 6 with the "
+                              "turning-flight inputs (the 'improved' formulation only), got "
+                              f"{show(net.n_controls)}")
     taus = tuple(net.memory_tau)
     if len(taus) > MAX_MEMORY_FILTERS or not all(np.isfinite(t) and t > 0 for t in taus):
         raise WeightFileError(f"{origin}: key 'memory_tau' must hold at most "
@@ -317,6 +331,8 @@ def save_weights(net: CorrectionNet, path: str | Path) -> Path:
     if net.n_state != 4 or net.memory_tau:
         arrays["n_state"] = np.array(int(net.n_state))
         arrays["memory_tau"] = np.asarray(net.memory_tau, float)
+    if net.n_controls != 2:  # written only with lateral inputs: other files are unchanged
+        arrays["n_controls"] = np.array(int(net.n_controls))
     if net.out_bound is not None:
         arrays["out_bound"] = np.asarray(net.out_bound, float)
     if net.skip is not None:
@@ -411,6 +427,8 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
         extra["n_state"] = integer_key(path, content, "n_state")
     if "memory_tau" in content:
         extra["memory_tau"] = tuple(float(v) for v in real_key(path, content, "memory_tau", 1))
+    if "n_controls" in content:
+        extra["n_controls"] = integer_key(path, content, "n_controls")
     if "out_bound" in content:
         extra["out_bound"] = real_key(path, content, "out_bound", 1)
     if "W_skip" in content:

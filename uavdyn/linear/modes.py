@@ -66,6 +66,7 @@ def linearise(airframe: Airframe, point: TrimPoint, actuators: bool = True
     ``a`` instead of the command, so ``A = [[A_body, B_body[:, lagged]], [0, -1/tau]]`` and
     the command enters through ``1/tau``. Without lags: the body's ``A`` (4 x 4), ``B`` (4 x 2).
     """
+    airframe = airframe.for_inputs(False)  # modes at wings level: the lateral inputs zero
     p = point_params(airframe, point)
     jac = build_model(body_structure(airframe)).jacobians(point.x, point.u, p)
     A, B = np.array(jac[0]), np.array(jac[1])

@@ -218,6 +218,13 @@ def _initial_guess(airframe: Airframe, V: float, gamma: float, rho: float) -> np
     return np.array([-0.05 if V > 0 else 0.0, (omega - P.omega_b) / P.C_R, 0.0])
 
 
+def step_inputs(airframe: Airframe, u) -> np.ndarray:
+    """A trim command as the input of ``airframe``'s step: with lateral inputs (turning
+    flight) the controls followed by ``phi = p = r = beta = 0`` (trims are wings level)."""
+    u = np.asarray(u, float).ravel()
+    return np.concatenate([u, np.zeros(4)]) if airframe.lateral and u.size == 2 else u
+
+
 def trim(airframe: Airframe, airspeed: float | None = None, gamma: float = 0.0,
          altitude_m: float | None = None) -> TrimPoint:
     """Trim ``airframe`` at ``airspeed`` (m/s; default its nominal speed) and flight-path angle
@@ -264,6 +271,8 @@ def trim_many(airframes: Sequence[Airframe], airspeeds: Sequence[float | None],
     """
     if len(airspeeds) != len(airframes):
         raise ValueError(f"{len(airspeeds)} airspeeds for {len(airframes)} airframes")
+    # trims are wings level: an airframe taking lateral inputs is trimmed with them at zero
+    airframes = [a.for_inputs(False) for a in airframes]
     outcomes: list[TrimPoint | TrimError | None] = [None] * len(airframes)
     speeds = np.zeros(len(airframes))
     groups: dict[ModelStructure, list[int]] = {}

@@ -18,6 +18,7 @@ from uavdyn.model.equations import (
     body_forces,
     fixed_wing_alpha_dot,
     fixed_wing_forces,
+    lateral_inputs,
     make_rhs,
     multirotor_forces,
     propeller_thrust,
@@ -39,6 +40,7 @@ from uavdyn.model.ranges import (
 )
 from uavdyn.model.structure import (
     LAG_PARAMS,
+    LATERAL_INPUT_NAMES,
     POSITION_STATE_NAMES,
     SLEW_PARAMS,
     STATE_NAMES,
@@ -48,11 +50,13 @@ from uavdyn.model.structure import (
 
 __all__ = ["LongitudinalModel", "build_model", "numpy_rhs", "uses_alpha_dot", "sortie_params",
            "isa_density", "isa_density_ratio", "air_density", "body_forces", "interp1",
-           "interp2", "LAG_PARAMS", "SLEW_PARAMS", "ModelStructure", "structure_of",
+           "interp2", "LAG_PARAMS", "LATERAL_INPUT_NAMES", "SLEW_PARAMS", "ModelStructure",
+           "structure_of",
            "CONTROL_BOUNDS",
            "CONTROL_NAMES",
            "FORCE_MODELS", "FORCE_NAMES", "fixed_wing_alpha_dot", "fixed_wing_forces",
            "multirotor_forces", "propeller_thrust", "rotor_thrust", "POSITION_STATE_NAMES",
-           "STATE_NAMES", "make_rhs", "rigid_body_rates", "stall_blend", "symbolic_params",
+           "STATE_NAMES", "lateral_inputs", "make_rhs", "rigid_body_rates", "stall_blend",
+           "symbolic_params",
            "translational_accelerations", "CASADI_OPS", "NUMPY_OPS", "torch_ops", "PITCH_LIMIT",
            "PITCH_RATE_LIMIT", "SPEED_LIMIT", "Departure", "first_departure", "state_limits"]

@@ -61,7 +61,7 @@ class LongitudinalModel:
 
     @property
     def nu(self) -> int:
-        return 2
+        return self.structure.nu
 
     @property
     def np(self) -> int:
@@ -98,7 +98,7 @@ def build_model(kind: str | Airframe | ModelStructure, with_position: bool = Fal
 def _build_model(structure: ModelStructure, with_position: bool) -> LongitudinalModel:
     nx = 6 if with_position else 4
     x = ca.SX.sym("x", nx)
-    u = ca.SX.sym("u", 2)
+    u = ca.SX.sym("u", structure.nu)
     p = ca.SX.sym("p", structure.np)
     X, Z, M, alpha, V, thrust = body_forces(structure, x, u, p, with_position=with_position)
     xdot = make_rhs(structure, with_position)(x, u, p)

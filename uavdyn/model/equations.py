@@ -40,6 +40,25 @@ friction scales as ``Re^-1/2``, so at fixed alpha drag and moment vary with airs
 
 At their default 0 all three add exactly 0.0 (the increments are appended to the sums, so the
 forces are bit-for-bit those without them).
+
+Turning flight (a structure with ``lateral``): the recorded bank angle ``phi``, roll and yaw
+rates ``p``, ``r`` and sideslip ``beta`` are inputs after the controls (the state stays
+``[u, w, q, theta]``), with ``v = sqrt(u^2 + w^2) tan(beta)`` the side velocity; the rigid-body
+6-DoF equations restricted to the longitudinal states, the lateral variables given::
+
+    u_dot = X/m - g sin(theta) - q w + r v
+    w_dot = Z/m + g cos(theta) cos(phi) + q u - p v
+    q_dot = (M + (Jz - Jx) p r + Jxz (r^2 - p^2)) / Jy
+    theta_dot = q cos(phi) - r sin(phi)
+    x_n_dot = u cos(theta) + (v sin(phi) + w cos(phi)) sin(theta)   (along the heading)
+    h_dot = u sin(theta) - v sin(phi) cos(theta) - w cos(phi) cos(theta)
+
+``X``, ``Z``, ``M`` are the pitch-plane forces of ``(u, w, q)`` as without (no sideslip or
+lateral-rate aerodynamics). A level coordinated turn is then an equilibrium with
+``q = omega sin(phi) cos(theta)``, ``r = omega cos(phi) cos(theta)``,
+``p = -omega sin(theta)``, ``omega = g tan(phi) / V``: the normal load factor ``1/cos(phi)``.
+With every lateral input 0 each added term is exactly 0.0 (so the same numbers as the
+wings-level model to round-off); a structure without ``lateral`` builds the wings-level graph.
 """
 
 from __future__ import annotations
@@ -194,7 +213,8 @@ def _fixed_wing_terms(x, u, p, ops, with_alpha_dot: bool = True,
     if not with_alpha_dot:
         return X0, Z0, M0, alpha, V, thrust, None
     # Exact alpha-dot terms: A0 from the forces without them, then the closed form.
-    u_dot0, w_dot0 = translational_accelerations(x, X0, Z0, P.mass, P.gravity, ops)
+    u_dot0, w_dot0 = translational_accelerations(x, X0, Z0, P.mass, P.gravity, ops,
+                                                 lateral_inputs(structure, u))
     alpha_dot0 = (ub * w_dot0 - wb * u_dot0) / V**2
     alpha_dot = alpha_dot0 / (1 + rho * P.S_wing * P.c * P.C_L_alpha_dot / (4 * P.mass))
     ad_hat = P.c * alpha_dot / (2 * V)
@@ -241,22 +261,58 @@ def multirotor_forces(x, u, p, ops=CASADI_OPS, structure: ModelStructure | None 
 FORCE_MODELS = {"fixed_wing": fixed_wing_forces, "multirotor": multirotor_forces}
 
 
-def translational_accelerations(x, X, Z, mass, g, ops=CASADI_OPS):
+def lateral_inputs(structure: ModelStructure | None, u) -> tuple | None:
+    """``(phi, p, r, beta)`` from the inputs ``u`` of a structure with lateral inputs, else
+    None."""
+    if structure is None or not structure.lateral:
+        return None
+    k = structure.lateral_slice.start
+    return u[k], u[k + 1], u[k + 2], u[k + 3]
+
+
+def side_velocity(x, beta, ops=CASADI_OPS):
+    """``v = sqrt(u^2 + w^2) tan(beta)`` (m/s): the body side velocity of sideslip ``beta``
+    (``beta = asin(v / |V|)``)."""
+    return ops.sqrt(x[0] ** 2 + x[1] ** 2) * ops.sin(beta) / ops.cos(beta)
+
+
+def translational_accelerations(x, X, Z, mass, g, ops=CASADI_OPS, lateral=None):
     """``(u_dot, w_dot)`` given body forces: written once, used by the rigid body and by the
-    alpha-dot closed form (which needs the acceleration without the alpha-dot force)."""
+    alpha-dot closed form (which needs the acceleration without the alpha-dot force).
+    ``lateral`` = ``(phi, p, r, beta)`` adds the turning-flight terms (module docstring)."""
     ub, wb, q, theta = x[0], x[1], x[2], x[3]
-    return (X / mass - g * ops.sin(theta) - q * wb,
-            Z / mass + g * ops.cos(theta) + q * ub)
+    if lateral is None:
+        return (X / mass - g * ops.sin(theta) - q * wb,
+                Z / mass + g * ops.cos(theta) + q * ub)
+    phi, pr, rr, beta = lateral
+    v = side_velocity(x, beta, ops)
+    return (X / mass - g * ops.sin(theta) - q * wb + rr * v,
+            Z / mass + g * ops.cos(theta) * ops.cos(phi) + q * ub - pr * v)
 
 
-def rigid_body_rates(x, X, Z, M, mass, Jy, g, with_position: bool, ops=CASADI_OPS):
-    """Longitudinal rigid-body kinematics and dynamics given body forces and moment."""
+def rigid_body_rates(x, X, Z, M, mass, Jy, g, with_position: bool, ops=CASADI_OPS,
+                     lateral=None, inertias=None):
+    """Longitudinal rigid-body kinematics and dynamics given body forces and moment; with
+    ``lateral`` = ``(phi, p, r, beta)`` and ``inertias`` = ``(Jx, Jz, Jxz)`` those of turning
+    flight (module docstring)."""
     ub, wb, q, theta = x[0], x[1], x[2], x[3]
-    u_dot, w_dot = translational_accelerations(x, X, Z, mass, g, ops)
-    rates = [u_dot, w_dot, M / Jy, q]
+    u_dot, w_dot = translational_accelerations(x, X, Z, mass, g, ops, lateral)
+    if lateral is None:
+        rates = [u_dot, w_dot, M / Jy, q]
+        if with_position:
+            rates += [ub * ops.cos(theta) + wb * ops.sin(theta),
+                      ub * ops.sin(theta) - wb * ops.cos(theta)]
+        return ops.vertcat(*rates)
+    phi, pr, rr, beta = lateral
+    Jx, Jz, Jxz = inertias
+    sin_phi, cos_phi = ops.sin(phi), ops.cos(phi)
+    q_dot = (M + (Jz - Jx) * pr * rr + Jxz * (rr**2 - pr**2)) / Jy
+    rates = [u_dot, w_dot, q_dot, q * cos_phi - rr * sin_phi]
     if with_position:
-        rates += [ub * ops.cos(theta) + wb * ops.sin(theta),
-                  ub * ops.sin(theta) - wb * ops.cos(theta)]
+        v = side_velocity(x, beta, ops)
+        sin_t, cos_t = ops.sin(theta), ops.cos(theta)
+        rates += [ub * cos_t + (v * sin_phi + wb * cos_phi) * sin_t,
+                  ub * sin_t - (v * sin_phi + wb * cos_phi) * cos_t]
     return ops.vertcat(*rates)
 
 
@@ -279,8 +335,17 @@ def make_rhs(kind: str | ModelStructure, with_position: bool = False, ops=CASADI
     names = param_names(structure.kind)
     i_mass, i_jy, i_g = (names.index(n) for n in ("mass", "Jy", "gravity"))
 
-    def rhs(x, u, p):
-        X, Z, M = body_forces(structure, x, u, p, ops, with_position)[:3]
-        return rigid_body_rates(x, X, Z, M, p[i_mass], p[i_jy], p[i_g], with_position, ops)
+    if not structure.lateral:
+        def rhs(x, u, p):
+            X, Z, M = body_forces(structure, x, u, p, ops, with_position)[:3]
+            return rigid_body_rates(x, X, Z, M, p[i_mass], p[i_jy], p[i_g], with_position, ops)
 
-    return rhs
+        return rhs
+    i_j = structure.lateral_param_indices
+
+    def rhs_lateral(x, u, p):
+        X, Z, M = body_forces(structure, x, u, p, ops, with_position)[:3]
+        return rigid_body_rates(x, X, Z, M, p[i_mass], p[i_jy], p[i_g], with_position, ops,
+                                lateral_inputs(structure, u), tuple(p[i] for i in i_j))
+
+    return rhs_lateral

@@ -17,10 +17,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from uavdyn.airframes import CONTROL_RANGES, Airframe, param_names
+from uavdyn.airframes.params import LATERAL_PARAMS
 from uavdyn.airframes.tables import Table
 
 ALPHA_DOT_KEYS = ("C_L_alpha_dot", "C_m_alpha_dot")
 STATE_NAMES = ("u", "w", "q", "theta")
+# The recorded lateral channels of turning flight, appended to the controls as non-actuated
+# inputs (no lag, no delay): bank angle phi (rad), roll and yaw rates p, r (rad/s), sideslip
+# beta (rad). All zero is wings-level flight (SPEC section 2).
+LATERAL_INPUT_NAMES = ("phi", "p", "r", "beta")
 POSITION_STATE_NAMES = ("x_n", "h")
 # The time constant of each control's lag, per kind (the multirotor's rotor speed is linear in
 # both commands, so one rotor-speed lag is the same lag on each of them).
@@ -52,6 +57,9 @@ class ModelStructure:
         ``(name, axes)`` of each breakpoint table, sorted by name (values are in ``p``).
     isa : bool
         Density from the standard atmosphere (at the ``h`` state when the model has it).
+    lateral : bool
+        The inputs end with the recorded lateral channels :data:`LATERAL_INPUT_NAMES` (turning
+        flight) and ``p`` with ``Jx, Jz, Jxz``; without, the graph is the wings-level model's.
     """
 
     kind: str
@@ -61,9 +69,10 @@ class ModelStructure:
     delays: tuple[int, ...] = ()
     tables: tuple[tuple[str, tuple[tuple[str, tuple[float, ...]], ...]], ...] = ()
     isa: bool = False
+    lateral: bool = False
 
     def __post_init__(self) -> None:
-        names = self.control_names
+        names = self.actuated_names
         unknown = [c for c in self.lagged if c not in names]
         if unknown:
             raise ValueError(f"lagged control(s) {unknown} not in {names}")
@@ -73,8 +82,15 @@ class ModelStructure:
             raise ValueError(f"delays must give a whole number >= 0 per control {names}")
 
     @property
-    def control_names(self) -> tuple[str, ...]:
+    def actuated_names(self) -> tuple[str, ...]:
+        """The kind's controls (the actuated inputs, which may lag or be delayed)."""
         return tuple(n for n, _ in CONTROL_RANGES[self.kind])
+
+    @property
+    def control_names(self) -> tuple[str, ...]:
+        """Every input of the step: the controls, then with lateral inputs
+        :data:`LATERAL_INPUT_NAMES`."""
+        return self.actuated_names + (LATERAL_INPUT_NAMES if self.lateral else ())
 
     @property
     def nu(self) -> int:
@@ -86,7 +102,8 @@ class ModelStructure:
     @property
     def param_names(self) -> tuple[str, ...]:
         return param_names(self.kind) + tuple(
-            n for t in self.table_objects() for n in t.value_names())
+            n for t in self.table_objects() for n in t.value_names()) + (
+            LATERAL_PARAMS if self.lateral else ())
 
     @property
     def np(self) -> int:
@@ -121,7 +138,23 @@ class ModelStructure:
 
     @property
     def delay_samples(self) -> tuple[int, ...]:
-        return self.delays or (0,) * self.nu
+        """The delay of each input in samples (the lateral inputs: none)."""
+        delays = self.delays or (0,) * len(self.actuated_names)
+        return tuple(delays) + (0,) * (self.nu - len(delays))
+
+    @property
+    def lateral_slice(self) -> slice | None:
+        """Where the lateral inputs sit in ``u`` (None: the model has none)."""
+        n = len(self.actuated_names)
+        return slice(n, n + len(LATERAL_INPUT_NAMES)) if self.lateral else None
+
+    @property
+    def lateral_param_indices(self) -> tuple[int, int, int] | None:
+        """Indices of ``Jx, Jz, Jxz`` in ``p`` (None: the model has no lateral inputs)."""
+        if not self.lateral:
+            return None
+        names = self.param_names
+        return tuple(names.index(n) for n in LATERAL_PARAMS)  # type: ignore[return-value]
 
     @property
     def n_actuator(self) -> int:
@@ -172,4 +205,4 @@ def structure_of(airframe: Airframe, fitting: tuple[str, ...] | list[str] = ()
         kind=airframe.kind, alpha_dot=alpha_dot, lagged=lagged, slewed=slewed,
         delays=delays if any(delays) else (),
         tables=tuple((n, airframe.tables[n].axes) for n in sorted(airframe.tables)),
-        isa=airframe.atmosphere == "isa")
+        isa=airframe.atmosphere == "isa", lateral=airframe.lateral)

@@ -101,7 +101,7 @@ class CompiledTwin:
         self.horizon, self.dt = horizon, float(dt)
         self.state_scale = np.asarray(state_scale, float)
         self.growth = np.asarray(growth, float)
-        nz, nu = layout.n_state, 2
+        nz, nu = layout.n_state, layout.nu
         z, u = ca.SX.sym("z", nz), ca.SX.sym("u", nu)
         pe, h = ca.SX.sym("p", self.shapes.size), ca.SX.sym("dt")
         blocks, buffers = _unpack(pe, self.shapes)
@@ -187,7 +187,7 @@ class CompiledTwin:
         """Body states ``(W, horizon, 4)`` of the hybrid step's free run through each
         window."""
         W = D.count
-        U = D.u.detach().numpy()[:, :self.horizon].transpose(2, 0, 1).reshape(2, -1)
+        U = D.u.detach().numpy()[:, :self.horizon].transpose(2, 0, 1).reshape(D.u.shape[2], -1)
         out = self._map("predict", W)(D.z0.detach().numpy().T, U, self._extended(model, D.p))
         return np.asarray(out).reshape(BODY, W, self.horizon).transpose(1, 2, 0)
 
@@ -196,7 +196,7 @@ class CompiledTwin:
         """The training loss of :class:`~uavdyn.learned.safe.scoring.WindowLoss` over the
         windows ``D`` and its gradient over the weights (flat: :meth:`unflatten`)."""
         W = D.count
-        U = D.u.detach().numpy()[:, :self.horizon].transpose(2, 0, 1).reshape(2, -1)
+        U = D.u.detach().numpy()[:, :self.horizon].transpose(2, 0, 1).reshape(D.u.shape[2], -1)
         Y = D.y.detach().numpy()[:, :self.horizon].transpose(2, 0, 1).reshape(BODY, -1)
         e, g = self._map("grad", W)(D.z0.detach().numpy().T, U, self._extended(model, D.p), Y,
                                     self.state_scale, self.growth[None, :self.horizon])
