@@ -14,7 +14,7 @@ written as the generic CSV at 50 Hz and 20 Hz. The commands a user would type ar
 and the share of flight time used, the per-segment and pooled 1 s pitch RMSE (nominal ->
 identified) on the later flight held out, and the one-segment import are reported::
 
-    python analysis/campaign_acceptance.py --out docs/benchmarks
+    PYTHONPATH=. python analysis/campaign_acceptance.py --out docs/benchmarks
 """
 
 from __future__ import annotations
@@ -23,7 +23,6 @@ import argparse
 import contextlib
 import io
 import json
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -89,7 +88,7 @@ def page(rows, seg, pool, all_scored, one_line, import_out, took) -> str:
     level = sum(r["level"] for r in rows)
     level_kept = sum(r["level_kept"] for r in rows)
     lines = ["# A flight-test campaign in one import", "",
-             "Produced by `python analysis/campaign_acceptance.py --out docs/benchmarks` "
+             "Produced by `PYTHONPATH=. python analysis/campaign_acceptance.py --out docs/benchmarks` "
              f"({took:.0f} s). Synthetic six-degree-of-freedom flights of the example trainer "
              "(`tests/campaign_flights.py`: 20-45 deg coordinated turns, survey climbs and "
              "descents, 3-2-1-1 elevator inputs, a 3.6 m/s wind, Dryden turbulence, sensor "
@@ -140,7 +139,6 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=None, help="folder for the page")
     parser.add_argument("--duration", type=float, default=360.0, help="s per flight")
     args = parser.parse_args()
-    sys.path.insert(0, str(ROOT))
     from tests.campaign_flights import campaign_flight, write_campaign
 
     start = time.perf_counter()
