@@ -88,7 +88,8 @@ def page(rows, seg, pool, all_scored, one_line, import_out, took) -> str:
     level = sum(r["level"] for r in rows)
     level_kept = sum(r["level_kept"] for r in rows)
     lines = ["# A flight-test campaign in one import", "",
-             "Produced by `PYTHONPATH=. python analysis/campaign_acceptance.py --out docs/benchmarks` "
+             "Produced by `PYTHONPATH=. python analysis/campaign_acceptance.py "
+             "--out docs/benchmarks` "
              f"({took:.0f} s). Synthetic six-degree-of-freedom flights of the example trainer "
              "(`tests/campaign_flights.py`: 20-45 deg coordinated turns, survey climbs and "
              "descents, 3-2-1-1 elevator inputs, a 3.6 m/s wind, Dryden turbulence, sensor "
