@@ -250,8 +250,8 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=None, help="folder for the page")
     parser.add_argument("--duration", type=float, default=360.0, help="s per flight")
     args = parser.parse_args()
-    from tests.campaign_flights import truth_airframe
-    from tests.turning_flights import turning_flight, write_flights
+    from tests.campaign_flights import truth_airframe, write_campaign
+    from tests.turning_flights import turning_flight
     from uavdyn.airframes import load_airframe
 
     start = time.perf_counter()
@@ -259,7 +259,7 @@ def main() -> int:
         work = Path(tmp)
         flights = [turning_flight(k, args.duration, rate)
                    for k, rate in enumerate(RATES, start=1)]
-        write_flights(work / "flights", flights)
+        write_campaign(work / "flights", flights)
         level = case(work, work / "flights", "level", turns=False)
         print(level["identify"])
         turn = case(work, work / "flights", "turn", turns=True)

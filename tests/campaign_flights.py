@@ -182,9 +182,10 @@ def campaign_flight(seed: int, duration_s: float = 360.0, rate_hz: float = 50.0,
     return CampaignFlight(columns, turns, level, rate_hz)
 
 
-def write_campaign(folder: Path, flights: list[CampaignFlight], stem: str = "flight"
-                   ) -> list[Path]:
-    """Each flight as ``<stem><k>_<rate>hz.csv`` in ``folder`` (k from 1, flight order)."""
+def write_campaign(folder: Path, flights: list, stem: str = "flight") -> list[Path]:
+    """Each flight (a :class:`CampaignFlight` or a ``tests.turning_flights.TurningFlight``:
+    anything with ``write(path)`` and ``rate_hz``) as ``<stem><k>_<rate>hz.csv`` in
+    ``folder`` (k from 1, flight order)."""
     folder.mkdir(parents=True, exist_ok=True)
     return [f.write(folder / f"{stem}{k}_{f.rate_hz:g}hz.csv")
             for k, f in enumerate(flights, start=1)]

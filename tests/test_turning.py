@@ -239,11 +239,12 @@ def test_lateral_columns_round_trip_through_the_csv(tmp_path, trainer):
 def test_import_keeps_turning_flight_and_the_model_takes_it(tmp_path, trainer):
     """import-log --turns keeps the turns (cut only beyond --max-bank), records the channels
     it fed, and the dataset's sorties carry phi, p, r, beta."""
-    from tests.turning_flights import turning_flight, write_flights
+    from tests.campaign_flights import write_campaign
+    from tests.turning_flights import turning_flight
 
     flight = turning_flight(5, duration_s=80.0, rate_hz=20.0)
     assert flight.turns and flight.bank_time(15.0) > 5.0
-    logs = write_flights(tmp_path / "logs", [flight])
+    logs = write_campaign(tmp_path / "logs", [flight])
     assert main(["import-log", str(logs[0]), "--kind", "fixed_wing", "--out",
                  str(tmp_path / "level")]) == 0
     assert main(["import-log", str(logs[0]), "--kind", "fixed_wing", "--turns", "--out",

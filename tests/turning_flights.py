@@ -158,13 +158,4 @@ def turning_flight(seed: int, duration_s: float = 360.0, rate_hz: float = 50.0,
     return TurningFlight(columns, turns, lateral, rate_hz)
 
 
-def write_flights(folder: Path, flights: list[TurningFlight], stem: str = "flight"
-                  ) -> list[Path]:
-    """Each flight as ``<stem><k>_<rate>hz.csv`` in ``folder`` (k from 1, flight order)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    return [f.write(folder / f"{stem}{k}_{f.rate_hz:g}hz.csv")
-            for k, f in enumerate(flights, start=1)]
-
-
-__all__ = ["ROLL_RATE_DEG_S", "TurningFlight", "turn_schedule", "turning_flight",
-           "write_flights"]
+__all__ = ["ROLL_RATE_DEG_S", "TurningFlight", "turn_schedule", "turning_flight"]
