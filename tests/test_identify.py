@@ -199,3 +199,18 @@ def test_structure_selection_keeps_the_term_the_truth_has(aerosonde):
     assert abs(e.value + 8.0) <= 3 * e.std_error_corrected, (e.value, e.std_error_corrected)
     tried = {e["step"] for e in log}
     assert "C_L_alpha2" in tried and any(t.startswith("C_m(alpha) table") for t in tried)
+
+
+def test_each_sortie_is_weighted_by_its_own_noise_level(aerosonde, truth):
+    """Maximum likelihood with a noise level per sortie: the true model, two sorties with the
+    emulator's sensor noise and two with ten times it; the refit weighs each sortie by
+    1 / its residual RMS, so the quiet ones get about ten times the weight."""
+    quiet, loud = _sorties(truth, 2, 3, noise=1.0), _sorties(truth, 2, 4, noise=10.0)
+    result = identify(truth, quiet + loud, [], ["C_m_alpha", "C_m_q"], progress=False,
+                      check_halves=False, screen=False, free_run=False)
+    weights = next(e["sortie_weights"] for e in result.search if e["step"] == "re-weighted")
+    ratio = min(weights[0], weights[1]) / max(weights[2], weights[3])
+    assert 7.0 < ratio < 13.0, weights
+    for e in result.estimates:  # and the fit stays where the truth is
+        true = getattr(truth.params, e.name)
+        assert abs(e.value - true) <= 3 * e.std_error_corrected, (e.name, e.value, true)

@@ -96,6 +96,7 @@ class _Fit:
     problem: _Problem | None = None
     data_cache: dict[tuple, np.ndarray] = field(default_factory=dict)
     prior: np.ndarray | None = None  # weights of the parameters' prior rows (none: no prior)
+    window_weights: np.ndarray | None = None  # per window (its sortie's); None: all 1
 
     @property
     def controls(self) -> tuple[str, ...]:
@@ -117,6 +118,8 @@ class _Fit:
                                                      self.ratios, self.weights, self.noise,
                                                      u.p_nom, u.scale)
             self.data_cache[key]["prior"] = self.prior
+            if self.window_weights is not None:
+                self.data_cache[key]["window_weights"] = self.window_weights
         return self.data_cache[key]
 
     def with_dx(self, th: np.ndarray) -> np.ndarray:

@@ -4,13 +4,19 @@ The model's discrete step (:func:`uavdyn.integrate.physics_step`: RK sub-steps p
 actuator lags as augmented states) is rolled out over short windows, each restarted from a
 recorded state (multiple shooting on data: closed-loop flights and marginally stable airframes
 stay fit-able), and the chosen entries of ``p`` minimise the weighted squared difference between
-predicted and recorded body states ``(u, w, q, theta)``. The least squares are solved by a
+predicted and recorded body states ``(u, w, q, theta)``: each state weighted by its residual
+level, and, after the first fit, each sortie by its own (maximum likelihood with a noise level
+per sortie: a calm flight's small residuals count as much as they say, instead of being
+drowned by a turbulent flight's, whose unmeasured gusts would otherwise bias every estimate
+toward what absorbs them). The least squares are solved by a
 bounded Levenberg-Marquardt method on exact Jacobians (:mod:`uavdyn.identify.problem`: one
 compiled per-window Function mapped over the windows). Standard errors
 (:mod:`uavdyn.identify.uncertainty`): the Cramer-Rao bound (white residuals assumed, optimistic
 on real data) and the one corrected for the residuals' autocorrelation and for how the sorties
-pull the estimate apart, the one to use; collinear groups and intervals spanning zero are
-flagged as not determined by the data, with the excitation that would determine them.
+pull the estimate apart, the one to use; an interval spanning zero is flagged as not
+determined by the data, with the collinear group that widened it and the excitation that would
+determine it. Collinearity alone is reported (Belsley's groups, correlations), not a verdict:
+the corrected standard error already carries the variance it inflates.
 
 What each kind of name means:
 
@@ -98,6 +104,8 @@ PREROLL_GROWTH = 4.0     # the first pre-roll covers lags up to this many times 
 HALF_ITERATIONS = 30     # the halves start from the whole fit: a few steps move them
 REWEIGHT_PASSES = 1      # refits with each state weighted by its residual after the fit ...
 REWEIGHT_FLOOR = 1e-3    # ... down to this fraction of the nominal model's residual
+SORTIE_WEIGHTS = True    # ... and each sortie by its own residual level
+SORTIE_WEIGHT_FLOOR = 0.01  # ... down to this fraction of the pooled one
 
 
 def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
@@ -169,8 +177,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         (:mod:`uavdyn.identify.prior`). A parameter the data do not determine is then fitted
         under the prior. Default: no prior.
     keep_undetermined : bool
-        False (default): a parameter the data do not determine (interval spanning zero,
-        collinear, on a bound; under a prior: on a bound) keeps the airframe file's value and
+        False (default): a parameter the data do not determine (interval spanning zero, on a
+        bound; under a prior: on a bound) keeps the airframe file's value and
         the others are refitted with it fixed (:mod:`uavdyn.identify.fallback`). True: the
         raw fit, every value as fitted (flagged).
     free_run : bool
@@ -322,8 +330,9 @@ def _prepare(airframe: Airframe, train: list[Sortie], continuous: list[str],
 
 def _solve(fit: _Fit, max_delay: int, max_iterations: int, progress: bool) -> _Outcome:
     """Search the start, fit, re-check the delays, and refit once with each state weighted by
-    its own residual after the fit (not the nominal model's error): optimal weights for the
-    estimate, and the ones the Cramer-Rao bound assumes."""
+    its own residual after the fit (not the nominal model's error) and each sortie by its own
+    residual level: optimal weights for the estimate, and the ones the Cramer-Rao bound
+    assumes."""
     log: list[dict] = []
     u = fit.unknowns
     delays = list(fit.airframe.delay_samples())
@@ -343,12 +352,18 @@ def _solve(fit: _Fit, max_delay: int, max_iterations: int, progress: bool) -> _O
             fit, z, delays, lower, upper, max_delay, max_iterations, progress, iterations,
             stats, log)
         rms, floor, new = _residual_weights(fit, z, delays)
+        per_sortie = _sortie_weights(fit, z, delays) if SORTIE_WEIGHTS else None
+        moved = (per_sortie is not None and fit.window_weights is None
+                 and np.max(np.abs(np.log(per_sortie))) >= 0.1)
         if (pass_ == REWEIGHT_PASSES or np.all(rms <= floor)  # noise-free: fit exact
-                or np.max(np.abs(np.log(new / fit.weights))) < 0.1):
+                or (np.max(np.abs(np.log(new / fit.weights))) < 0.1 and not moved)):
             break
         fit.weights = new
+        if per_sortie is not None:
+            fit.window_weights = per_sortie
         fit.data_cache.clear()
-        log.append({"step": "re-weighted", "weights": fit.weights.tolist()})
+        log.append({"step": "re-weighted", "weights": fit.weights.tolist(),
+                    "sortie_weights": _per_sortie(fit)})
     r, J = fit.problem.evaluate(z, fit.data_for(delays))
     return _Outcome(z, delays, r, J, cost_initial, iterations, stats, log)
 
@@ -381,6 +396,28 @@ def _fit_and_recheck(fit: _Fit, z: np.ndarray, delays: list[int], lower: np.ndar
             break
         delays, z = moved
     return z, delays, iterations, stats
+
+
+def _sortie_weights(fit: _Fit, z: np.ndarray, delays: list[int]) -> np.ndarray:
+    """Each window's weight: 1 / its sortie's residual RMS (in units of the pooled RMS, after
+    the state weights), so a calm sortie counts as much as its small noise says."""
+    r = np.asarray(fit.problem.residual(z, fit.data_for(delays))).ravel()
+    W, L = fit.windows.count, fit.L
+    per_window = r[:W * L * N_BODY].reshape(W, L * N_BODY)
+    if fit.window_weights is not None:
+        per_window = per_window / fit.window_weights[:, None]
+    ms = np.mean(per_window ** 2, axis=1)
+    sortie = np.array([i for i, _ in fit.windows.starts])
+    pooled = math.sqrt(float(np.mean(ms)))
+    rms = {i: math.sqrt(float(np.mean(ms[sortie == i]))) for i in set(sortie.tolist())}
+    return np.array([pooled / max(rms[i], SORTIE_WEIGHT_FLOOR * pooled) for i in sortie])
+
+
+def _per_sortie(fit: _Fit) -> dict[int, float]:
+    """The window weights by training sortie (index in the train list)."""
+    if fit.window_weights is None:
+        return {}
+    return {int(i): float(w) for (i, _), w in zip(fit.windows.starts, fit.window_weights)}
 
 
 def _residual_weights(fit: _Fit, z: np.ndarray, delays: list[int]

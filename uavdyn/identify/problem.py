@@ -102,7 +102,7 @@ class _Problem:
             "u": window_commands(windows, delays).reshape(W * L, -1).T}
         padded = {k: self._pad(a, self._widths[k]) for k, a in per_window.items()}
         return {**padded, "y": windows.y.reshape(W * L, -1).T,
-                "weights": np.asarray(weights, float)}
+                "weights": np.asarray(weights, float), "window_weights": np.ones(W)}
 
     def _pad(self, a: np.ndarray, width: int) -> np.ndarray:
         """Column blocks of ``width`` per window, the last window repeated up to whole
@@ -137,8 +137,12 @@ class _Problem:
         ``data`` has a ``"prior"`` weight per parameter) the parameters' prior
         ``prior * theta`` (centred on the file's values, ``theta = 0``)."""
         pred = self._call(self.predict, z, data)["y"]
-        r = ((pred - data["y"]) * data["weights"][:, None]).ravel(order="F")
+        r = ((pred - data["y"]) * self._sample_weights(data)).ravel(order="F")
         return np.concatenate([r, z[self.n_theta:], *self._prior_rows(z, data)])
+
+    def _sample_weights(self, data: dict) -> np.ndarray:
+        """Each residual's weight: its state's times its window's (``N_BODY x W*L``)."""
+        return data["weights"][:, None] * np.repeat(data["window_weights"], self.L)[None, :]
 
     def _prior_rows(self, z: np.ndarray, data: dict) -> list[np.ndarray]:
         """The parameters' prior residual (:meth:`residual`), if ``data`` has one."""
@@ -156,11 +160,12 @@ class _Problem:
         out = self._call(self.sensitivities, z, data)
         pred, dy = out["y"], out["dy"]
         w = data["weights"]
-        r = np.concatenate([((pred - data["y"]) * w[:, None]).ravel(order="F"),
+        r = np.concatenate([((pred - data["y"]) * self._sample_weights(data)).ravel(order="F"),
                             z[self.n_theta:], *self._prior_rows(z, data)])
         rows = N_BODY * self.L
         n_u = self.n_theta + (N_BODY if self.estimate_x0 else 0)
-        blocks = dy.reshape(rows, self.W, n_u) * np.tile(w, self.L)[:, None, None]
+        blocks = (dy.reshape(rows, self.W, n_u) * np.tile(w, self.L)[:, None, None]
+                  * data["window_weights"][None, :, None])
         theta_part = blocks[:, :, :self.n_theta].transpose(1, 0, 2).reshape(-1, self.n_theta)
         parts = [sp.csr_matrix(theta_part)]
         if self.estimate_x0:
