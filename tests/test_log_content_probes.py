@@ -270,7 +270,7 @@ def test_dataset_csv_cut_inside_its_last_number_is_refused(tmp_path):
     path = _sortie_csv(tmp_path / "s.csv")
     read_csv(path)
     raw = path.read_bytes()
-    path.write_bytes(raw[:-4])           # inside the last number, no newline after it
+    path.write_bytes(raw[:-2])           # "0.5\n" cut to "0.": still a number
     with pytest.raises(FlightDataError, match="looks cut") as err:
         read_csv(path)
     _one_line(err.value, path.name, "data row 200")
