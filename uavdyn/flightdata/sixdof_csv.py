@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from uavdyn.flightdata.attitude import body_from_euler, rotate_to_body
-from uavdyn.flightdata.control_map import ChannelMap, override_maps
+from uavdyn.flightdata.control_map import ChannelMap, check_channel, override_maps
 from uavdyn.flightdata.csvio import CSV_MAX_BYTES, MAX_COLUMNS, MAX_LINE_CHARS, parse_number
 from uavdyn.flightdata.errors import FlightDataError, _short
 from uavdyn.flightdata.files import _read_text
@@ -126,6 +126,8 @@ def _read_columns(path: Path, kind: str, control_maps: list[ChannelMap] | None
                                   column=m.source)
     wanted += [m.source for m in maps.values() if m.source not in wanted]
     data = _parse(lines[1:], header, wanted, path)
+    for m in maps.values():
+        check_channel(m, data[m.source], path)
     unused = [h for h in header if h not in wanted]
     return data, maps, unused
 

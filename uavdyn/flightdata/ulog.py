@@ -98,8 +98,9 @@ CONTROL_SOURCES = ("auto", "actuator_controls", "setpoints", "motors")
 class _Topics:
     """Access to the topics of one parsed ULog, each cut to its main block of samples."""
 
-    def __init__(self, ulog, path: Path) -> None:
-        self.ulog, self.path = ulog, path
+    def __init__(self, ulog, path: Path,
+                 offsets: dict[tuple[str, int], list[int]] | None = None) -> None:
+        self.ulog, self.path, self.offsets = ulog, path, offsets or {}
         self.origin_us = int(ulog.start_timestamp)
         self.dropped: dict[str, int] = {}
         self.duplicates: dict[str, int] = {}
@@ -118,6 +119,7 @@ class _Topics:
                 if len(keep) < 2:
                     return None
                 _check_time_order(raw_stamps, keep, name, self.path)
+                self._check_inner_strays(raw_stamps, keep, name, multi_id)
                 if int(raw_stamps[keep].max()) >= _MAX_STAMP_US:
                     raise FlightDataError(f"corrupt timestamp {int(raw_stamps[keep].max())} us",
                                           self.path, column=f"{name}.timestamp")
@@ -141,6 +143,26 @@ class _Topics:
                         self.path, column=f"{name}.{fields[j]}")
                 return t, vals
         return None
+
+
+    def _check_inner_strays(self, raw_stamps: np.ndarray, keep: np.ndarray, name: str,
+                            multi_id: int) -> None:
+        """Refuse a sample cut as stray that lies among the kept ones in the file (a stamp
+        far from its neighbours in the middle of a topic: flipped or overwritten bytes, not
+        the zero stamps and far blocks at the ends that PX4 logs carry), naming its byte."""
+        inside = np.zeros(len(raw_stamps), bool)
+        inside[int(keep.min()):int(keep.max()) + 1] = True
+        inside[keep] = False
+        inside &= raw_stamps != 0
+        if not inside.any():
+            return
+        k = int(np.flatnonzero(inside)[0])
+        offsets = self.offsets.get((name, multi_id), [])
+        at = f" at byte {offsets[k]}" if k < len(offsets) else ""
+        raise FlightDataError(f"corrupt ULog file: data message {k + 1} of topic {name}"
+                              f"{at} has timestamp {int(raw_stamps[k])} us, far from the "
+                              "samples around it (flipped or overwritten bytes)", self.path,
+                              column=f"{name}.timestamp")
 
 
 def _check_unit(q: np.ndarray, t: np.ndarray, path: Path) -> None:
@@ -313,8 +335,8 @@ def import_ulog(path: str | Path, rate_hz: float | None = None, kind: str | None
     _check_ulog_options(path, rate_hz, kind, pitch_mix, control_source, name,
                         {"check": check, "kinematic": kinematic,
                          "allow_truncated": allow_truncated})
-    ulog, truncated_at, parser_messages = _read_ulog(path, allow_truncated)
-    topics = _Topics(ulog, path)
+    ulog, truncated_at, parser_messages, framing = _read_ulog(path, allow_truncated)
+    topics = _Topics(ulog, path, framing.offsets)
     kind = kind or _vehicle_kind(ulog)
     att, rate, vel, sources = _state_topics(topics, path)
     controls, control_sources = _controls(topics, kind, float(pitch_mix), path, control_source)
