@@ -16,7 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from uavdyn.flightdata.csvio import parse_number
 from uavdyn.flightdata.errors import FlightDataError
+from uavdyn.model import CONTROL_BOUNDS, CONTROL_NAMES
 
 
 @dataclass(frozen=True)
@@ -86,7 +88,7 @@ def parse_channel_map(text: str) -> ChannelMap:
         raise FlightDataError(f"control map {text!r}: expected CONTROL=SOURCE:RAW_LOW:RAW_HIGH:"
                               "VALUE_LOW:VALUE_HIGH (five fields after '=')")
     try:
-        numbers = [float(v) for v in parts[1:]]
+        numbers = [parse_number(v.strip(" \t")) for v in parts[1:]]
     except ValueError:
         raise FlightDataError(f"control map {text!r}: RAW_LOW, RAW_HIGH, VALUE_LOW, VALUE_HIGH "
                               "must be numbers") from None
@@ -163,8 +165,6 @@ def check_channel(m: ChannelMap, raw: np.ndarray, path: str | Path, *, rows: boo
     FlightDataError
         One line naming the file, the row or sample, the field and the limit.
     """
-    from uavdyn.model import CONTROL_BOUNDS, CONTROL_NAMES
-
     raw = np.asarray(raw, dtype=float)
     limits = []
     if _is_pwm(m):
