@@ -287,3 +287,48 @@ def test_dataset_csv_numbers_are_ascii():
         with pytest.raises(ValueError):
             parse_number(bad)
 
+
+
+# ----------------------------------------------------------------------------- speed check
+
+
+def _cruise(seed: int, seconds_long: float = 300.0, rate: float = 50.0):
+    """A fixed-wing flight's channels and accelerometer with realistic disturbances: Dryden-
+    like gusts of 1.5 m/s (10 s correlation) in the air-relative u and w that the
+    accelerometer does not see, accelerometer noise 0.5 m/s^2 and bias 0.1 m/s^2, velocity
+    noise 0.1 m/s."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, seconds_long, 1 / rate)
+    u = 20 + 3 * np.sin(0.05 * t) + 1.5 * np.sin(0.3 * t + seed)
+    w = 1 + 0.5 * np.sin(0.4 * t)
+    theta = 0.05 + 0.1 * np.sin(0.2 * t + seed)
+    q = np.gradient(theta, t)
+    force = np.column_stack([np.gradient(u, t) + q * w + G * np.sin(theta), 0 * t,
+                             np.gradient(w, t) - q * u - G * np.cos(theta)])
+    force += rng.normal(0.0, 0.5, force.shape) + rng.normal(0.0, 0.1, 3)
+    a = np.exp(-1 / (10.0 * rate))
+    gust = np.zeros((len(t), 2))
+    kick = rng.normal(0.0, 1.5 * np.sqrt(1 - a * a), gust.shape)
+    for k in range(1, len(t)):
+        gust[k] = a * gust[k - 1] + kick[k]
+    zero = 0 * t
+    channels = {"roll": zero, "pitch": theta, "p": zero, "q": q, "r": zero,
+                "u": u + gust[:, 0] + rng.normal(0, 0.1, len(t)), "v": zero,
+                "w": w + gust[:, 1] + rng.normal(0, 0.1, len(t))}
+    return t, channels, force
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_speed_check_passes_turbulence_and_noise_and_refuses_kmh(seed):
+    """Gusts the accelerometer cannot see and sensor noise scatter the fit without biasing
+    it (within 4 standard errors of 1) and never refuse it; the same flight in km/h, all
+    velocities or only u, is refused naming u."""
+    from uavdyn.flightdata.speed_check import check_speed_scale
+    t, channels, force = _cruise(seed)
+    fit = check_speed_scale("cruise.csv", t, channels, force, {"u": "u"})["u"]
+    assert abs(fit["scale"] - 1.0) < 4 * fit["standard_error"]
+    for names in ("uvw", "u"):
+        scaled = {**channels, **{k: 3.6 * channels[k] for k in names}}
+        with pytest.raises(FlightDataError, match="looks scaled") as err:
+            check_speed_scale("cruise.csv", t, scaled, force, {"u": "u"})
+        assert "column 'u'" in str(err.value)

@@ -175,11 +175,10 @@ def content_lines(meta: dict) -> list[str]:
     if meta.get("messages_read"):
         lines += ["  messages read: " + ", ".join(f"{k} {v}" for k, v in
                                                    meta["messages_read"].items())]
-    fit = meta.get("speed_check")
-    if fit:
-        lines += ["  speed against the accelerometer: " + ", ".join(
-            f"{k} x {v['scale']:.3g}" for k, v in fit.items() if v.get("scale") is not None)
-            + " (1 = consistent, m/s)"]
+    fit = (meta.get("speed_check") or {}).get("u") or {}
+    if fit.get("scale") is not None:
+        lines += [f"  speed u against the accelerometer: x {fit['scale']:.3g} +- "
+                  f"{fit['standard_error']:.2g} (1 = m/s; {fit['windows']} windows)"]
     return lines + [f"  warning: {w}" for w in meta.get("warnings", [])]
 
 
