@@ -30,7 +30,13 @@ from tests.test_ulog_synthetic import (
     write_log,
 )
 from uavdyn.cli.app import main
-from uavdyn.flightdata import FlightDataError, read_alfa_flight, read_csv, write_csv
+from uavdyn.flightdata import (
+    FlightDataError,
+    import_ulog,
+    read_alfa_flight,
+    read_csv,
+    write_csv,
+)
 from uavdyn.flightdata.control_map import ChannelMap
 from uavdyn.flightdata.sixdof_csv import read_sixdof_csv
 from uavdyn.flightdata.sortie import Sortie
@@ -150,6 +156,9 @@ def test_ulog_velocity_in_kmh_or_knots_is_refused(tmp_path, capsys, factor):
         read_ulog_flight(path)
     _one_line(err.value, path.name, "vehicle_local_position")
     _cli_refuses(capsys, tmp_path, path, path.name, "looks scaled")
+    assert abs(import_ulog(tmp_path / "good.ulg").meta["speed_check"]["u"]["scale"] - 1) < 0.05
+    with pytest.raises(FlightDataError, match="looks scaled"):   # the whole-log importer too
+        import_ulog(path)
 
 
 def _messages(raw: bytes) -> list[tuple[int, int, str]]:

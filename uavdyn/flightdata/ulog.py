@@ -64,8 +64,10 @@ from uavdyn.flightdata.resample import (
     _interp,
     _quaternions_on_grid,
     main_block,
+    states_on_grid,
 )
 from uavdyn.flightdata.sortie import Sortie
+from uavdyn.flightdata.speed_check import check_speed_scale
 from uavdyn.flightdata.ulog_format import (
     _MAX_STAMP_US,
     MAX_FORMAT_DEPTH,
@@ -76,6 +78,8 @@ from uavdyn.flightdata.ulog_format import (
     ULOG_TOPICS,
     ULOG_VERSIONS,
     _read_ulog,
+    log_content,
+    topic_names,
 )
 from uavdyn.model import CONTROL_BOUNDS
 
@@ -272,14 +276,32 @@ def _ulog_grid(used: list[tuple], rate_hz: float | None, path: Path) -> tuple[np
 
 
 def _ulog_states(grid: np.ndarray, att: tuple, rate: tuple, vel: tuple
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """The states ``u, w, q, theta`` on the grid, and the attitude quaternions there."""
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The states ``u, w, q, theta`` on the grid, the attitude quaternions there and the body
+    velocities ``u, v, w``."""
     quat = _quaternions_on_grid(grid, *att)
     theta = pitch_from_quaternion(quat)
     q = _interp(grid, *rate)[:, 0]
     v_ned = _interp(grid, *vel)
     v_body = np.einsum("nji,nj->ni", rotation_matrices(quat), v_ned)
-    return np.column_stack([v_body[:, 0], v_body[:, 2], q, theta]), quat
+    return np.column_stack([v_body[:, 0], v_body[:, 2], q, theta]), quat, v_body
+
+
+ACCELEROMETER = ("sensor_combined", [f"accelerometer_m_s2[{i}]" for i in range(3)])
+
+
+def ulog_speed_check(topics: _Topics, grid: np.ndarray, channels: dict[str, np.ndarray],
+                     source: str, path: Path) -> dict | None:
+    """The speed-scale check (:mod:`uavdyn.flightdata.speed_check`) against
+    ``sensor_combined.accelerometer_m_s2`` (FRD specific force) where the log has it (a
+    non-finite accelerometer sample leaves the check out, as any optional channel)."""
+    try:
+        found = topics.get(*ACCELEROMETER)
+    except FlightDataError:
+        found = None
+    if found is None:
+        return None
+    return check_speed_scale(path, grid, channels, states_on_grid(grid, *found), {"u": source})
 
 
 def import_ulog(path: str | Path, rate_hz: float | None = None, kind: str | None = None,
@@ -342,11 +364,16 @@ def import_ulog(path: str | Path, rate_hz: float | None = None, kind: str | None
     controls, control_sources = _controls(topics, kind, float(pitch_mix), path, control_source)
     sources.update(control_sources)
     grid, rate_hz = _ulog_grid([att, rate, vel, controls], rate_hz, path)
-    states, quat = _ulog_states(grid, att, rate, vel)
+    states, quat, v_body = _ulog_states(grid, att, rate, vel)
     ctrl = _hold(grid, *controls)
     time = np.arange(len(grid)) / rate_hz
     if check:
         _checked(path, kind, time, states, ctrl, rate_hz, kinematic)
+    zero = np.zeros(len(grid))   # p and r are not read here (their terms are small)
+    speed = ulog_speed_check(topics, grid, {
+        "roll": roll_from_quaternion(quat), "pitch": states[:, 3], "p": zero, "q": states[:, 2],
+        "r": zero, "u": v_body[:, 0], "v": v_body[:, 1], "w": v_body[:, 2]}, sources["u,w"],
+        path)
     meta = {
         "file": str(path), "source": "PX4 ULog", "sources": sources,
         "start_time_s": float(grid[0]) + topics.origin_us * 1e-6, "rate_hz": rate_hz,
@@ -356,7 +383,8 @@ def import_ulog(path: str | Path, rate_hz: float | None = None, kind: str | None
         "stray_samples_cut": {k: v for k, v in topics.dropped.items() if v},
         "duplicate_stamps": dict(topics.duplicates),
         "truncated_at_byte": truncated_at,
-        "parser_messages": parser_messages,
+        "parser_messages": parser_messages, "speed_check": speed,
+        **log_content(ulog, topic_names(sources.values())),
         "checked": {"values": check, "kinematic": bool(check and kinematic)},
         "roll": roll_from_quaternion(quat),
         "sys_name": ulog.msg_info_dict.get("sys_name", ""),

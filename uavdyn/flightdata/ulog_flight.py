@@ -34,7 +34,6 @@ from uavdyn.flightdata.resample import (
     in_gap,
     states_on_grid,
 )
-from uavdyn.flightdata.speed_check import check_speed_scale
 from uavdyn.flightdata.ulog import (
     _check_ulog_options,
     _controls,
@@ -43,6 +42,7 @@ from uavdyn.flightdata.ulog import (
     _Topics,
     _ulog_grid,
     _vehicle_kind,
+    ulog_speed_check,
 )
 from uavdyn.flightdata.ulog_format import _read_ulog, log_content, topic_names
 from uavdyn.model import CONTROL_BOUNDS, CONTROL_NAMES
@@ -55,7 +55,6 @@ WIND_SOURCES = (("wind", ["windspeed_north", "windspeed_east"]),
 AIRSPEED_SOURCES = (("airspeed_validated", ["true_airspeed_m_s"]),
                     ("airspeed", ["true_airspeed_m_s"]))
 
-ACCELEROMETER_SOURCES = (("sensor_combined", [f"accelerometer_m_s2[{i}]" for i in range(3)]),)
 ALTITUDE_SOURCES = (("vehicle_global_position", ["alt"]),
                     ("vehicle_local_position", ["ref_alt", "z"]))  # ref_alt - z
 
@@ -196,7 +195,8 @@ def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str |
                                "body_rates": round(_mean_rate(rates[1][0]), 1),
                                "velocity": round(_mean_rate(vel[0]), 1)},
             "truncated_at_byte": truncated_at,
-            "speed_check": _speed_check(topics, grid, channels, sources, path),
+            "speed_check": ulog_speed_check(topics, grid, channels,
+                                            sources.get("airspeed", sources["u,w"]), path),
             **log_content(ulog, ["vehicle_attitude", gyro_topic, "vehicle_local_position",
                                  *topic_names(control_sources.values())])}
     return FlightLog(name=name or path.stem, kind=kind, time=grid - grid[0], channels=channels,
@@ -215,18 +215,6 @@ def _check_controls(controls: tuple, sources: dict[str, str], kind: str,
         if control not in replaced:
             check_channel(ChannelMap(control, sources[control], 0.0, 1.0, 0.0, 1.0),
                           controls[1][:, j], path, rows=False, times=controls[0])
-
-
-def _speed_check(topics: _Topics, grid: np.ndarray, channels: dict[str, np.ndarray],
-                 sources: dict[str, str], path: Path) -> dict | None:
-    """The speed-scale check (:mod:`uavdyn.flightdata.speed_check`) against
-    ``sensor_combined.accelerometer_m_s2`` (FRD specific force) where the log has it."""
-    found = _first(topics, ACCELEROMETER_SOURCES, optional=True)
-    if found is None:
-        return None
-    force = states_on_grid(grid, *found[1])
-    named = {"u": sources.get("airspeed", sources["u,w"]), "w": sources["u,w"]}
-    return check_speed_scale(path, grid, channels, force, named)
 
 
 def _altitude(topics: _Topics, grid: np.ndarray, meta: dict) -> np.ndarray | None:
