@@ -341,3 +341,23 @@ def test_speed_check_passes_turbulence_and_noise_and_refuses_kmh(seed):
         with pytest.raises(FlightDataError, match="looks scaled") as err:
             check_speed_scale("cruise.csv", t, scaled, force, {"u": "u"})
         assert "column 'u'" in str(err.value)
+
+
+def test_dataset_with_both_files_cut_at_the_same_place_is_refused(tmp_path, capsys):
+    """A sortie CSV and its true-states CSV cut at the same byte inside their last number
+    (an interrupted copy of the dataset): the loader and the CLI refuse it in one line."""
+    from tests.fuzz_dataset import write_dataset
+    from uavdyn.flightdata import load_dataset
+    folder = write_dataset(tmp_path / "ds")
+    load_dataset(folder)
+    for name in ("s0.csv", "s0_true.csv"):
+        raw = (folder / name).read_bytes()
+        (folder / name).write_bytes(raw[:-3])
+    with pytest.raises(FlightDataError, match="looks cut") as err:
+        load_dataset(folder)
+    _one_line(err.value, "s0.csv", "data row")
+    code = main(["evaluate", "--airframe", "f450", "--dataset", str(folder), "--out",
+                 str(tmp_path / "m.json")])
+    out, err_text = capsys.readouterr()
+    assert code != 0 and "Traceback" not in out + err_text
+    assert [x for x in err_text.splitlines() if x.strip()][0].count("looks cut") == 1
