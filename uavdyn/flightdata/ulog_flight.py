@@ -209,9 +209,13 @@ def _check_controls(controls: tuple, sources: dict[str, str], kind: str,
                     user_maps: list[ChannelMap] | None, path: Path) -> None:
     """The controls the default maps give (those no user map replaces) within what their
     channel holds (:func:`~uavdyn.flightdata.control_map.check_channel`: a throttle share
-    0..1, the elevator and pitch-command limits), named by their logged source."""
+    0..1, the elevator and pitch-command limits), named by their logged source; a pitch
+    command inferred from the motor outputs (an assumed mix) is not a logged channel and is
+    left to the segmenter."""
     replaced = {m.control for m in user_maps or []}
     for j, control in enumerate(CONTROL_NAMES[kind]):
+        if sources[control].startswith("(front"):
+            continue   # a pitch command inferred from the motor mix is no logged channel
         if control not in replaced:
             check_channel(ChannelMap(control, sources[control], 0.0, 1.0, 0.0, 1.0),
                           controls[1][:, j], path, rows=False, times=controls[0])
