@@ -170,7 +170,18 @@ CONTENT_KEYS = ("messages_read", "dropouts", "warnings", "speed_check")
 def content_lines(meta: dict) -> list[str]:
     """What a reader recorded of the log's content, as summary lines: the data messages
     read per topic (a cut ULog is shorter, not refused: the counts show it), the speed
-    check's fit, and each warning (a topic ending early, logger dropouts)."""
+    check's fit, and each warning (a topic ending early, logger dropouts).
+
+    Parameters
+    ----------
+    meta : dict
+        A flight's ``meta`` (keys :data:`CONTENT_KEYS`, each optional).
+
+    Returns
+    -------
+    list of str
+        Indented lines for ``import_summary.txt`` (none for a reader that records nothing).
+    """
     lines = []
     if meta.get("messages_read"):
         lines += ["  messages read: " + ", ".join(f"{k} {v}" for k, v in

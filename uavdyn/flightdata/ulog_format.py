@@ -327,8 +327,19 @@ END_GAP_INTERVALS = 10     # or this many of its own sample intervals, whichever
 
 
 def topic_names(sources) -> list[str]:
-    """The topics named in channel-source descriptions (``actuator_controls_0.control[3]``,
-    ``-vehicle_thrust_setpoint.xyz[2]``, ``mean of actuator_motors.control[0..3]``)."""
+    """The imported topics named in channel-source descriptions.
+
+    Parameters
+    ----------
+    sources : iterable of str
+        Descriptions such as ``actuator_controls_0.control[3]``,
+        ``-vehicle_thrust_setpoint.xyz[2]``, ``mean of actuator_motors.control[0..3]``.
+
+    Returns
+    -------
+    list of str
+        The topic names of :data:`ULOG_TOPICS` among them, sorted.
+    """
     return sorted({t for text in sources for t in re.findall(r"([a-z][a-z0-9_]*)\.", text)
                    if t in ULOG_TOPICS})
 
@@ -342,6 +353,19 @@ def log_content(ulog, used: list[str]) -> dict:
     data end well before the log's last sample (more than :data:`END_GAP_MIN_S` and
     :data:`END_GAP_INTERVALS` of its intervals: a gap at the end, e.g. a log cut or a
     sensor lost), and any dropouts.
+
+    Parameters
+    ----------
+    ulog : pyulog.ULog
+        The parsed log.
+    used : list of str
+        The topics the import used (only these are judged for a gap at the end).
+
+    Returns
+    -------
+    dict
+        ``messages_read`` (topic -> count), ``dropouts`` (``count``, ``total_ms``) and
+        ``warnings`` (one sentence each), merged into the import's ``meta``.
     """
     from uavdyn.flightdata.resample import main_block
 
