@@ -13,9 +13,10 @@ PX4 ULog, per the conventions of ``shared/data/flightlogs/README.md``:
   fixed-wing controls from ``actuator_controls_1`` (elevator = -control[1] x 30 deg, since PX4's
   positive pitch command is nose up and this product's positive elevator is nose down);
 * stray samples (timestamp 0, or a block far from the rest) are cut off each topic and the
-  count is recorded in ``sortie.meta``; all signals are resampled to one uniform grid over the
-  time span common to the topics used: states by linear interpolation (quaternions
-  normalised), controls by zero-order hold (they are commands).
+  count is recorded in ``sortie.meta``; a stamp far from its neighbours inside a topic is
+  corruption (flipped bytes) and is refused with its byte offset; all signals are resampled
+  to one uniform grid over the time span common to the topics used: states by linear
+  interpolation (quaternions normalised), controls by zero-order hold (they are commands).
 
 Reliability (SPEC section 9): the file is read and its framing checked by :mod:`.ulog_format`;
 non-finite or non-unit source samples raise :class:`FlightDataError` naming the file (and

@@ -4,8 +4,11 @@ Only a regular file within :data:`MAX_ULOG_BYTES` is read. Before pyulog (the op
 dependency) parses anything, the framing is walked: a cut file (its last message incomplete)
 is refused unless asked for, format definitions are bounded, and the data messages of each
 imported topic are counted, so that a parse that stopped early at a malformed message, or a
-file pyulog flags as corrupt, raises :class:`FlightDataError`. A ULog cut exactly at a message
-boundary cannot be told from a shorter log: the format has no end marker.
+file pyulog flags as corrupt, raises :class:`FlightDataError`; so does a data message whose
+size is not its format's or whose id no subscription defined (flipped bytes), with its byte
+offset. A ULog cut exactly at a message boundary cannot be told from a shorter log (the
+format has no end marker and no per-topic counts): :func:`log_content` reports the messages
+read per topic, the logger's dropouts and a topic whose data end early.
 """
 
 from __future__ import annotations
