@@ -361,3 +361,25 @@ def test_dataset_with_both_files_cut_at_the_same_place_is_refused(tmp_path, caps
     out, err_text = capsys.readouterr()
     assert code != 0 and "Traceback" not in out + err_text
     assert [x for x in err_text.splitlines() if x.strip()][0].count("looks cut") == 1
+
+
+@pytest.mark.parametrize("damage", ["unknown_id", "short_message"])
+def test_ulog_data_message_framing_damage_is_refused_with_the_byte_offset(tmp_path, damage):
+    """One data message of vehicle_attitude given an id no subscription defined, or made 4
+    bytes shorter than its format (size field consistent, so the framing still tiles the
+    file): refused naming the byte offset (before, pyulog's corruption flag refused both
+    without saying where)."""
+    raw = bytearray(_long_ulog(tmp_path / "good.ulg", seconds_long=6.0).read_bytes())
+    ids = _topic_ids(bytes(raw))
+    at, size, _ = next((p, s, k) for p, s, k in _messages(bytes(raw))[200:] if k == "D"
+                       and ids[struct.unpack_from("<H", raw, p + 3)[0]] == "vehicle_attitude")
+    if damage == "unknown_id":
+        struct.pack_into("<H", raw, at + 3, 999)
+    else:
+        struct.pack_into("<H", raw, at, size - 4)
+        del raw[at + 3 + size - 4:at + 3 + size]
+    path = tmp_path / f"{damage}.ulg"
+    path.write_bytes(bytes(raw))
+    with pytest.raises(FlightDataError, match="corrupt ULog file") as err:
+        read_ulog_flight(path)
+    _one_line(err.value, path.name, f"byte {at}")
