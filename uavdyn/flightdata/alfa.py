@@ -23,7 +23,8 @@ from uavdyn.flightdata.attitude import (
     pitch_from_quaternion,
     roll_from_quaternion,
 )
-from uavdyn.flightdata.control_map import ChannelMap, override
+from uavdyn.flightdata.control_map import ChannelMap, check_channel, override
+from uavdyn.flightdata.csvio import parse_number
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.fast_grid import fastest_grid, gyro_aided_attitude
 from uavdyn.flightdata.files import _read_regular, _utf8_text
@@ -45,6 +46,7 @@ from uavdyn.flightdata.resample import (
     states_on_grid,
 )
 from uavdyn.flightdata.sortie import Sortie
+from uavdyn.flightdata.speed_check import check_speed_scale
 from uavdyn.model import CONTROL_BOUNDS
 
 MAX_ALFA_CSV_BYTES = 512 * 1024**2  # the same for each ALFA topic CSV (real ones are < 1 MB)
@@ -65,8 +67,9 @@ ALFA_PWM_RANGE = (1178.0, 1593.0)  # servo 2 (elevator) PWM of -30 .. +30 deg (i
 class _AlfaTopic:
     """One MAVROS topic CSV: its path, integer-nanosecond receive times and the fields read."""
 
-    def __init__(self, path: Path, t_ns: np.ndarray, vals: np.ndarray) -> None:
-        self.path, self.t_ns, self.vals = path, t_ns, vals
+    def __init__(self, path: Path, t_ns: np.ndarray, vals: np.ndarray,
+                 fields: list[str] | None = None) -> None:
+        self.path, self.t_ns, self.vals, self.fields = path, t_ns, vals, fields or []
 
 
 def _alfa_file(folder: Path, root: Path, suffix: str) -> Path:
@@ -90,10 +93,12 @@ def _alfa_file(folder: Path, root: Path, suffix: str) -> Path:
     return path
 
 
-def _alfa_topic(folder: Path, root: Path, suffix: str, fields: list[str]) -> _AlfaTopic:
+def _alfa_topic(folder: Path, root: Path, suffix: str, fields: list[str],
+                optional: tuple[str, ...] = ()) -> _AlfaTopic:
     """Read the fields of one topic CSV (``rostopic echo -p`` layout) with every check: text,
     header, one value per column in every row, integer strictly increasing ``%time``, finite
-    numbers, at least 2 rows."""
+    ASCII numbers, at least 2 rows. The ``optional`` fields the header has are read too
+    (after ``fields``; ``.fields`` lists what was read)."""
     path = _alfa_file(folder, root, suffix)
     raw = _read_regular(path, path, MAX_ALFA_CSV_BYTES)
     if not raw.strip():
@@ -112,6 +117,7 @@ def _alfa_topic(folder: Path, root: Path, suffix: str, fields: list[str]) -> _Al
             if header.count(f) > 1:
                 raise FlightDataError(f"column '{f}' appears {header.count(f)} times in the "
                                       "header", path, line=1, column=f)
+        fields = [*fields, *(f for f in optional if header.count(f) == 1)]
         i_time = header.index(ALFA_TIME)
         i_fields = [header.index(f) for f in fields]
         blank = None
@@ -133,7 +139,7 @@ def _alfa_topic(folder: Path, root: Path, suffix: str, fields: list[str]) -> _Al
             values = []
             for f, i in zip(fields, i_fields):
                 try:
-                    v = float(row[i])
+                    v = parse_number(row[i].strip(" \t"))
                 except ValueError:
                     raise FlightDataError(f"cannot read {row[i][:40]!r} as a number", path, r,
                                           f, line=reader.line_num) from None
@@ -159,20 +165,18 @@ def _alfa_topic(folder: Path, root: Path, suffix: str, fields: list[str]) -> _Al
         raise FlightDataError(f"time {int(t_ns[k])} ns is not after the previous row's "
                               f"{int(t_ns[k - 1])} ns (time must strictly increase)", path,
                               k + 1, ALFA_TIME)
-    return _AlfaTopic(path, t_ns, np.array(rows, dtype=float))
+    return _AlfaTopic(path, t_ns, np.array(rows, dtype=float), fields)
 
 
 def _check_alfa_ranges(topics: dict[str, _AlfaTopic]) -> None:
-    """Source values the mapping cannot take: elevator PWM outside the servo range of +-30
-    deg, throttle outside 0..1 (named in their file, not as resampled grid rows)."""
-    for key, column, (lo, hi), unit in (("servo", "field.channels1", ALFA_PWM_RANGE, " us"),
-                                        ("hud", "field.throttle", (0.0, 1.0), "")):
-        v = topics[key].vals[:, 0]
-        out = np.flatnonzero((v < lo) | (v > hi))
-        if len(out):
-            k = int(out[0])
-            raise FlightDataError(f"value {v[k]:g}{unit} is outside the range {lo:g}-{hi:g}"
-                                  f"{unit} this importer maps", topics[key].path, k + 1, column)
+    """Source values the mapping cannot take (the one channel check,
+    :func:`~uavdyn.flightdata.control_map.check_channel`): elevator PWM outside the servo
+    range of +-30 deg, throttle outside 0..1 (named in their file, not as grid rows)."""
+    max_defl = CONTROL_BOUNDS["fixed_wing"][0][1]
+    for key, m in (("servo", ChannelMap("elevator", "field.channels1", *ALFA_PWM_RANGE,
+                                        -max_defl, max_defl)),
+                   ("hud", ChannelMap("throttle", "field.throttle", 0.0, 1.0, 0.0, 1.0))):
+        check_channel(m, topics[key].vals[:, 0], topics[key].path)
 
 
 def _check_alfa_overlap(topics: dict[str, _AlfaTopic], rel: dict[str, np.ndarray]) -> None:
@@ -304,6 +308,21 @@ ALFA_FLIGHT_TOPICS: dict[str, tuple[str, list[str]]] = {  # six-degree-of-freedo
 }
 
 
+ALFA_ACCELEROMETER = tuple(f"field.linear_acceleration.{c}" for c in "xyz")  # raw IMU, FLU
+
+
+def _alfa_speed_check(folder: Path, topics: dict[str, _AlfaTopic], grid: np.ndarray,
+                      raw_imu: np.ndarray, channels: dict[str, np.ndarray]) -> dict | None:
+    """The speed-scale check (:mod:`uavdyn.flightdata.speed_check`) where the raw IMU topic
+    has its accelerometer (FLU, turned to FRD here); None where it has not."""
+    if topics["gyro"].vals.shape[1] < 6:
+        return None
+    force = raw_imu[:, 3:6] * np.array([1.0, -1.0, -1.0])
+    sources = {"u": f"{topics['airspeed'].path.name} field.measured (u)",
+               "w": f"{topics['odom'].path.name} field.twist.twist.linear.z (w)"}
+    return check_speed_scale(folder, grid, channels, force, sources)
+
+
 ALFA_SERVO_MAP = (1100.0, 1900.0, -0.35, 0.35)  # ArduPlane's default servo range, +-20 deg
 
 
@@ -365,8 +384,12 @@ def read_alfa_flight(folder: str | Path, rate_hz: float | None = None, name: str
                                   "<topic suffix>/<field>, e.g. mavros-rc-out/field.channels1",
                                   folder)
         wanted[f"control:{control}"] = (suffix, [field_name])
-    topics = {key: _alfa_topic(folder, root, suffix, fields)
+    topics = {key: _alfa_topic(folder, root, suffix, fields,
+                               ALFA_ACCELEROMETER if key == "gyro" else ())
               for key, (suffix, fields) in wanted.items()}
+    for control, m in maps.items():
+        got = topics[f"control:{control}"]
+        check_channel(m, got.vals[:, 0], got.path, column=got.fields[0])
     first = _first_non_unit(topics["imu"].vals)
     if first is not None:
         raise FlightDataError(f"orientation (w, x, y, z) has norm {first[1]:.6g}, not a unit "
@@ -402,6 +425,7 @@ def read_alfa_flight(folder: str | Path, rate_hz: float | None = None, name: str
     channels = {"roll": roll, "pitch": pitch, "p": gyro[:, 0], "q": -gyro[:, 1],
                 "r": -gyro[:, 2], "u": u, "v": -vel[:, 1], "w": w}
     meta = {"file": str(folder), "start_time_s": origin * 1e-9 + t0, "rate_hz": choice.rate_hz,
+            "speed_check": _alfa_speed_check(folder, topics, grid, gyro, channels),
             "files": {key: str(tp.path) for key, tp in topics.items()}, "grid": choice.reason,
             "topic_rates_hz": choice.topic_rates_hz,
             "sources": {"roll,pitch": "mavros-imu-data orientation (pitch negated: ENU/FLU)"

@@ -37,7 +37,7 @@ import numpy as np
 
 from uavdyn.flightdata.ardupilot_maps import default_maps
 from uavdyn.flightdata.attitude import body_from_euler, rotate_to_body
-from uavdyn.flightdata.control_map import ChannelMap
+from uavdyn.flightdata.control_map import ChannelMap, check_channel
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.fast_grid import fastest_grid, gyro_aided_attitude
 from uavdyn.flightdata.flightlog import FlightLog
@@ -362,6 +362,8 @@ def read_dataflash(path: str | Path, kind: str | None = None, rate_hz: float | N
     vel_source, vel_t, v_ned = _ned_velocity(scan, path)
     maps, notes = default_maps(kind, scan, control_maps, path)
     raw = {c: _field(scan, maps[c].source, f"the {c} control", path) for c in maps}
+    for c, (t_raw, values) in raw.items():
+        check_channel(maps[c], values, path, rows=False, times=t_raw)
     att_t = scan.series[att][0]
     choice = fastest_grid({att: att_t, "IMU": gyro[0][0], vel_source.split(".")[0]: vel_t},
                           ("IMU",), att, _attitude_rate(att_t), rate_hz)

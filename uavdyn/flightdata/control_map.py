@@ -16,7 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from uavdyn.flightdata.csvio import parse_number
 from uavdyn.flightdata.errors import FlightDataError
+from uavdyn.model import CONTROL_BOUNDS, CONTROL_NAMES
 
 
 @dataclass(frozen=True)
@@ -86,7 +88,7 @@ def parse_channel_map(text: str) -> ChannelMap:
         raise FlightDataError(f"control map {text!r}: expected CONTROL=SOURCE:RAW_LOW:RAW_HIGH:"
                               "VALUE_LOW:VALUE_HIGH (five fields after '=')")
     try:
-        numbers = [float(v) for v in parts[1:]]
+        numbers = [parse_number(v.strip(" \t")) for v in parts[1:]]
     except ValueError:
         raise FlightDataError(f"control map {text!r}: RAW_LOW, RAW_HIGH, VALUE_LOW, VALUE_HIGH "
                               "must be numbers") from None
@@ -119,3 +121,72 @@ def override_maps(defaults: dict[str, ChannelMap], given: list[ChannelMap] | Non
         return override(defaults, given)
     except FlightDataError as exc:
         raise FlightDataError(exc.reason, path, column=exc.column) from None
+
+
+PWM_RANGE_US = (800.0, 2200.0)
+"""What an RC servo or ESC pulse can be (us); a map whose raw points lie inside this range reads
+a PWM channel, and its readings must lie in it (or between the map's own points if wider)."""
+CHANNEL_SLACK = 1e-6   # relative slack on the control limits (float32 rounding of a logged 1.0)
+
+
+def _is_pwm(m: ChannelMap) -> bool:
+    """Whether the map reads a servo pulse width (both raw points are plausible PWM)."""
+    lo, hi = PWM_RANGE_US
+    return all(lo <= v <= hi for v in (m.raw_low, m.raw_high))
+
+
+def check_channel(m: ChannelMap, raw: np.ndarray, path: str | Path, *, rows: bool = True,
+                  times: np.ndarray | None = None, column: str | None = None) -> None:
+    """Refuse a logged reading the channel cannot hold, before it is resampled.
+
+    A PWM channel (:func:`_is_pwm`) holds :data:`PWM_RANGE_US` (widened to the map's own
+    points); every control holds its airframe-kind range after the map (throttle and
+    collective are shares 0..1, the elevator +-30 deg, the pitch command -1..1:
+    :data:`uavdyn.model.CONTROL_BOUNDS`). A throttle of 5 or a pulse of 3000 us is a unit or
+    logging fault, not a flight condition, so it is refused rather than cut out later.
+
+    Parameters
+    ----------
+    m : ChannelMap
+        The map the readings go through.
+    raw : ndarray
+        The logged readings in file order (NaN, an empty cell, is skipped).
+    path : str or Path
+        The file named in the message.
+    rows : bool
+        Name the reading as data row ``k + 1`` (a CSV) rather than as sample ``k + 1``.
+    times : ndarray, optional
+        Sample times (s) quoted with a sample (formats without rows).
+    column : str, optional
+        The field named (default ``m.source``).
+
+    Raises
+    ------
+    FlightDataError
+        One line naming the file, the row or sample, the field and the limit.
+    """
+    raw = np.asarray(raw, dtype=float)
+    limits = []
+    if _is_pwm(m):
+        lo = min(PWM_RANGE_US[0], m.raw_low, m.raw_high)
+        hi = max(PWM_RANGE_US[1], m.raw_low, m.raw_high)
+        limits.append((raw, lo, hi, f"{lo:g}-{hi:g} us, what a servo pulse can be"))
+    bounds = {n: b for kind in CONTROL_NAMES for n, b in zip(CONTROL_NAMES[kind],
+                                                              CONTROL_BOUNDS[kind])}
+    if m.control in bounds:
+        lo, hi = bounds[m.control]
+        slack = CHANNEL_SLACK * max(1.0, hi - lo)
+        share = " (a share of full power)" if lo == 0.0 and hi == 1.0 else ""
+        limits.append((m.apply(raw), lo - slack, hi + slack,
+                       f"{m.control} {lo:g}..{hi:g}{share} through the map {m.raw_low:g} -> "
+                       f"{m.value_low:g}, {m.raw_high:g} -> {m.value_high:g}"))
+    for values, lo, hi, what in limits:
+        bad = np.flatnonzero((values < lo) | (values > hi))
+        if not len(bad):
+            continue
+        k = int(bad[0])
+        where = {"row": k + 1} if rows else {}
+        at = "" if rows else f" (sample {k + 1}" + (
+            f", t = {times[k]:.3f} s)" if times is not None else ")")
+        raise FlightDataError(f"value {raw[k]:g}{at} is outside what the channel can hold: "
+                              f"{what}", path, column=column or m.source, **where)

@@ -35,6 +35,33 @@ _NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]
 _NUMERIC_BYTES = b"0123456789+-.eE, \t\r\n"  # a body of only these takes numpy's fast path
 
 
+def parse_number(cell: str) -> float:
+    """One number of a CSV cell by the ASCII grammar every CSV reader of this package uses.
+
+    Python's ``float`` also reads ``0_5`` (digit grouping) and non-ASCII digits (Arabic-Indic,
+    full-width): neither is a number a logger writes, so a cell is read only if it is
+    ``[+-]digits[.digits][e[+-]digits]`` (or ``nan``/``inf``), at most
+    :data:`MAX_CELL_CHARS` characters, with nothing around it.
+
+    Parameters
+    ----------
+    cell : str
+        The cell text, already stripped of surrounding blanks by the caller.
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        Anything else (the caller names file, row and column).
+    """
+    if len(cell) > MAX_CELL_CHARS or not _NUMBER.fullmatch(cell):
+        raise ValueError(f"not an ASCII number: {_short(cell, 24)}")
+    return float(cell)
+
+
 def write_csv(sortie: Sortie, path: str | Path) -> Path:
     """Write one sortie in the interchange CSV format (17 significant digits: lossless)."""
     path = Path(path)
@@ -108,10 +135,11 @@ def _parse_rows(lines: list[str], header: list[str], path: Path) -> np.ndarray:
             raise FlightDataError(f"has {len(fields)} fields, the header has {ncol}", path, r)
         for c, text in enumerate(fields):
             cell = text.strip(" \t")
-            if len(cell) > MAX_CELL_CHARS or not _NUMBER.fullmatch(cell):
+            try:
+                out[r - 1, c] = parse_number(cell)
+            except ValueError:
                 raise FlightDataError(f"cannot read {_short(cell, 24)} as a number", path, r,
-                                      header[c])
-            out[r - 1, c] = float(cell)
+                                      header[c]) from None
     return out
 
 
@@ -135,6 +163,10 @@ def _read_table(shown: Path, real: str | Path, kind: str | None, folder_hint: st
     body = lines[1:]
     if not body:
         raise FlightDataError("no data rows after the header", shown)
+    if not raw.rstrip(b" \t\r").endswith(b"\n"):  # a writer ends every row with a newline
+        raise FlightDataError("the last line has no newline at its end: the file looks cut "
+                              "(a partial write or a copy stopped early); write it again",
+                              shown, len(body))
     longest = max(range(len(body)), key=lambda k: len(body[k]))
     if len(body[longest]) > MAX_LINE_CHARS:
         raise FlightDataError(f"line of {len(body[longest])} characters, more than the "

@@ -151,6 +151,7 @@ def plan_log_dataset(flights: FlightLog | list[FlightLog], rules: SegmentRules |
         if own and abs(own * flight.dt - 1.0) > 1e-6:
             lines += [f"  logged at {own:.6g} Hz, resampled to {1 / flight.dt:.6g} Hz"]
         lines += [f"  control map: {text}" for text in control_map_text(flight.meta)]
+        lines += content_lines(flight.meta)
         if report is not None and report.rules.turns:
             fed = lateral_record(flight)
             lines += ["  turning flight used: the model's lateral inputs are "
@@ -161,6 +162,35 @@ def plan_log_dataset(flights: FlightLog | list[FlightLog], rules: SegmentRules |
     if len(flights) > 1:
         lines += [_used_share(flights, sorties)]
     return LogDataset(flights, reports, sorties, entries, splits, lines, rule, logs)
+
+
+CONTENT_KEYS = ("messages_read", "dropouts", "warnings", "speed_check")
+
+
+def content_lines(meta: dict) -> list[str]:
+    """What a reader recorded of the log's content, as summary lines: the data messages
+    read per topic (a cut ULog is shorter, not refused: the counts show it), the speed
+    check's fit, and each warning (a topic ending early, logger dropouts).
+
+    Parameters
+    ----------
+    meta : dict
+        A flight's ``meta`` (keys :data:`CONTENT_KEYS`, each optional).
+
+    Returns
+    -------
+    list of str
+        Indented lines for ``import_summary.txt`` (none for a reader that records nothing).
+    """
+    lines = []
+    if meta.get("messages_read"):
+        lines += ["  messages read: " + ", ".join(f"{k} {v}" for k, v in
+                                                   meta["messages_read"].items())]
+    fit = (meta.get("speed_check") or {}).get("u") or {}
+    if fit.get("scale") is not None:
+        lines += [f"  speed u against the accelerometer: x {fit['scale']:.3g} +- "
+                  f"{fit['standard_error']:.2g} (1 = m/s; {fit['windows']} windows)"]
+    return lines + [f"  warning: {w}" for w in meta.get("warnings", [])]
 
 
 def control_map_text(meta: dict) -> list[str]:
@@ -190,6 +220,7 @@ def log_record(flight: FlightLog, report: SegmentReport | None, files: list[str]
               "resampling": meta.get("resampling", "")}
     if meta.get("grid"):
         record["grid"] = meta["grid"]
+    record.update({k: meta[k] for k in CONTENT_KEYS if meta.get(k) is not None})
     if report is not None:
         record["segmentation"] = report.as_dict()
         if report.rules.turns:  # the channels fed to the model as recorded inputs

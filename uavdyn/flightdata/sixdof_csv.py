@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from uavdyn.flightdata.attitude import body_from_euler, rotate_to_body
-from uavdyn.flightdata.control_map import ChannelMap, override_maps
-from uavdyn.flightdata.csvio import CSV_MAX_BYTES, MAX_CELL_CHARS, MAX_COLUMNS, MAX_LINE_CHARS
+from uavdyn.flightdata.control_map import ChannelMap, check_channel, override_maps
+from uavdyn.flightdata.csvio import CSV_MAX_BYTES, MAX_COLUMNS, MAX_LINE_CHARS, parse_number
 from uavdyn.flightdata.errors import FlightDataError, _short
 from uavdyn.flightdata.files import _read_text
 from uavdyn.flightdata.flightlog import FlightLog
@@ -38,8 +38,6 @@ COLUMNS = REQUIRED + BODY_VELOCITY + NED_VELOCITY + OPTIONAL
 PITCH_LIMIT_RAD = np.pi / 2 + 1e-6   # |pitch| beyond this is no Euler pitch (degrees given?)
 
 _HEADER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.\[\]]{0,63}")
-_NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
-                     r"|nan|inf|infinity)", re.IGNORECASE)
 
 
 def _grid_rate(t: np.ndarray, rate_hz: float | None) -> tuple[float, str]:
@@ -90,10 +88,11 @@ def _parse(lines: list[str], header: list[str], wanted: list[str], path: Path
             if cell == "":
                 out[r - 1, j] = np.nan
                 continue
-            if len(cell) > MAX_CELL_CHARS or not _NUMBER.fullmatch(cell):
+            try:
+                value = parse_number(cell)
+            except ValueError:
                 raise FlightDataError(f"cannot read {_short(cell, 24)} as a number (an empty "
-                                      "cell is a gap)", path, r, wanted[j])
-            value = float(cell)
+                                      "cell is a gap)", path, r, wanted[j]) from None
             if np.isinf(value):   # 'nan' is a gap like an empty cell; infinity is no value
                 raise FlightDataError(f"non-finite value {cell!r} (leave the cell empty for "
                                       "a gap)", path, r, wanted[j])
@@ -127,6 +126,8 @@ def _read_columns(path: Path, kind: str, control_maps: list[ChannelMap] | None
                                   column=m.source)
     wanted += [m.source for m in maps.values() if m.source not in wanted]
     data = _parse(lines[1:], header, wanted, path)
+    for m in maps.values():
+        check_channel(m, data[m.source], path)
     unused = [h for h in header if h not in wanted]
     return data, maps, unused
 

@@ -13,9 +13,10 @@ PX4 ULog, per the conventions of ``shared/data/flightlogs/README.md``:
   fixed-wing controls from ``actuator_controls_1`` (elevator = -control[1] x 30 deg, since PX4's
   positive pitch command is nose up and this product's positive elevator is nose down);
 * stray samples (timestamp 0, or a block far from the rest) are cut off each topic and the
-  count is recorded in ``sortie.meta``; all signals are resampled to one uniform grid over the
-  time span common to the topics used: states by linear interpolation (quaternions
-  normalised), controls by zero-order hold (they are commands).
+  count is recorded in ``sortie.meta``; a stamp far from its neighbours inside a topic is
+  corruption (flipped bytes) and is refused with its byte offset; all signals are resampled
+  to one uniform grid over the time span common to the topics used: states by linear
+  interpolation (quaternions normalised), controls by zero-order hold (they are commands).
 
 Reliability (SPEC section 9): the file is read and its framing checked by :mod:`.ulog_format`;
 non-finite or non-unit source samples raise :class:`FlightDataError` naming the file (and
@@ -64,8 +65,10 @@ from uavdyn.flightdata.resample import (
     _interp,
     _quaternions_on_grid,
     main_block,
+    states_on_grid,
 )
 from uavdyn.flightdata.sortie import Sortie
+from uavdyn.flightdata.speed_check import check_speed_scale
 from uavdyn.flightdata.ulog_format import (
     _MAX_STAMP_US,
     MAX_FORMAT_DEPTH,
@@ -76,6 +79,8 @@ from uavdyn.flightdata.ulog_format import (
     ULOG_TOPICS,
     ULOG_VERSIONS,
     _read_ulog,
+    log_content,
+    topic_names,
 )
 from uavdyn.model import CONTROL_BOUNDS
 
@@ -98,8 +103,9 @@ CONTROL_SOURCES = ("auto", "actuator_controls", "setpoints", "motors")
 class _Topics:
     """Access to the topics of one parsed ULog, each cut to its main block of samples."""
 
-    def __init__(self, ulog, path: Path) -> None:
-        self.ulog, self.path = ulog, path
+    def __init__(self, ulog, path: Path,
+                 offsets: dict[tuple[str, int], list[int]] | None = None) -> None:
+        self.ulog, self.path, self.offsets = ulog, path, offsets or {}
         self.origin_us = int(ulog.start_timestamp)
         self.dropped: dict[str, int] = {}
         self.duplicates: dict[str, int] = {}
@@ -118,6 +124,7 @@ class _Topics:
                 if len(keep) < 2:
                     return None
                 _check_time_order(raw_stamps, keep, name, self.path)
+                self._check_inner_strays(raw_stamps, keep, name, multi_id)
                 if int(raw_stamps[keep].max()) >= _MAX_STAMP_US:
                     raise FlightDataError(f"corrupt timestamp {int(raw_stamps[keep].max())} us",
                                           self.path, column=f"{name}.timestamp")
@@ -141,6 +148,26 @@ class _Topics:
                         self.path, column=f"{name}.{fields[j]}")
                 return t, vals
         return None
+
+
+    def _check_inner_strays(self, raw_stamps: np.ndarray, keep: np.ndarray, name: str,
+                            multi_id: int) -> None:
+        """Refuse a sample cut as stray that lies among the kept ones in the file (a stamp
+        far from its neighbours in the middle of a topic: flipped or overwritten bytes, not
+        the zero stamps and far blocks at the ends that PX4 logs carry), naming its byte."""
+        inside = np.zeros(len(raw_stamps), bool)
+        inside[int(keep.min()):int(keep.max()) + 1] = True
+        inside[keep] = False
+        inside &= raw_stamps != 0
+        if not inside.any():
+            return
+        k = int(np.flatnonzero(inside)[0])
+        offsets = self.offsets.get((name, multi_id), [])
+        at = f" at byte {offsets[k]}" if k < len(offsets) else ""
+        raise FlightDataError(f"corrupt ULog file: data message {k + 1} of topic {name}"
+                              f"{at} has timestamp {int(raw_stamps[k])} us, far from the "
+                              "samples around it (flipped or overwritten bytes)", self.path,
+                              column=f"{name}.timestamp")
 
 
 def _check_unit(q: np.ndarray, t: np.ndarray, path: Path) -> None:
@@ -250,14 +277,32 @@ def _ulog_grid(used: list[tuple], rate_hz: float | None, path: Path) -> tuple[np
 
 
 def _ulog_states(grid: np.ndarray, att: tuple, rate: tuple, vel: tuple
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """The states ``u, w, q, theta`` on the grid, and the attitude quaternions there."""
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The states ``u, w, q, theta`` on the grid, the attitude quaternions there and the body
+    velocities ``u, v, w``."""
     quat = _quaternions_on_grid(grid, *att)
     theta = pitch_from_quaternion(quat)
     q = _interp(grid, *rate)[:, 0]
     v_ned = _interp(grid, *vel)
     v_body = np.einsum("nji,nj->ni", rotation_matrices(quat), v_ned)
-    return np.column_stack([v_body[:, 0], v_body[:, 2], q, theta]), quat
+    return np.column_stack([v_body[:, 0], v_body[:, 2], q, theta]), quat, v_body
+
+
+ACCELEROMETER = ("sensor_combined", [f"accelerometer_m_s2[{i}]" for i in range(3)])
+
+
+def ulog_speed_check(topics: _Topics, grid: np.ndarray, channels: dict[str, np.ndarray],
+                     source: str, path: Path) -> dict | None:
+    """The speed-scale check (:mod:`uavdyn.flightdata.speed_check`) against
+    ``sensor_combined.accelerometer_m_s2`` (FRD specific force) where the log has it (a
+    non-finite accelerometer sample leaves the check out, as any optional channel)."""
+    try:
+        found = topics.get(*ACCELEROMETER)
+    except FlightDataError:
+        found = None
+    if found is None:
+        return None
+    return check_speed_scale(path, grid, channels, states_on_grid(grid, *found), {"u": source})
 
 
 def import_ulog(path: str | Path, rate_hz: float | None = None, kind: str | None = None,
@@ -313,18 +358,23 @@ def import_ulog(path: str | Path, rate_hz: float | None = None, kind: str | None
     _check_ulog_options(path, rate_hz, kind, pitch_mix, control_source, name,
                         {"check": check, "kinematic": kinematic,
                          "allow_truncated": allow_truncated})
-    ulog, truncated_at, parser_messages = _read_ulog(path, allow_truncated)
-    topics = _Topics(ulog, path)
+    ulog, truncated_at, parser_messages, framing = _read_ulog(path, allow_truncated)
+    topics = _Topics(ulog, path, framing.offsets)
     kind = kind or _vehicle_kind(ulog)
     att, rate, vel, sources = _state_topics(topics, path)
     controls, control_sources = _controls(topics, kind, float(pitch_mix), path, control_source)
     sources.update(control_sources)
     grid, rate_hz = _ulog_grid([att, rate, vel, controls], rate_hz, path)
-    states, quat = _ulog_states(grid, att, rate, vel)
+    states, quat, v_body = _ulog_states(grid, att, rate, vel)
     ctrl = _hold(grid, *controls)
     time = np.arange(len(grid)) / rate_hz
     if check:
         _checked(path, kind, time, states, ctrl, rate_hz, kinematic)
+    zero = np.zeros(len(grid))   # p and r are not read here (their terms are small)
+    speed = ulog_speed_check(topics, grid, {
+        "roll": roll_from_quaternion(quat), "pitch": states[:, 3], "p": zero, "q": states[:, 2],
+        "r": zero, "u": v_body[:, 0], "v": v_body[:, 1], "w": v_body[:, 2]}, sources["u,w"],
+        path)
     meta = {
         "file": str(path), "source": "PX4 ULog", "sources": sources,
         "start_time_s": float(grid[0]) + topics.origin_us * 1e-6, "rate_hz": rate_hz,
@@ -334,7 +384,8 @@ def import_ulog(path: str | Path, rate_hz: float | None = None, kind: str | None
         "stray_samples_cut": {k: v for k, v in topics.dropped.items() if v},
         "duplicate_stamps": dict(topics.duplicates),
         "truncated_at_byte": truncated_at,
-        "parser_messages": parser_messages,
+        "parser_messages": parser_messages, "speed_check": speed,
+        **log_content(ulog, topic_names(sources.values())),
         "checked": {"values": check, "kinematic": bool(check and kinematic)},
         "roll": roll_from_quaternion(quat),
         "sys_name": ulog.msg_info_dict.get("sys_name", ""),

@@ -21,7 +21,7 @@ from uavdyn.flightdata.attitude import (
     roll_from_quaternion,
     rotation_matrices,
 )
-from uavdyn.flightdata.control_map import ChannelMap, override
+from uavdyn.flightdata.control_map import ChannelMap, check_channel, override
 from uavdyn.flightdata.errors import FlightDataError
 from uavdyn.flightdata.fast_grid import fastest_grid, gyro_aided_attitude
 from uavdyn.flightdata.flightlog import FlightLog
@@ -42,8 +42,9 @@ from uavdyn.flightdata.ulog import (
     _Topics,
     _ulog_grid,
     _vehicle_kind,
+    ulog_speed_check,
 )
-from uavdyn.flightdata.ulog_format import _read_ulog
+from uavdyn.flightdata.ulog_format import _read_ulog, log_content, topic_names
 from uavdyn.model import CONTROL_BOUNDS, CONTROL_NAMES
 
 RATE_SOURCES = (("vehicle_angular_velocity", ["xyz[0]", "xyz[1]", "xyz[2]"]),
@@ -131,8 +132,8 @@ def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str |
     """
     path = _as_path(path, "path")
     _check_ulog_options(path, rate_hz, kind, pitch_mix, "auto", name, {})  # name included
-    ulog, truncated_at, _ = _read_ulog(path, False)
-    topics = _Topics(ulog, path)
+    ulog, truncated_at, _, framing = _read_ulog(path, False)
+    topics = _Topics(ulog, path, framing.offsets)
     kind = kind or _vehicle_kind(ulog)
     att, _, vel, sources = _state_topics(topics, path)
     rates = _first(topics, RATE_SOURCES)
@@ -142,6 +143,7 @@ def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str |
                               column="p,q,r")
     sources["p,q,r"] = rates[0]
     controls, control_sources = _controls(topics, kind, float(pitch_mix), path)
+    _check_controls(controls, control_sources, kind, control_maps, path)
     gyro_topic = rates[0].split(".")[0]
     choice = fastest_grid({"vehicle_attitude": att[0], gyro_topic: rates[1][0],
                            "vehicle_local_position": vel[0]}, (gyro_topic,), "vehicle_attitude",
@@ -192,11 +194,31 @@ def read_ulog_flight(path: str | Path, rate_hz: float | None = None, kind: str |
             "topic_rates_hz": {"attitude": round(_mean_rate(att[0]), 1),
                                "body_rates": round(_mean_rate(rates[1][0]), 1),
                                "velocity": round(_mean_rate(vel[0]), 1)},
-            "truncated_at_byte": truncated_at}
+            "truncated_at_byte": truncated_at,
+            "speed_check": ulog_speed_check(topics, grid, channels,
+                                            sources.get("airspeed", sources["u,w"]), path),
+            **log_content(ulog, ["vehicle_attitude", gyro_topic, "vehicle_local_position",
+                                 *topic_names(control_sources.values())])}
     return FlightLog(name=name or path.stem, kind=kind, time=grid - grid[0], channels=channels,
                      controls=ctrl, velocity_reference=reference, source="PX4 ULog",
                      altitude_m=_altitude(topics, grid, meta), airspeed=va,
                      airborne=_airborne(topics, grid, meta), meta=meta)
+
+
+def _check_controls(controls: tuple, sources: dict[str, str], kind: str,
+                    user_maps: list[ChannelMap] | None, path: Path) -> None:
+    """The controls the default maps give (those no user map replaces) within what their
+    channel holds (:func:`~uavdyn.flightdata.control_map.check_channel`: a throttle share
+    0..1, the elevator and pitch-command limits), named by their logged source; a pitch
+    command inferred from the motor outputs (an assumed mix) is not a logged channel and is
+    left to the segmenter."""
+    replaced = {m.control for m in user_maps or []}
+    for j, control in enumerate(CONTROL_NAMES[kind]):
+        if sources[control].startswith("(front"):
+            continue   # a pitch command inferred from the motor mix is no logged channel
+        if control not in replaced:
+            check_channel(ChannelMap(control, sources[control], 0.0, 1.0, 0.0, 1.0),
+                          controls[1][:, j], path, rows=False, times=controls[0])
 
 
 def _altitude(topics: _Topics, grid: np.ndarray, meta: dict) -> np.ndarray | None:
