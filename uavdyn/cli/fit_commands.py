@@ -78,7 +78,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
     max_delay = 5 if args.max_delay is None else args.max_delay
     options = {"window_s": args.window, "dt": args.dt, "max_delay": max_delay,
                "bounds": args.bounds, "progress": not args.quiet, "prior_sd": args.prior,
-               "keep_undetermined": args.keep_undetermined}
+               "keep_undetermined": args.keep_undetermined,
+               "screen": not args.allow_low_excitation}
     log = None
     if args.structure == "auto":
         if not ds.validation:
@@ -93,6 +94,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
     command = "uavdyn " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["identify"] else \
         f"uavdyn identify --airframe {args.airframe} --dataset {args.dataset} --params " \
         f"{args.params} --out {args.out}"
+    for line in result.fit.get("excitation_advice", []):
+        print(f"warning: {line}", file=sys.stderr)
     paths = write_outputs(result, nominal, str(args.dataset), command, out, report, log)
     print(f"identified {len(names)} parameter(s) of '{nominal.name}' on {len(ds.train)} train "
           f"sorties in {result.seconds:.1f} s ({result.iterations} iterations)")
@@ -275,6 +278,10 @@ def add_identify(sub) -> None:
                         "determine (default: they keep the file's value and the others are "
                         "refitted with them fixed; with --prior they are fitted under it, and "
                         "only one still on a bound keeps the file's value)")
+    p.add_argument("--allow-low-excitation", action="store_true",
+                   help="fit also parameters whose signal the train data do not move above "
+                        "its noise (default: refused before the fit; a signal above its noise "
+                        "but below the advisory floor is only a warning)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_identify)
 
