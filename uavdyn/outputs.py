@@ -312,7 +312,8 @@ def written_by_uavdyn(path: str | Path) -> bool:
 def check_output_files(*paths: str | Path, force: bool = False, option: str = "--force"
                        ) -> None:
     """Refuse, before any work, to replace a non-empty file that uavdyn did not write (or that
-    was changed since), unless ``force``; also what :func:`check_output_file` checks.
+    was changed since), unless ``force``, or a path that is a folder (its parent folder is
+    :func:`check_output_file`'s matter).
 
     Parameters
     ----------
@@ -329,7 +330,8 @@ def check_output_files(*paths: str | Path, force: bool = False, option: str = "-
         One line naming the file and ``option``.
     """
     for path in map(Path, paths):
-        check_output_file(path)
+        if path.is_dir():
+            raise OutputError(f"{path}: is a folder, not a file")
         if force or not (path.exists() or path.is_symlink()):
             continue
         if path.is_symlink() or (path.stat().st_size > 0 and not written_by_uavdyn(path)):

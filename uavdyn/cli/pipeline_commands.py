@@ -34,7 +34,7 @@ from uavdyn.experiments.reproduce import (
     run,
 )
 from uavdyn.flightdata.manifest import MANIFEST_MAX_SORTIES
-from uavdyn.outputs import atomic_files, check_output_files, single_outputs
+from uavdyn.outputs import atomic_files, check_output_file, check_output_files, single_outputs
 
 MAX_COST_REPEATS = 1000
 MAX_DATASET_ROWS = 5_000_000  # the pipeline holds its whole dataset and the predictions on it
@@ -79,7 +79,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     md, png = out.with_suffix(".md"), out.with_suffix(".png")
-    check_output_files(out, md, png, force=args.force)  # before the work, not after it
+    for path in (out, md, png):
+        check_output_file(path)  # before the work, not after it
+    check_output_files(out, md, png, force=args.force)
     airframe = load_airframe(args.airframe)
     check_dataset_fits(airframe, args.dataset)
     identified = load_airframe(args.identified) if args.identified else None
