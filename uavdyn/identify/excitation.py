@@ -150,19 +150,20 @@ def screen_excitation(names: list[str], sorties: list) -> tuple[list[str], list[
                 and signal not in CONTROL_NAMES[kind]:
             continue
         what, unit, floor = SIGNALS[signal]
+        unit = f" {unit}" if unit else ""
         values = np.concatenate([_signal(s, signal) for s in sorties])
         spread = float(np.std(values))
         noise = float(np.median([white_noise_std(_signal(s, signal)) for s in sorties]))
-        against = (f"{spread / noise:.1f}x its noise of {noise:.2g} {unit}" if noise > 0
+        against = (f"{spread / noise:.1f}x its noise of {noise:.2g}{unit}" if noise > 0
                    else "with no measurable noise")
-        moved = f"{name}: the {what} varies by {spread:.3g} {unit} (standard deviation), " \
+        moved = f"{name}: the {what} varies by {spread:.3g}{unit} (standard deviation), " \
                 f"{against}"
         if not spread > STILL_SHARE * floor or spread < EXCITATION_SNR * noise:
             refused.append(f"{moved} (needs {EXCITATION_SNR:g}x its noise and more than "
-                           f"{STILL_SHARE * floor:.2g} {unit}); "
+                           f"{STILL_SHARE * floor:.2g}{unit}); "
                            f"would need: {excitation_for(name, [])}")
         elif spread < floor:
-            advice.append(f"{moved}, less than {floor:g} {unit}: a small manoeuvre; its "
+            advice.append(f"{moved}, less than {floor:g}{unit}: a small manoeuvre; its "
                           "standard errors and the halves check say whether it is determined")
     return refused, advice
 
