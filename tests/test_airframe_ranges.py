@@ -41,3 +41,16 @@ def test_presets_and_examples_still_load_without_a_warning(source):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_airframe(source, strict=True)
+
+
+@pytest.mark.parametrize(("name", "value"), [("Jx", 1e-300), ("Jz", 1e-300)])
+def test_a_given_lateral_inertia_has_the_same_floor(tmp_path, name, value):
+    data = to_toml_dict(load_airframe("aerosonde"))
+    data["params"][name] = {"value": value}
+    path = tmp_path / "plane.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(AirframeError, match=rf"parameter '{name}' must be 0 \(not given\) or"):
+        load_airframe(path)
+    data["params"][name] = {"value": 0.0}  # 0: not given, as before
+    path.write_text(json.dumps(data))
+    load_airframe(path)

@@ -228,12 +228,14 @@ def _check_values(values: dict[str, float], kind: str, origin: str) -> None:
 
 
 def _check_lateral_inertias(values: dict[str, float], origin: str) -> None:
-    """The optional roll/yaw inertias (turning-flight inputs): ``Jx``, ``Jz`` >= 0 and, where
+    """The optional roll/yaw inertias (turning-flight inputs): ``Jx``, ``Jz`` 0 (not given) or
+    within the pitch inertia's range and, where
     both are given, a positive-definite roll/yaw inertia ``Jxz^2 < Jx Jz``."""
     jx, jz, jxz = (values.get(k, 0.0) for k in ("Jx", "Jz", "Jxz"))
     for name, value in (("Jx", jx), ("Jz", jz)):
-        if value < 0.0 or value > 1e6:
-            raise AirframeError(f"{origin}: parameter '{name}' must be in [0, 1e6] kg m^2, got "
+        if value != 0.0 and not _JY.low <= value <= _JY.high:
+            raise AirframeError(f"{origin}: parameter '{name}' must be 0 (not given) or in "
+                                f"[{_JY.low:g}, {_JY.high:g}] kg m^2 ({_JY.why}), got "
                                 f"{value!r}")
     if jx > 0.0 and jz > 0.0 and not jxz * jxz < jx * jz:
         raise AirframeError(f"{origin}: parameter 'Jxz' = {jxz!r} makes the roll/yaw inertia "
