@@ -104,3 +104,24 @@ def test_halves_within_a_thousandth_of_the_value_agree():
     compare_halves(lambda *a, **k: result_with(next(halves)), result, list(range(6)),
                    ["C_m_q"], 10, {})
     assert result.estimates[0].determined, result.estimates[0].flags()
+
+
+def test_allow_low_excitation_fits_what_the_screen_refuses(tmp_path, capsys):
+    """q at its own noise: refused, the message naming the option; with it, fitted and
+    left undetermined by its standard errors (the file's value kept)."""
+    from uavdyn.flightdata import read_csv, write_csv
+
+    data = simulated_dataset(tmp_path / "data", perturbed_airframe(tmp_path / "p.toml"),
+                             duration=6.0, inputs=[("none", 0)])
+    sortie = read_csv(data / "none_ch0.csv")
+    noise = np.random.default_rng(0).normal(size=sortie.states.shape)
+    sortie.states = sortie.states + noise * np.array([0.05, 0.05, 1e-3, 1e-3])
+    write_csv(sortie, data / "none_ch0.csv")
+    argv = ["identify", "--airframe", "aerosonde", "--dataset", str(data), "--params", "C_m_q",
+            "--out", str(tmp_path / "fit.toml"), "--quiet"]
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "do not excite C_m_q" in err and "--allow-low-excitation" in err
+    assert main([*argv, "--allow-low-excitation"]) == 0
+    assert "KEPT: not determined" in capsys.readouterr().out
