@@ -52,9 +52,11 @@ def test_user_file_round_trip(tmp_path, aerosonde):
         (lambda d: d["params"].update(wingspan={"value": 1.0}),
          "unknown parameter key(s) ['wingspan']"),
         (lambda d: d["params"].pop("Jy"), "missing parameter key(s) ['Jy']"),
-        (lambda d: d["params"]["mass"].update(value=0.0), "parameter 'mass' must be > 0, got 0.0"),
-        (lambda d: d["params"]["Jy"].update(value=-1.0), "parameter 'Jy' must be > 0, got -1.0"),
-        (lambda d: d["params"]["S_wing"].update(value=0), "parameter 'S_wing' must be > 0"),
+        (lambda d: d["params"]["mass"].update(value=0.0),
+         "parameter 'mass' must be >= 0.001, got 0.0"),
+        (lambda d: d["params"]["Jy"].update(value=-1.0),
+         "parameter 'Jy' must be >= 1e-09, got -1.0"),
+        (lambda d: d["params"]["S_wing"].update(value=0), "parameter 'S_wing' must be >= 0.0001"),
         (lambda d: d["params"]["C_m_q"].update(value=float("nan")),
          "parameter 'C_m_q' is not finite"),
         (lambda d: d["params"]["c"].update(value="0.2"), "parameter 'c' must be a number"),
@@ -98,20 +100,20 @@ def test_perturb_scales_only_chosen_keys(aerosonde):
     assert only.params.S_wing == 0.5 * aerosonde.params.S_wing
     with pytest.raises(AirframeError, match="unknown parameter"):
         perturb(aerosonde, 1.1, names=["wingspan"])
-    with pytest.raises(AirframeError, match="'mass' must be > 0"):
+    with pytest.raises(AirframeError, match="'mass' must be >= 0.001"):
         perturb(aerosonde, -1.0, names=["mass"])
 
 
 SLIPS = [  # (preset, parameter, value as a unit slip would write it, parameter named)
     ("aerosonde", "mass", 13500.0, "mass"),            # grams
-    ("aerosonde", "Jy", 1e-300, "Jy"),
+    ("aerosonde", "Jy", 1e-6, "Jy"),   # inside its range (1e-300 is refused outright)
     ("aerosonde", "Jy", 1.135e4, "Jy"),                # kg cm^2
     ("aerosonde", "C_m_alpha", -2.74 / 57.3, "C_m_alpha"),   # per degree
     ("aerosonde", "C_m_delta_e", -0.99 / 57.3, "C_m_delta_e"),
     ("aerosonde", "C_L_alpha", 5.61 / 57.3, "C_L_alpha"),
     ("f450", "mass", 1400.0, "Jy"),                    # grams: the inertia radius collapses
-    ("f450", "Jy", 1e-300, "Jy"),
-    ("f450", "arm", 1e-300, "arm"),
+    ("f450", "Jy", 1e-8, "Jy"),
+    ("f450", "arm", 0.005, "arm"),     # mm written as m, say; 1e-300 is refused outright
     ("f450", "pitch_mix", 0.0, "pitch_mix"),
 ]
 

@@ -467,7 +467,7 @@ def test_bounds_table_covers_every_parameter_and_says_why():
         for key, bound in BOUNDS[kind].items():
             assert bound.why and bound.low < bound.high, key
             assert math.isfinite(bound.low) and math.isfinite(bound.high), key
-    assert BOUNDS["fixed_wing"]["mass"].describe() == "(0, 100000] kg"
+    assert BOUNDS["fixed_wing"]["mass"].describe() == "[0.001, 100000] kg"
     assert BOUNDS["multirotor"]["gravity"].describe() == "[9, 10.5] m/s^2"
 
 
@@ -495,10 +495,10 @@ def test_identifier_names_load(tmp_path):
 
 
 @pytest.mark.parametrize("change, expected", [
-    (lambda d: d["params"]["mass"].update(value=1e308), "parameter 'mass' must be <= 100000"),
+    (lambda d: d["params"]["mass"].update(value=1e308), "parameter 'mass' must be <= 10000"),
     (lambda d: d["params"]["rho"].update(value=1e6), "parameter 'rho' must be <= 2"),
     (lambda d: d["params"]["gravity"].update(value=1.62), "parameter 'gravity' must be >= 9"),
-    (lambda d: d["params"]["arm"].update(value=100.0), "parameter 'arm' must be < 100"),
+    (lambda d: d["params"]["arm"].update(value=100.0), "parameter 'arm' must be <= 10"),
     (lambda d: d["params"]["pitch_mix"].update(value=-0.1), "parameter 'pitch_mix' must be >= 0"),
     (lambda d: d["params"]["mass"].update(value=True),
      "parameter 'mass' must be a number, got True"),

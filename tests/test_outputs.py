@@ -17,7 +17,14 @@ from uavdyn.emulation import Recipe, generate_dataset
 from uavdyn.emulation.fingerprint import compare_fingerprints, dataset_fingerprint
 from uavdyn.flightdata import load_dataset
 from uavdyn.learned import save_weights
-from uavdyn.outputs import MARKER, OutputError, atomic_file, output_folder
+from uavdyn.outputs import (
+    MARKER,
+    REGISTRY,
+    OutputError,
+    atomic_file,
+    output_folder,
+    record_outputs,
+)
 
 
 def test_atomic_file_keeps_the_old_file_until_the_new_one_is_complete(tmp_path):
@@ -91,6 +98,7 @@ def test_interrupted_train_keeps_the_old_weights_and_history(tmp_path, aerosonde
     history = tmp_path / "w_history.json"
     history.write_text(json.dumps({"history": [{"epoch": 0}]}))
     old_w, old_h = weights.read_bytes(), history.read_text()
+    record_outputs(weights, history, command="train")  # an earlier run's: may be replaced
     data = tmp_path / "data"
     generate_dataset(Recipe(airframe="aerosonde", sorties=6, duration_s=10.0, seed=0,
                             missions=["sysid_doublet", "sysid_3211", "sysid_chirp"],
@@ -105,7 +113,8 @@ def test_interrupted_train_keeps_the_old_weights_and_history(tmp_path, aerosonde
     _, err = interrupt_when(proc, lambda stderr: stderr.count("epoch/s") >= 3)
     assert proc.returncode == 130 and "interrupted" in err.strip().splitlines()[-1], err[-500:]
     assert weights.read_bytes() == old_w and history.read_text() == old_h
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "w.npz", "w_history.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [REGISTRY, "data", "w.npz",
+                                                           "w_history.json"]
 
 
 def test_train_refuses_to_overwrite_a_file_that_is_not_its_output(tmp_path, capsys):
@@ -114,7 +123,7 @@ def test_train_refuses_to_overwrite_a_file_that_is_not_its_output(tmp_path, caps
     victim.write_text("my notes")
     assert main(["train", "--airframe", "aerosonde", "--epochs", "1", "--out",
                  str(victim)]) == 2
-    assert "is not a uavdyn weight file" in capsys.readouterr().err
+    assert "was not written by uavdyn" in capsys.readouterr().err
     assert victim.read_text() == "my notes"
 
 
@@ -272,7 +281,8 @@ def test_an_interrupted_train_commit_leaves_the_old_pair_or_the_new_pair(tmp_pat
         old = (weights.read_bytes(), history.read_text(), png.read_bytes())
         _flaky_replace(monkeypatch, n)
         code = main(["train", "--airframe", "aerosonde", "--dataset", str(data), "--formulation",
-                     "paper", "--epochs", "1", "--quiet", "--out", str(weights)])
+                     "paper", "--epochs", "1", "--quiet", "--out", str(weights),
+                     "--force"])  # hand-made old files: not an earlier run's
         monkeypatch.setattr(os, "replace", real_replace)
         outcomes.add({0: "completed", 130: "interrupted"}[code])
         now = (weights.read_bytes(), history.read_text(), png.read_bytes())
@@ -280,6 +290,7 @@ def test_an_interrupted_train_commit_leaves_the_old_pair_or_the_new_pair(tmp_pat
             assert all(a != b for a, b in zip(now, old)), (n, "a mix of old and new files")
             assert json.loads(now[1])["network"] == load_weights(weights).describe()
             assert now[2].startswith(b"\x89PNG")
-        assert sorted(os.listdir(folder)) == ["w.npz", "w_history.json", "w_history.png"], n
+        assert sorted(set(os.listdir(folder)) - {REGISTRY}) == [
+            "w.npz", "w_history.json", "w_history.png"], n
     capsys.readouterr()
     assert outcomes == {"completed", "interrupted"}

@@ -6,10 +6,17 @@ An output folder carries a small marker (``.uavdyn-output.json``: command, files
 of the same command may replace it, and ``force`` into a foreign folder removes only the stale
 files of that command, never the user's own. Either way the folder is swapped in whole: an
 interrupt leaves the old folder or the new one, never a mix.
+
+Single output files obey the same rule (:func:`check_output_files`): an existing non-empty file
+is replaced only if uavdyn wrote it and it is unchanged since, or with ``force``. What uavdyn
+wrote is recorded beside it, in its folder's ``.uavdyn-files.json`` (file name -> command and
+SHA-256 of the content; :func:`record_outputs`), so the rule holds for every format (CSV, TOML,
+JSON, ``.npz``, PNG) without touching the files themselves; a file edited since is the user's.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -20,6 +27,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 MARKER = ".uavdyn-output.json"
+REGISTRY = ".uavdyn-files.json"   # single files uavdyn wrote in a folder (module docstring)
+REGISTRY_MAX_BYTES = 4 * 2**20     # a larger record is not read (nothing counts as uavdyn's)
 
 
 class OutputError(ValueError):
@@ -264,3 +273,93 @@ def _commit(tmp: Path, path: Path, command: str, files: list[str]) -> None:
         stale = set(marker.get("files", [])) if same else set()
         _carry_over(path, tmp, set(files) | stale | {MARKER})
     _swap(tmp, path)
+
+
+def _digest(path: Path) -> str:
+    """SHA-256 of a file's content (read in blocks)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _registry(folder: Path) -> dict:
+    """The record of single files uavdyn wrote in ``folder`` (empty if none or unreadable)."""
+    path = folder / REGISTRY
+    try:
+        if path.is_symlink() or not path.is_file() or path.stat().st_size > REGISTRY_MAX_BYTES:
+            return {}
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    files = doc.get("files") if isinstance(doc, dict) else None
+    return files if isinstance(files, dict) else {}
+
+
+def written_by_uavdyn(path: str | Path) -> bool:
+    """Whether ``path`` is a file uavdyn wrote (:func:`record_outputs`), unchanged since."""
+    path = Path(path)
+    entry = _registry(path.parent).get(path.name)
+    if not isinstance(entry, dict) or path.is_symlink() or not path.is_file():
+        return False
+    try:
+        return entry.get("sha256") == _digest(path)
+    except OSError:
+        return False
+
+
+def check_output_files(*paths: str | Path, force: bool = False, option: str = "--force"
+                       ) -> None:
+    """Refuse, before any work, to replace a non-empty file that uavdyn did not write (or that
+    was changed since), unless ``force``, or a path that is a folder (its parent folder is
+    :func:`check_output_file`'s matter).
+
+    Parameters
+    ----------
+    *paths : str or Path
+        The single files a command will write.
+    force : bool
+        The command's ``--force``: replace them whatever they are.
+    option : str
+        The option named in the message.
+
+    Raises
+    ------
+    OutputError
+        One line naming the file and ``option``.
+    """
+    for path in map(Path, paths):
+        if path.is_dir():
+            raise OutputError(f"{path}: is a folder, not a file")
+        if force or not (path.exists() or path.is_symlink()):
+            continue
+        if path.is_symlink() or (path.stat().st_size > 0 and not written_by_uavdyn(path)):
+            raise OutputError(f"{path}: exists and was not written by uavdyn (or was changed "
+                              f"since); choose another file or give {option} to overwrite it")
+
+
+def record_outputs(*paths: str | Path, command: str) -> None:
+    """Record that ``command`` wrote ``paths`` (each folder's :data:`REGISTRY`, replaced
+    atomically), so a later run may replace them (:func:`check_output_files`). Paths that do
+    not exist are skipped; entries of files gone from the folder are dropped."""
+    by_folder: dict[Path, list[Path]] = {}
+    for path in map(Path, paths):
+        if path.is_file() and not path.is_symlink():
+            by_folder.setdefault(path.parent, []).append(path)
+    for folder, written in by_folder.items():
+        files = {name: entry for name, entry in _registry(folder).items()
+                 if (folder / name).is_file()}
+        for path in written:
+            files[path.name] = {"command": command, "sha256": _digest(path)}
+        write_text_atomic(folder / REGISTRY, json.dumps({"files": files}, indent=1,
+                                                        sort_keys=True) + "\n")
+
+
+@contextmanager
+def single_outputs(*paths: str | Path, command: str, force: bool = False) -> Iterator[None]:
+    """Check ``paths`` (:func:`check_output_files`) on entry and record them as ``command``'s
+    (:func:`record_outputs`) when the block, which writes them, ends without error."""
+    check_output_files(*paths, force=force)
+    yield
+    record_outputs(*paths, command=command)

@@ -42,11 +42,29 @@ def _b(low: float, high: float, unit: str = "", why: str = "", low_open: bool = 
 
 _COEFF = _b(-1e3, 1e3, "", "aerodynamic/propeller coefficient: finite, |x| < 1e3",
             low_open=True, high_open=True)
-_MASS = _b(0, 1e5, "kg", "a 100 t aircraft is far beyond any UAV")
-_JY = _b(0, 1e6, "kg m^2", "pitch inertia of a 100 t aircraft is ~1e6 kg m^2")
+# Sizes by meaning, per kind (issue 42: a quadrotor arm of 1e-300 m loaded and trimmed, since
+# hover needs no pitch authority). Each floor is below the smallest vehicle of its kind that
+# flies (a 1 g micro air vehicle, a nano quadrotor's 5 mm arm), each ceiling above the largest.
+_MASS = _b(1e-3, 1e5, "kg", "from a 1 g micro air vehicle to a 100 t aircraft",
+           low_open=False)
+_JY = _b(1e-9, 1e6, "kg m^2", "from a 1 g micro air vehicle (~1e-8) to a 100 t aircraft "
+                              "(~1e6 kg m^2)", low_open=False)
 _RHO = _b(0, 2.0, "kg/m^3", "sea-level ISA is 1.225; 2 is beyond any atmosphere flown in")
 _G = _b(9.0, 10.5, "m/s^2", "Earth's surface gravity is 9.78-9.83 m/s^2", low_open=False)
-_LENGTH = _b(0, 100, "m", "lengths are positive and shorter than 100 m", high_open=True)
+_SPAN = _b(0.01, 100, "m", "wing span: from a 1 cm micro air vehicle to beyond any aircraft "
+                           "(80 m)", low_open=False, high_open=True)
+_CHORD = _b(1e-3, 20, "m", "mean aerodynamic chord: from 1 mm to beyond any aircraft's "
+                           "(~12 m)", low_open=False)
+_AREA = _b(1e-4, 1e3, "m^2", "wing area: from 1 cm^2 to beyond a 747's 511 m^2",
+           low_open=False)
+_PROP = _b(5e-3, 10, "m", "propeller diameter: from 5 mm to beyond the largest (~6 m)",
+           low_open=False)
+_MR_MASS = _b(1e-3, 1e4, "kg", "multirotor mass: from a 1 g nano quadrotor to beyond the "
+                               "heaviest cargo multirotors (~2 t)", low_open=False)
+_MR_JY = _b(1e-9, 1e5, "kg m^2", "multirotor pitch inertia: from a 1 g nano quadrotor (~1e-8) "
+                                 "to beyond the heaviest (~1e3 kg m^2)", low_open=False)
+_ARM = _b(5e-3, 10, "m", "centre-to-motor distance: from a nano quadrotor's 5 mm to beyond "
+                         "the largest multirotors (~4 m)", low_open=False)
 _ALPHA_DOT = _b(-100, 100, "1/rad", "alpha-dot derivative (times alpha_dot c/2V): conventional "
                                     "aircraft have |x| < ~20 (e.g. C_m_alpha_dot -5 to -15)",
                 low_open=False)
@@ -62,9 +80,7 @@ ALPHA_DOT_DENOMINATOR_MIN = 0.5
 # The schema's physical bounds, per kind and parameter (every parameter has one).
 BOUNDS: dict[str, dict[str, Bound]] = {
     "fixed_wing": {
-        "mass": _MASS, "Jy": _JY,
-        "S_wing": _b(0, 1e3, "m^2", "wing area; a 747 has 511 m^2"),
-        "b": _LENGTH, "c": _LENGTH, "rho": _RHO,
+        "mass": _MASS, "Jy": _JY, "S_wing": _AREA, "b": _SPAN, "c": _CHORD, "rho": _RHO,
         "e": _b(0, 1.5, "", "Oswald efficiency: 1 for an elliptic wing, up to ~1.2 with "
                             "winglets"),
         "gravity": _G,
@@ -77,7 +93,7 @@ BOUNDS: dict[str, dict[str, Bound]] = {
         "M_blend": _b(0, 100, "1/rad", "stall-blend sharpness (50 in [BM]); up to 100 keeps "
                                        "exp(M (|alpha| + alpha0)) finite for |alpha| <= pi"),
         "alpha0": _b(0, math.pi / 2, "rad", "stall-blend angle, within +-90 deg"),
-        "D_prop": _LENGTH,
+        "D_prop": _PROP,
         "KV_rpm_per_volt": _b(0, 1e5, "rpm/V", "motor velocity constant; small motors are "
                                                 "~1e4"),
         "R_motor": _b(0, 1e3, "ohm", "motor winding resistance"),
@@ -99,7 +115,7 @@ BOUNDS: dict[str, dict[str, Bound]] = {
                      low_open=False),
     },
     "multirotor": {
-        "mass": _MASS, "Jy": _JY, "arm": _LENGTH,
+        "mass": _MR_MASS, "Jy": _MR_JY, "arm": _ARM,
         "c_T": _b(0, 1e3, "N/(rad/s)^2", "rotor thrust coefficient (1e-5 for an F450)",
                   high_open=True),
         "C_R": _b(0, 1e5, "rad/s", "throttle-to-rotor-speed slope (1148 for an F450)"),
@@ -162,7 +178,7 @@ def sign_range(kind: str, name: str, relaxed_stability: bool = False
 
 # Keys that must be strictly positive / non-negative (derived from BOUNDS; kept for callers).
 POSITIVE_KEYS: dict[str, tuple[str, ...]] = {
-    kind: tuple(n for n, b in table.items() if b.low == 0 and b.low_open)
+    kind: tuple(n for n, b in table.items() if b.low > 0 or (b.low == 0 and b.low_open))
     for kind, table in BOUNDS.items()}
 NONNEGATIVE_KEYS: dict[str, tuple[str, ...]] = {
     kind: tuple(n for n, b in table.items() if b.low == 0 and not b.low_open)
@@ -212,12 +228,14 @@ def _check_values(values: dict[str, float], kind: str, origin: str) -> None:
 
 
 def _check_lateral_inertias(values: dict[str, float], origin: str) -> None:
-    """The optional roll/yaw inertias (turning-flight inputs): ``Jx``, ``Jz`` >= 0 and, where
+    """The optional roll/yaw inertias (turning-flight inputs): ``Jx``, ``Jz`` 0 (not given) or
+    within the pitch inertia's range and, where
     both are given, a positive-definite roll/yaw inertia ``Jxz^2 < Jx Jz``."""
     jx, jz, jxz = (values.get(k, 0.0) for k in ("Jx", "Jz", "Jxz"))
     for name, value in (("Jx", jx), ("Jz", jz)):
-        if value < 0.0 or value > 1e6:
-            raise AirframeError(f"{origin}: parameter '{name}' must be in [0, 1e6] kg m^2, got "
+        if value != 0.0 and not _JY.low <= value <= _JY.high:
+            raise AirframeError(f"{origin}: parameter '{name}' must be 0 (not given) or in "
+                                f"[{_JY.low:g}, {_JY.high:g}] kg m^2 ({_JY.why}), got "
                                 f"{value!r}")
     if jx > 0.0 and jz > 0.0 and not jxz * jxz < jx * jz:
         raise AirframeError(f"{origin}: parameter 'Jxz' = {jxz!r} makes the roll/yaw inertia "

@@ -340,11 +340,16 @@ def trim_from_args(args: argparse.Namespace):
     return airframe, trim(airframe, args.airspeed, math.radians(args.gamma_deg))
 
 
-def add_force(p: argparse.ArgumentParser) -> None:
-    """``--force``: write into a folder that is not this command's earlier output."""
+def add_force(p: argparse.ArgumentParser, single: bool = False) -> None:
+    """``--force``: write into a folder that is not this command's earlier output, or (with
+    ``single``) over an output file uavdyn did not write
+    (:func:`uavdyn.outputs.check_output_files`)."""
     p.add_argument("--force", action="store_true",
-                   help="write into a non-empty output that is not an earlier result of this "
-                        "command (replaces only this command's files)")
+                   help="overwrite an existing output file that uavdyn did not write (or that "
+                        "was changed since)" if single else
+                        "write into a non-empty output that is not an earlier result of this "
+                        "command (replaces only this command's files; an existing output file "
+                        "uavdyn did not write is overwritten only with --force)")
 
 
 def correction(args: argparse.Namespace, airframe):

@@ -51,7 +51,12 @@ from uavdyn.flightdata.log_dataset import plan_log_dataset, write_log_dataset
 from uavdyn.flightdata.manifest import MANIFEST_MAX_SORTIES
 from uavdyn.flightdata.segments import SegmentRules
 from uavdyn.flightdata.ulog_flight import read_ulog_flight
-from uavdyn.outputs import check_output_folder, output_folder
+from uavdyn.outputs import (
+    check_output_files,
+    check_output_folder,
+    output_folder,
+    single_outputs,
+)
 
 MAX_RATE_HZ = 1000.0         # a log grid rate: no logged topic is faster
 LONGITUDINAL_CONTROLS = ("elevator", "throttle", "collective", "pitch_cmd")
@@ -102,6 +107,8 @@ def cmd_generate_data(args: argparse.Namespace) -> int:
     if args.verify == "shipped" and not args.recipe:
         raise CliError("--verify shipped compares with the reference shipped for --recipe: "
                        "give --recipe, or --verify FILE")
+    if args.write_fingerprint:
+        check_output_files(args.write_fingerprint, force=args.force)  # before any work
     recipe = Recipe.from_json(args.recipe) if args.recipe else Recipe()
     overrides = {"airframe": args.airframe, "sorties": args.sorties, "seed": args.seed,
                  "duration_s": args.duration, "sample_rate_hz": args.rate,
@@ -126,7 +133,9 @@ def cmd_generate_data(args: argparse.Namespace) -> int:
     if args.write_fingerprint or args.verify:
         found = dataset_fingerprint(args.out)
     if args.write_fingerprint:
-        print(f"wrote {write_fingerprint(found, args.write_fingerprint)}")
+        with single_outputs(args.write_fingerprint, command="generate-data",
+                            force=args.force):
+            print(f"wrote {write_fingerprint(found, args.write_fingerprint)}")
     if args.verify:
         reference = (shipped_reference(Path(args.recipe).stem) if args.verify == "shipped"
                      and args.recipe else read_fingerprint(args.verify))

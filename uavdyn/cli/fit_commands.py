@@ -9,7 +9,7 @@ import re
 import sys
 from pathlib import Path
 
-from uavdyn.airframes import DELAY_MAX_SAMPLES, AirframeError, load_airframe
+from uavdyn.airframes import DELAY_MAX_SAMPLES, load_airframe
 from uavdyn.cli.common import (
     SEED,
     STEP,
@@ -38,6 +38,7 @@ from uavdyn.identify.selection import select_structure
 from uavdyn.identify.unknowns import DELAY_PREFIX, control_names
 from uavdyn.integrate import EvalGrid, GridError
 from uavdyn.learned.weights import MAX_MEMORY_FILTERS
+from uavdyn.outputs import check_output_files, single_outputs
 
 MAX_HIDDEN = 1024        # width of the correction's hidden layers (memory and time)
 MAX_EPOCHS = 100_000
@@ -62,12 +63,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
         raise CliError(f"--bounds {', '.join(stray)}: only a continuous parameter named in "
                        "--params takes bounds")
     out = Path(args.out)
-    if out.exists() and not args.force:
-        try:
-            load_airframe(out)
-        except AirframeError:
-            raise CliError(f"{out} exists and is not an airframe file; choose another --out or "
-                           "give --force") from None
+    report = Path(args.report) if args.report else out.with_name(out.stem + "_report")
+    outputs = (out, report / "identify.json", report / "identify.png")
+    check_output_files(*outputs, force=args.force)  # before the work
     ds = load_dataset(args.dataset, lowpass_hz=args.lowpass_hz)
     if not ds.train:
         raise CliError(f"{args.dataset}: the dataset has no train split to fit on")
@@ -78,7 +76,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
     max_delay = 5 if args.max_delay is None else args.max_delay
     options = {"window_s": args.window, "dt": args.dt, "max_delay": max_delay,
                "bounds": args.bounds, "progress": not args.quiet, "prior_sd": args.prior,
-               "keep_undetermined": args.keep_undetermined}
+               "keep_undetermined": args.keep_undetermined,
+               "screen": not args.allow_low_excitation}
     log = None
     if args.structure == "auto":
         if not ds.validation:
@@ -89,11 +88,13 @@ def cmd_identify(args: argparse.Namespace) -> int:
             say=None if args.quiet else lambda m: print(m, file=sys.stderr), **options)
     else:
         result = identify(nominal, ds.train, ds.validation, names, **options)
-    report = Path(args.report) if args.report else out.with_name(out.stem + "_report")
     command = "uavdyn " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["identify"] else \
         f"uavdyn identify --airframe {args.airframe} --dataset {args.dataset} --params " \
         f"{args.params} --out {args.out}"
-    paths = write_outputs(result, nominal, str(args.dataset), command, out, report, log)
+    for line in result.fit.get("excitation_advice", []):
+        print(f"warning: {line}", file=sys.stderr)
+    with single_outputs(*outputs, command="identify", force=args.force):
+        paths = write_outputs(result, nominal, str(args.dataset), command, out, report, log)
     print(f"identified {len(names)} parameter(s) of '{nominal.name}' on {len(ds.train)} train "
           f"sorties in {result.seconds:.1f} s ({result.iterations} iterations)")
     left = result.fit.get("left_out")
@@ -231,7 +232,7 @@ def add_identify(sub) -> None:
     """Register ``identify``."""
     p = sub.add_parser("identify", help="fit named physical parameters to flight data "
                        "(output error); write the fitted airframe file and a report")
-    add_force(p)
+    add_force(p, single=True)
     add_airframe(p)
     p.add_argument("--dataset", required=True, type=dataset_path,
                    help="dataset folder (manifest.json + CSVs)")
@@ -275,6 +276,10 @@ def add_identify(sub) -> None:
                         "determine (default: they keep the file's value and the others are "
                         "refitted with them fixed; with --prior they are fitted under it, and "
                         "only one still on a bound keeps the file's value)")
+    p.add_argument("--allow-low-excitation", action="store_true",
+                   help="fit also parameters whose signal the train data do not move above "
+                        "its noise (default: refused before the fit; a signal above its noise "
+                        "but below the advisory floor is only a warning)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_identify)
 
@@ -283,7 +288,7 @@ def add_train(sub) -> None:
     """Register ``train``."""
     p = sub.add_parser("train", help="train the learned correction (torch) and export its "
                        "weights as .npz")
-    add_force(p)
+    add_force(p, single=True)
     add_airframe(p)
     p.add_argument("--dataset", default=None, metavar="DIR", type=dataset_path,
                    help="required: dataset folder (manifest.json + CSVs, with a train/validation "

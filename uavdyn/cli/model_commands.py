@@ -43,7 +43,7 @@ from uavdyn.linear import (
     trim,
 )
 from uavdyn.model import build_model
-from uavdyn.outputs import atomic_file
+from uavdyn.outputs import atomic_file, check_output_files, single_outputs
 
 
 def cmd_airframes(args: argparse.Namespace) -> int:
@@ -142,6 +142,7 @@ MAX_ROLLOUT = 50_000
 def cmd_simulate(args: argparse.Namespace) -> int:
     """Simulate an input profile from trim with the compiled RK4 and write an interchange CSV."""
 
+    check_output_files(args.out, force=args.force)  # before any work
     n = int(round(args.duration / args.dt))
     if n < 1:
         raise CliError(f"--duration {args.duration:g} s must be at least one --dt step "
@@ -176,7 +177,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                       p, args.dt)[:, :4]
     sortie = Sortie(name=Path(args.out).stem, kind=airframe.kind, time=t, states=states,
                     controls=controls, mission=args.input)
-    with atomic_file(args.out, create_parents=True) as tmp:
+    with single_outputs(args.out, command="simulate", force=args.force), \
+            atomic_file(args.out, create_parents=True) as tmp:
         write_csv(sortie, tmp)
     theta = states[:, 3]
     print(f"wrote {args.out} ({n + 1} rows, dt {args.dt:g} s); pitch range "
@@ -247,6 +249,7 @@ def add_modes(sub) -> None:
 def add_simulate(sub) -> None:
     """Register ``simulate``."""
     p = sub.add_parser("simulate", help="simulate an input profile from trim, write a CSV")
+    add_force(p, single=True)
     add_airframe(p)
     add_trim_args(p)
     p.add_argument("--input", default="doublet", choices=["step", "doublet", "3211", "chirp",

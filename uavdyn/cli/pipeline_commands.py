@@ -34,7 +34,7 @@ from uavdyn.experiments.reproduce import (
     run,
 )
 from uavdyn.flightdata.manifest import MANIFEST_MAX_SORTIES
-from uavdyn.outputs import atomic_files, check_output_file
+from uavdyn.outputs import atomic_files, check_output_file, check_output_files, single_outputs
 
 MAX_COST_REPEATS = 1000
 MAX_DATASET_ROWS = 5_000_000  # the pipeline holds its whole dataset and the predictions on it
@@ -81,17 +81,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     md, png = out.with_suffix(".md"), out.with_suffix(".png")
     for path in (out, md, png):
         check_output_file(path)  # before the work, not after it
+    check_output_files(out, md, png, force=args.force)
     airframe = load_airframe(args.airframe)
     check_dataset_fits(airframe, args.dataset)
-    for path in (out, md, png):
-        if path.exists() and not args.force and not _own_json(out):
-            raise CliError(f"{path} exists and is not an earlier 'uavdyn evaluate' result; "
-                           "choose another --out or give --force")
     identified = load_airframe(args.identified) if args.identified else None
     result = evaluate_dataset(airframe, args.dataset, args.weights or [],
                               identified=identified, all_sorties=args.all_sorties)
     result["command"] = "evaluate"
-    with atomic_files(out, md, *([png] if result.get("ladder") else [])) as tmps:
+    written = (out, md, *([png] if result.get("ladder") else []))
+    with single_outputs(*written, command="evaluate", force=args.force), \
+            atomic_files(*written) as tmps:
         tmps[0].write_text(json.dumps(result, indent=2, default=_json) + "\n")
         tmps[1].write_text(evaluation_markdown(result, png.name, out.name))
         if result.get("ladder"):
@@ -102,14 +101,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(line.replace("**", ""))
     print(f"wrote {out}, {md}" + (f" and {png}" if result.get("ladder") else ""))
     return 0
-
-
-def _own_json(path: Path) -> bool:
-    """Whether ``path`` is a JSON result of ``uavdyn evaluate`` (safe to replace)."""
-    try:
-        return json.loads(path.read_text()).get("command") == "evaluate"
-    except (OSError, ValueError, AttributeError):
-        return False
 
 
 def add_reproduce(sub) -> None:

@@ -7,6 +7,7 @@ Every file a manifest names must resolve inside the dataset folder (no absolute 
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 import os
@@ -27,6 +28,28 @@ MANIFEST_MAX_SORTIES = 100_000
 SAMPLE_RATE_MAX_HZ = 1e5
 
 _IDENTIFIER = re.compile(r"[A-Za-z0-9_.-]{1,64}")         # manifest 'airframe'
+
+# Every key a manifest may carry (what uavdyn's writers put there); any other is refused with
+# the nearest known one named, so a typo ('spilt', 'altitude') is not silently ignored.
+REQUIRED_KEYS = ("airframe", "kind", "sample_rate_hz", "source", "sorties")
+TOP_KEYS = REQUIRED_KEYS + (
+    "columns", "splits", "true_states", "controls", "velocities",  # generate-data, design-input
+    "emulator", "truth", "recipe",                                  # the emulator's record
+    "logs", "split_rule",                                           # import-log, split
+    "lowpass_hz",                                                   # Dataset.lowpass + export
+    "notes",                                       # the author's own remarks (JSON has no #)
+)
+ENTRY_REQUIRED_KEYS = ("file", "mission", "duration_s")
+SORTIE_KEYS = ENTRY_REQUIRED_KEYS + (
+    "split", "true_file", "condition", "altitude_m", "rows",
+    # generate-data and design-input --emulate
+    "turbulence_intensity", "mean_wind_mps", "wind_inertial_mps", "seed", "draws",
+    "max_alpha_air_deg", "mission_params", "sign",
+    # import-log (uavdyn.flightdata.log_dataset.ENTRY_KEYS and the log it came from)
+    "log", "source_file", "source_start_s", "source_end_s", "flight_time_s", "cut",
+    "velocity_reference", "notes",
+)
+ALTITUDE_RANGE_M = (-500.0, 20000.0)  # the Dead Sea shore to the ISA's stratosphere base
 
 
 def write_manifest(folder: str | Path, airframe: str, kind: str, sample_rate_hz: float,
@@ -137,6 +160,17 @@ def _parse_json(shown: Path, real: str | Path) -> object:
         raise FlightDataError(f"invalid JSON: {reason}", shown) from None
 
 
+def _known_keys(obj: dict, known: tuple[str, ...], where: str, path: Path) -> None:
+    """Refuse the first key of ``obj`` not in ``known``, naming the nearest known key."""
+    for key in obj:
+        if key not in known:
+            near = difflib.get_close_matches(str(key), known, n=1, cutoff=0.6)
+            hint = f"; did you mean '{near[0]}'?" if near else \
+                f"; known keys: {', '.join(known)}"
+            raise FlightDataError(f"{where + ': ' if where else ''}unknown key "
+                                  f"{_short(str(key))}{hint}", path)
+
+
 def _validate_manifest(manifest: object, path: Path) -> dict:
     """Keys, JSON types and ranges of a parsed manifest (not yet its file paths)."""
     if not isinstance(manifest, dict):
@@ -145,9 +179,10 @@ def _validate_manifest(manifest: object, path: Path) -> dict:
     if _depth(manifest) > MANIFEST_MAX_DEPTH:
         raise FlightDataError(f"JSON nested too deeply (at most {MANIFEST_MAX_DEPTH} levels)",
                               path)
-    for key in ("airframe", "kind", "sample_rate_hz", "source", "sorties"):
+    for key in REQUIRED_KEYS:
         if key not in manifest:
             raise FlightDataError(f"missing key '{key}'", path)
+    _known_keys(manifest, TOP_KEYS, "", path)
     airframe = _string(manifest["airframe"], "key 'airframe'", path)
     if airframe and (not _IDENTIFIER.fullmatch(airframe) or airframe.startswith(".")):
         raise FlightDataError(f"key 'airframe': {_short(airframe)} is not an airframe name "
@@ -178,9 +213,10 @@ def _validate_manifest(manifest: object, path: Path) -> dict:
         where = f"sorties[{i}]"
         if not isinstance(entry, dict):
             raise FlightDataError(f"{where} must be an object, not {_json_type(entry)}", path)
-        for key in ("file", "mission", "duration_s"):
+        for key in ENTRY_REQUIRED_KEYS:
             if key not in entry:
                 raise FlightDataError(f"{where}: missing key '{key}'", path)
+        _known_keys(entry, SORTIE_KEYS, where, path)
         _string(entry["file"], f"{where}.file", path)
         _string(entry["mission"], f"{where}.mission", path)
         if _number(entry["duration_s"], f"{where}.duration_s", path) < 0:
@@ -196,7 +232,12 @@ def _validate_manifest(manifest: object, path: Path) -> dict:
         if "condition" in entry:
             _string(entry["condition"], f"{where}.condition", path)
         if "altitude_m" in entry:
-            _number(entry["altitude_m"], f"{where}.altitude_m", path)
+            altitude = _number(entry["altitude_m"], f"{where}.altitude_m", path)
+            low, high = ALTITUDE_RANGE_M
+            if not low <= altitude <= high:
+                raise FlightDataError(f"{where}.altitude_m: {entry['altitude_m']!r} m is "
+                                      f"outside {low:g}..{high:g} m above mean sea level",
+                                      path)
         if "rows" in entry:
             rows = entry["rows"]
             if isinstance(rows, bool) or not isinstance(rows, int) or rows < 0:

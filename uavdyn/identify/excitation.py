@@ -63,10 +63,16 @@ def excitation_for(name: str, group: list[str]) -> str:
 # above that signal's own noise: a pitch derivative on a hover-only log fits the autopilot's
 # closed-loop wobble, not the aircraft. The rule is stated, not tuned: the signal's spread
 # (standard deviation over the train sorties) must be at least EXCITATION_SNR times its
-# white-noise level (uavdyn.flightdata.white_noise_std) and at least the floor below.
+# white-noise level (uavdyn.flightdata.white_noise_std), and not zero. That is the hard gate.
+# The absolute floors below are advice only (a warning): on clean data a small manoeuvre
+# (uavdyn simulate's 2-degree doublet moves alpha by 0.003 rad) determines a derivative, and
+# the corrected standard errors and the halves check are what say whether it did.
 EXCITATION_SNR = 3.0
+# A spread below this share of the advisory floor is rounding, not motion (a noise-free trim
+# holds q at 1e-17 rad/s, whose "noise" is 0): the signal does not move at all.
+STILL_SHARE = 1e-6
 
-# signal name -> (description, unit, absolute floor of its standard deviation)
+# signal name -> (description, unit, advisory floor of its standard deviation)
 SIGNALS: dict[str, tuple[str, str, float]] = {  # floors: a quarter of a degree and the like
     "alpha": ("angle of attack atan2(w, u)", "rad", 0.0044),   # 0.25 deg
     "q": ("pitch rate q", "rad/s", 0.0087),                     # 0.5 deg/s
@@ -107,15 +113,34 @@ def _signal(sortie, name: str):
     return sortie.controls[:, CONTROL_NAMES[sortie.kind].index(name)]
 
 
-def unexcited(names: list[str], sorties: list) -> list[str]:
-    """One sentence for each of ``names`` whose signal the ``sorties`` do not move above its
-    noise (empty when all are excited): what moved how much, and what would excite it."""
+def screen_excitation(names: list[str], sorties: list) -> tuple[list[str], list[str]]:
+    """Screen ``names`` against the ``sorties``: what refuses the fit, and what is advice.
+
+    Parameters
+    ----------
+    names : list of str
+        Parameters to fit (those not in :data:`EXCITED_BY` are not screened).
+    sorties : list of Sortie
+        The train sorties.
+
+    Returns
+    -------
+    refused : list of str
+        One sentence per parameter whose signal does not move at all (below
+        :data:`STILL_SHARE` of the floor) or not
+        :data:`EXCITATION_SNR` times above its noise: the data cannot hold it.
+    advice : list of str
+        One sentence per parameter whose signal moves above its noise but less than the
+        absolute floor of :data:`SIGNALS`: fitted, with a warning (its standard errors and
+        the halves check decide whether it is determined).
+    """
     import numpy as np
 
     from uavdyn.flightdata.noise import white_noise_std
     from uavdyn.model import CONTROL_NAMES
 
-    out = []
+    refused: list[str] = []
+    advice: list[str] = []
     for name in names:
         signal = EXCITED_BY.get(name)
         if signal is None or not sorties:
@@ -125,25 +150,40 @@ def unexcited(names: list[str], sorties: list) -> list[str]:
                 and signal not in CONTROL_NAMES[kind]:
             continue
         what, unit, floor = SIGNALS[signal]
+        unit = f" {unit}" if unit else ""
         values = np.concatenate([_signal(s, signal) for s in sorties])
         spread = float(np.std(values))
         noise = float(np.median([white_noise_std(_signal(s, signal)) for s in sorties]))
-        if spread >= max(EXCITATION_SNR * noise, floor):
-            continue
-        against = (f"{spread / noise:.1f}x its noise of {noise:.2g} {unit}" if noise > 0
+        against = (f"{spread / noise:.1f}x its noise of {noise:.2g}{unit}" if noise > 0
                    else "with no measurable noise")
-        out.append(f"{name}: the {what} varies by {spread:.3g} {unit} (standard deviation), "
-                   f"{against} (needs {EXCITATION_SNR:g}x its noise and at least {floor:g} "
-                   f"{unit}); would need: {excitation_for(name, [])}")
-    return out
+        moved = f"{name}: the {what} varies by {spread:.3g}{unit} (standard deviation), " \
+                f"{against}"
+        if not spread > STILL_SHARE * floor or spread < EXCITATION_SNR * noise:
+            refused.append(f"{moved} (needs {EXCITATION_SNR:g}x its noise and more than "
+                           f"{STILL_SHARE * floor:.2g}{unit}); "
+                           f"would need: {excitation_for(name, [])}")
+        elif spread < floor:
+            advice.append(f"{moved}, less than {floor:g}{unit}: a small manoeuvre; its "
+                          "standard errors and the halves check say whether it is determined")
+    return refused, advice
 
 
-def refuse_unexcited(names: list[str], sorties: list) -> None:
+def unexcited(names: list[str], sorties: list) -> list[str]:
+    """One sentence for each of ``names`` whose signal the ``sorties`` do not move above its
+    noise (empty when all are excited): what moved how much, and what would excite it
+    (the refusals of :func:`screen_excitation`)."""
+    return screen_excitation(names, sorties)[0]
+
+
+def refuse_unexcited(names: list[str], sorties: list) -> list[str]:
     """Raise :class:`~uavdyn.identify.errors.IdentifyError` naming every parameter of
-    ``names`` the ``sorties`` do not excite (:func:`unexcited`), in one line."""
+    ``names`` the ``sorties`` do not excite (:func:`screen_excitation`), in one line; return
+    the advice on the others (signals that moved less than the advisory floors)."""
     from uavdyn.identify.errors import IdentifyError
 
-    problems = unexcited(names, sorties)
+    problems, advice = screen_excitation(names, sorties)
     if problems:
         raise IdentifyError("the train data do not excite " + "; ".join(problems)
-                            + " (drop it from the parameters, or fly that manoeuvre)")
+                            + " (drop it from the parameters, fly that manoeuvre, or fit "
+                            "anyway with --allow-low-excitation)")
+    return advice

@@ -160,7 +160,9 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         Show a progress bar over the solver iterations.
     screen : bool
         Refuse, before fitting, a parameter whose signal the train data do not move above
-        its noise (:func:`~uavdyn.identify.excitation.unexcited`; default True).
+        its noise (:func:`~uavdyn.identify.excitation.screen_excitation`; default True); a
+        signal that moves above its noise but less than the advisory floor is fitted and
+        listed in ``result.fit["excitation_advice"]``.
     check_halves : bool
         With four or more training sorties, also fit each half of them (alternate sorties,
         :func:`uavdyn.identify.consistency.compare_halves`): a parameter the halves disagree on
@@ -201,8 +203,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     continuous, searched = _check_request(airframe, names, train, max_delay)
     if prior_sd is not None:
         prior_sd = check_prior_sd(prior_sd)
-    if screen:
-        refuse_unexcited(continuous, train)
+    advice = refuse_unexcited(continuous, train) if screen else []
     fit = _prepare(airframe, train, continuous, searched, window_s, dt, substeps,
                    max_windows, relative_bound, bounds, estimate_x0, preroll)
     outcome = _solve(fit, max_delay, max_iterations, progress)
@@ -225,6 +226,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
              "max_windows": max_windows, "max_delay": max_delay, "substeps": substeps,
              "progress": progress, "check_halves": check_halves, "preroll": preroll,
              "screen": False, "prior_sd": prior_sd})
+    if advice:
+        result.fit["excitation_advice"] = advice
     if free_run:
         result.fit["free_run"] = free_run_check(airframe, result.airframe, train,
                                                 result.substeps)

@@ -12,14 +12,13 @@ does not belong to them. A safe run that keeps no weights leaves the weights alr
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from uavdyn.airframes import Airframe, load_airframe
 from uavdyn.flightdata import Sortie, load_dataset
 from uavdyn.learned.train import TrainConfig, train, write_history_files
-from uavdyn.learned.weights import CorrectionNet, WeightFileError, load_weights, save_weights
-from uavdyn.outputs import atomic_files
+from uavdyn.learned.weights import CorrectionNet, save_weights
+from uavdyn.outputs import atomic_files, check_output_files, single_outputs
 
 
 class NotKept(ValueError):
@@ -45,28 +44,6 @@ def load_training_sorties(dataset: str | None, lowpass_hz: float | None = None
         raise ValueError(f"{dataset}: the dataset needs train and validation sorties")
     label = f"dataset {dataset}" + (f" (low-pass {lowpass_hz:g} Hz)" if lowpass_hz else "")
     return list(ds.train), list(ds.validation), list(ds.test), label
-
-
-def _check_replaceable(weights: Path, histories: list[Path], force: bool) -> None:
-    """Refuse, before training, to overwrite files that are not earlier training outputs."""
-    if force:
-        return
-    if weights.exists():
-        try:
-            load_weights(weights)
-        except WeightFileError:
-            raise ValueError(f"{weights} exists and is not a uavdyn weight file; choose another "
-                             "--out or give --force") from None
-    for history in histories:
-        if not history.exists():
-            continue
-        try:
-            ok = "history" in json.loads(history.read_text())
-        except (OSError, ValueError, TypeError):
-            ok = False
-        if not ok:
-            raise ValueError(f"{history} exists and is not a uavdyn loss history; choose another "
-                             "--history or give --force")
 
 
 def not_kept_path(history: Path) -> Path:
@@ -98,8 +75,9 @@ def run(args: argparse.Namespace, airframe: Airframe | None = None) -> dict:
     if len({p.resolve() for p in (out, hist, hist.with_suffix(".png"))}) < 3:
         raise ValueError(f"--history {hist} and its PNG {hist.with_suffix('.png')} must not be "
                          f"the --out weight file {out}")
-    _check_replaceable(out, [hist, not_kept_path(hist)] if out.exists() else [hist],
-                       getattr(args, "force", False))
+    kept_aside = not_kept_path(hist)
+    check_output_files(out, hist, hist.with_suffix(".png"), kept_aside,  # before training
+                       kept_aside.with_suffix(".png"), force=getattr(args, "force", False))
     tr, va, te, source = load_training_sorties(args.dataset, getattr(args, "lowpass_hz", None))
     # turning-flight sorties carry the lateral inputs: the physics (and the correction's
     # inputs, which are the step's) take them too
@@ -124,7 +102,9 @@ def run(args: argparse.Namespace, airframe: Airframe | None = None) -> dict:
     net = CorrectionNet(**{**result.net.__dict__,
                            "info": {**result.net.info, "data_source": source}})
     png = hist.with_suffix(".png")
-    with atomic_files(out, hist, png) as (w_tmp, h_tmp, p_tmp):  # one output: all or none
+    with single_outputs(out, hist, png, command="train",
+                        force=getattr(args, "force", False)), \
+            atomic_files(out, hist, png) as (w_tmp, h_tmp, p_tmp):  # one output: all or none
         save_weights(net, w_tmp)
         write_history_files(result, h_tmp, p_tmp, f"{airframe.name} on {args.dataset} "
                             f"({len(tr)} train, {len(va)} validation sorties)")
@@ -165,13 +145,16 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
             "sorties)")
     if not result.kept:  # the weights at --out (if any) and their history stay as they are
         record = not_kept_path(hist) if out.exists() else hist
-        with atomic_files(record, record.with_suffix(".png")) as (h_tmp, p_tmp):
+        with single_outputs(record, record.with_suffix(".png"), command="train",
+                            force=getattr(args, "force", False)), \
+                atomic_files(record, record.with_suffix(".png")) as (h_tmp, p_tmp):
             write_safe_history_files(result, h_tmp, p_tmp, data)
         raise NotKept(f"no weights written: {result.reason} (history: {record})")
     net = CorrectionNet(**{**result.net.__dict__,
                            "info": {**result.net.info, "data_source": source}})
     png = hist.with_suffix(".png")
-    with atomic_files(out, hist, png) as (w_tmp, h_tmp, p_tmp):  # one output: all or none
+    with single_outputs(out, hist, png, command="train", force=getattr(args, "force", False)), \
+            atomic_files(out, hist, png) as (w_tmp, h_tmp, p_tmp):  # one output: all or none
         save_weights(net, w_tmp)
         write_safe_history_files(result, h_tmp, p_tmp, data)
     return {"weights": str(out), "history": str(hist), "png": str(png),
