@@ -1,16 +1,17 @@
 """What an identification writes for a parameter the data do not determine: the airframe file's
-value, not the fit's. A parameter whose corrected interval spans zero or that ended on a bound
-(a sign bound included) is reset to its file value, and the others, fitted jointly with it, are
-refitted with it fixed, so the written model is consistent. Collinearity alone does not reset a
-parameter: its corrected standard error already carries the variance collinearity inflates
-(resetting whole collinear groups threw away well-determined derivatives: the emulated
-Aerosonde's C_m_alpha, -2.71 +- 0.13 against the -2.74 it flew, was reset because it
-correlates with C_m_delta_e, and C_m_q then absorbed the rest). Halves of the data disagreeing
-is a flag on the model structure, not a sign that the data cannot determine the value: such an
-estimate stays, flagged. The estimate keeps the fit's value as ``data_value`` and says why in
-``kept``; ``identify(..., keep_undetermined=True)`` (``uavdyn identify --keep-undetermined``)
-writes the raw fit instead. Under a prior, only an estimate still on a bound (or one without a
-prior, its file value 0) keeps the file's value (the prior decides the others)."""
+value, not the fit's. A parameter whose corrected interval spans zero, that is collinear with
+others or that ended on a bound (a sign bound included) is reset to its file value, and the
+others, fitted jointly with it, are refitted with it fixed, so the written model is
+consistent. Collinearity stays a reason: a closed-loop flight makes the elevator a copy of the
+pitch states, and a group of moment derivatives can then come out with narrow intervals around
+a common scale twice the truth, the halves agreeing (the trainer recovery of
+``analysis/identify_recovery.py`` with each sortie weighted by its noise: ``C_m_alpha`` -1.64
++- 0.18 against -0.78). Halves of the data disagreeing is a flag on the model structure, not
+a sign that the data cannot determine the value: such an estimate stays, flagged. The
+estimate keeps the fit's value as ``data_value`` and says why in ``kept``; ``identify(...,
+keep_undetermined=True)`` (``uavdyn identify --keep-undetermined``) writes the raw fit
+instead. Under a prior, only an estimate still on a bound (or one without a prior, its file
+value 0) keeps the file's value (the prior decides the others)."""
 
 from __future__ import annotations
 
@@ -29,12 +30,13 @@ from uavdyn.identify.windows import fit_summary
 def not_determined(estimate: Estimate, groups: list[list[str]], prior: bool = False) -> bool:
     """Whether a continuous estimate is not to be written: on a bound, or (without a
     ``prior``, or with one but a file value of 0, which has none) its corrected interval
-    spanning zero. ``groups`` (collinear names) are reported, not a reason."""
+    spanning zero or in a collinear group (names)."""
     if estimate.searched:
         return False
     if estimate.at_bound or (prior and estimate.nominal != 0):
         return bool(estimate.at_bound)
-    return bool(zero_spanned(estimate.value, estimate.std_error_corrected))
+    return bool(zero_spanned(estimate.value, estimate.std_error_corrected)
+                or any(estimate.name in g for g in groups))
 
 
 def kept_reason(estimate: Estimate) -> str:

@@ -13,10 +13,8 @@ bounded Levenberg-Marquardt method on exact Jacobians (:mod:`uavdyn.identify.pro
 compiled per-window Function mapped over the windows). Standard errors
 (:mod:`uavdyn.identify.uncertainty`): the Cramer-Rao bound (white residuals assumed, optimistic
 on real data) and the one corrected for the residuals' autocorrelation and for how the sorties
-pull the estimate apart, the one to use; an interval spanning zero is flagged as not
-determined by the data, with the collinear group that widened it and the excitation that would
-determine it. Collinearity alone is reported (Belsley's groups, correlations), not a verdict:
-the corrected standard error already carries the variance it inflates.
+pull the estimate apart, the one to use; collinear groups and intervals spanning zero are
+flagged as not determined by the data, with the excitation that would determine them.
 
 What each kind of name means:
 
@@ -179,8 +177,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
         (:mod:`uavdyn.identify.prior`). A parameter the data do not determine is then fitted
         under the prior. Default: no prior.
     keep_undetermined : bool
-        False (default): a parameter the data do not determine (interval spanning zero, on a
-        bound; under a prior: on a bound) keeps the airframe file's value and
+        False (default): a parameter the data do not determine (interval spanning zero,
+        collinear, on a bound; under a prior: on a bound) keeps the airframe file's value and
         the others are refitted with it fixed (:mod:`uavdyn.identify.fallback`). True: the
         raw fit, every value as fitted (flagged).
     free_run : bool

@@ -21,8 +21,8 @@ the ratio of the corrected to the Cramer-Rao standard error of the data-only fit
 the data-only estimate (with its corrected variance) and the prior. The posterior covariance
 is ``(C_data^-1 + P^-1)^-1`` with ``C_data`` the corrected covariance of the data at the
 estimate, so every posterior standard error is below both the prior's and the data's. Whether
-the data determine a parameter is judged on ``C_data`` (its interval spanning zero) and on
-the estimate (on a bound); the halves check's flags of the data-only fit are
+the data determine a parameter is judged on ``C_data`` (its interval spanning zero, collinear
+groups) and on the estimate (on a bound); the halves check's flags of the data-only fit are
 kept. A parameter still on a bound under the prior keeps the file's value (the others
 refitted under the prior, :mod:`uavdyn.identify.fallback`).
 

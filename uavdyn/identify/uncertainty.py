@@ -269,15 +269,10 @@ def zero_spanned(value: float, std_c: float) -> str:
 
 def undetermined(name: str, value: float, std_c: float, groups: list[list[str]]
                   ) -> tuple[tuple[str, ...], list[str]]:
-    """Why the data do not determine a parameter (its corrected interval spans zero; then also
-    the collinear group that widened it), and the group. Collinearity alone does not make a
-    parameter undetermined: the corrected standard error already carries the variance it
-    inflates, so a collinear estimate with a narrow interval is determined (the group is
-    reported with the correlations)."""
+    """Why the data do not determine a parameter (its corrected interval spans zero; it is in
+    a collinear group), and the group."""
+    why = [zero_spanned(value, std_c)] if zero_spanned(value, std_c) else []
     group = next((g for g in groups if name in g), [])
-    if not zero_spanned(value, std_c):
-        return (), group
-    why = [zero_spanned(value, std_c)]
     if group:
         why.append(f"collinear with {', '.join(g for g in group if g != name)} (these data "
                    "cannot separate them)")
