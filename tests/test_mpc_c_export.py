@@ -242,3 +242,18 @@ def test_bundle_refuses_a_plant_without_position(tmp_path, aerosonde_problem):
         export_mpc_bundle(problem, bad, tmp_path / "x")
     with pytest.raises(ValueError, match="real"):
         export_mpc_bundle(problem, example, tmp_path / "y", real="half")
+
+
+def test_cli_exports_the_controller_and_refuses_model_options(tmp_path, capsys):
+    from uavdyn.cli import main
+
+    out = tmp_path / "cli_mpc"
+    assert main(["export-c", "--mpc", "--model", "rk4", "--horizon", "8", "--out",
+                 str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "horizon 8 x 0.05 s" in said and "make -C" in said
+    assert "#define MPC_N 8" in (out / "mpc_config.h").read_text()
+    assert (out / "qp_dense.c").is_file() and (out / "main.c").is_file()
+    assert main(["export-c", "--horizon", "8", "--out", str(tmp_path / "a")]) == 2
+    assert main(["export-c", "--mpc", "--rollout", "5", "--out", str(tmp_path / "b")]) == 2
+    assert "--horizon applies only with --mpc" in capsys.readouterr().err
