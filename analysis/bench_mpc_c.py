@@ -2,7 +2,9 @@
 one run: the Aerosonde hybrid (shipped correction, exact ReLU) at horizon 20, the pitch step
 against the exported physics step. The bundle is exported and built with ``make bench``; its
 harness flies the closed loop ``--repeats`` times and times every ``mpc_step`` and its phases
-(linearisation, condensing, QP) with ``clock_gettime(CLOCK_MONOTONIC)``: median, p99, max.
+(linearisation, condensing, QP) with ``clock_gettime(CLOCK_MONOTONIC)``, and the whole step's
+thread CPU time (``CLOCK_THREAD_CPUTIME_ID``: without the time other processes held the core):
+median, p99, max.
 The Python controller flies the same closed loop (its per-solve wall times, same statistics)
 and its solves are replayed in the project's timing harness
 (:func:`uavdyn.evaluation.timing.interleaved_timing`). The two closed loops' largest
@@ -67,20 +69,23 @@ def python_side(problem, example, repeats: int) -> tuple[dict, np.ndarray, np.nd
     """The Python controller on the same closed loop: per-solve wall times over ``repeats``
     flights, and its solves replayed in the timing harness."""
     mpc = RTIController(problem)
-    times, res = [], None
+    times, cpu, solves = [], [], []
+    real_solve = mpc.solve
+
+    def keep(*args, **kwargs):  # the thread's CPU time of each solve, and its arguments
+        solves.append((args, kwargs))
+        t0 = time.thread_time()
+        out = real_solve(*args, **kwargs)
+        cpu.append(time.thread_time() - t0)
+        return out
+
+    mpc.solve = keep
+    res = None
     for _ in range(repeats):
         res = python_closed_loop(problem, example, mpc)
         times.extend(res.solve_times_s)
-    solves = []
-    real_solve = mpc.solve
-
-    def keep(*args, **kwargs):
-        solves.append((args, kwargs))
-        return real_solve(*args, **kwargs)
-
-    mpc.solve = keep
-    python_closed_loop(problem, example, mpc)
     mpc.solve = real_solve
+    solves = solves[:example.steps]
 
     def replay():
         mpc.reset()
@@ -88,12 +93,13 @@ def python_side(problem, example, repeats: int) -> tuple[dict, np.ndarray, np.nd
             real_solve(*args, **kwargs)
 
     harness = interleaved_timing({"python_rti_replay": replay}, repeats=15)["python_rti_replay"]
-    out = {**stats_us(times),
+    out = {**stats_us(times), "cpu": stats_us(cpu),
            "harness_replay_per_solve_us": {"min": harness.min_s / len(solves) * 1e6,
                                            "median": harness.median_s / len(solves) * 1e6,
                                            "repeats": harness.repeats},
-           "what": "RTIController.solve wall time (perf_counter) over the closed-loop flights; "
-                   "the harness replays the recorded solves in order (reset first)"}
+           "what": "RTIController.solve wall time (perf_counter) over the closed-loop flights "
+                   "(cpu: the thread's CPU time, time.thread_time, of the same solves); the "
+                   "harness replays the first flight's solves in order (reset first)"}
     return out, res.states, res.controls
 
 

@@ -4,6 +4,7 @@ bundle built with make from an empty folder, its example's closed loop equal to 
 controller's to 1e-9."""
 
 import ctypes
+import json
 import shutil
 import subprocess
 from importlib import resources
@@ -209,6 +210,14 @@ def test_bundle_builds_from_an_empty_folder_and_flies_as_python(tmp_path, aeroso
     assert np.degrees(states[-1, 3] - states[0, 3]) == pytest.approx(5.0, abs=1.0)
     generated = (out / "mpc_generated.c").read_text() + (out / "mpc_rti.c").read_text()
     assert "malloc" not in generated and "casadi.h" not in generated
+    # the timing harness: wall and CPU time of the whole step and of its three phases
+    subprocess.run([MAKE, "-C", str(out), "bench"], check=True, capture_output=True)
+    timing = json.loads(subprocess.run([str(out / "bench"), "1"], capture_output=True,
+                                       text=True, check=True).stdout)
+    assert timing["solves"] == example.steps and timing["workspace_bytes"] > 0
+    for phase in ("mpc_step", "linearisation", "condensing", "qp", "mpc_step_cpu"):
+        assert 0 < timing[phase]["median_us"] <= timing[phase]["p99_us"] \
+            <= timing[phase]["max_us"]
 
 
 @needs_make
