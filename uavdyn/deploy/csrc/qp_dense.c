@@ -4,7 +4,15 @@
 #include <stddef.h>
 #include "qp_dense.h"
 
-#define EPS_DEP ((qpd_real)1e-14)  /* |s|^2 / |d|^2 below which a normal is dependent */
+/* |s|^2 / |d|^2 below which a normal is dependent; violation (relative to 1 + |bound|) above
+ * which a constraint is added: a few hundred roundoffs of the real type */
+#ifdef QPD_FLOAT
+#define EPS_DEP ((qpd_real)1e-6)
+#define DEFAULT_TOL ((qpd_real)1e-5)
+#else
+#define EPS_DEP ((qpd_real)1e-14)
+#define DEFAULT_TOL ((qpd_real)1e-10)
+#endif
 
 void qpd_init(qpd_solver* s, int n, int m, qpd_real* rwork, int* iwork) {
   s->n = n;
@@ -12,7 +20,7 @@ void qpd_init(qpd_solver* s, int n, int m, qpd_real* rwork, int* iwork) {
   s->w = rwork;
   s->iw = iwork;
   s->max_iter = 5 * (n + m) + 50;
-  s->tol = (qpd_real)1e-10;
+  s->tol = DEFAULT_TOL;
   s->iterations = 0;
   s->n_active = 0;
 }

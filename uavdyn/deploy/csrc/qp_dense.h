@@ -37,7 +37,8 @@ typedef struct {
   qpd_real* w;         /* QPD_REAL_WORK(n, m) reals, owned by the caller */
   int* iw;             /* QPD_INT_WORK(n, m) ints, owned by the caller */
   int max_iter;        /* iteration limit (default 5 (n + m) + 50) */
-  qpd_real tol;        /* violation above which a constraint is added (default 1e-10 x scale) */
+  qpd_real tol;        /* violation above which a constraint is added, times 1 + |bound|
+                          (default 1e-10 in double, 1e-5 in float) */
   int iterations;      /* of the last solve: constraints added plus removed */
   int n_active;        /* of the last solve */
 } qpd_solver;
