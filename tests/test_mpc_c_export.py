@@ -266,3 +266,23 @@ def test_cli_exports_the_controller_and_refuses_model_options(tmp_path, capsys):
     assert main(["export-c", "--horizon", "8", "--out", str(tmp_path / "a")]) == 2
     assert main(["export-c", "--mpc", "--rollout", "5", "--out", str(tmp_path / "b")]) == 2
     assert "--horizon applies only with --mpc" in capsys.readouterr().err
+
+
+@needs_make
+@pytest.mark.slow
+def test_scalar_condensing_bundle_flies_as_python(tmp_path, aerosonde_problem):
+    """``condensing="sx"``: the condensing expanded to scalar code in its own file, built at
+    -O1; the same closed loop to 1e-9."""
+    problem, example = aerosonde_problem
+    out = export_mpc_bundle(problem, example, tmp_path / "mpc_sx", condensing="sx")
+    assert (out / "mpc_condense.c").is_file()
+    assert "mpc_gen_cond(" not in (out / "mpc_generated.c").read_text()
+    subprocess.run([MAKE, "-C", str(out), "example"], check=True, capture_output=True)
+    text = subprocess.run([str(out / "example")], capture_output=True, text=True,
+                          check=True).stdout
+    states, controls, _ = _read_csv(text)
+    res = python_closed_loop(problem, example)
+    assert np.max(np.abs(states - res.states)) < 1e-9
+    assert np.max(np.abs(controls - res.controls)) < 1e-9
+    with pytest.raises(ValueError, match="condensing"):
+        export_mpc_bundle(problem, example, tmp_path / "z", condensing="qr")

@@ -192,7 +192,7 @@ def cmd_export_c(args: argparse.Namespace) -> int:
     the real-time-iteration controller) and say how to build."""
 
     refuse_unused(args, ("--weights",), args.model != "rk4", "with --model hybrid")
-    refuse_unused(args, ("--horizon",), args.mpc, "with --mpc")
+    refuse_unused(args, ("--horizon", "--condensing"), args.mpc, "with --mpc")
     if args.mpc:
         return _export_mpc(args)
     airframe = load_airframe(args.airframe)
@@ -242,7 +242,8 @@ def _export_mpc(args: argparse.Namespace) -> int:
     problem = TrackingProblem(chosen.model, chosen.trim.u, config,
                               speed_trim=max(chosen.trim.airspeed, 1.0))
     example = example_closed_loop(setup.plant_airframe, config.dt)
-    out = export_mpc_bundle(problem, example, args.out, real=args.real, force=args.force)
+    out = export_mpc_bundle(problem, example, args.out, real=args.real, force=args.force,
+                            condensing=args.condensing or "mx")
     print(f"wrote {out}/ (mpc_rti.h, mpc_rti.c, mpc_generated.c, qp_dense.c, main.c, Makefile; "
           f"{args.real}; {chosen.description}, horizon {config.horizon} x {config.dt:g} s)")
     print(f"build and run: make -C {out} && {out}/example > closed_loop.csv "
@@ -329,6 +330,10 @@ def add_export_c(sub) -> None:
     p.add_argument("--horizon", type=number(1, MAX_MPC_HORIZON, integer=True, name="intervals"),
                    default=None, help=f"--mpc prediction intervals, 1..{MAX_MPC_HORIZON} "
                    "(default 20)")
+    p.add_argument("--condensing", choices=["mx", "sx"], default=None,
+                   help="--mpc condensing code: mx (default; compact, builds in seconds) or sx "
+                        "(scalar code: about 4x faster condensing at horizon 20, megabytes of C "
+                        "that take tens of seconds to build; grows with the horizon squared)")
     p.add_argument("--lateral", action="store_true",
                    help="the step with the turning-flight inputs phi, p, r, beta after the "
                         "controls (needs Jx, Jz, Jxz in the airframe file; the weights of a "

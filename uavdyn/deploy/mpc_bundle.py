@@ -33,6 +33,7 @@ from uavdyn.mpc.tracking import ClosedLoopResult, fly_closed_loop, step_plant
 from uavdyn.outputs import output_folder
 
 C_SOURCES = ("qp_dense.h", "qp_dense.c", "mpc_rti.h", "mpc_rti.c")
+CONDENSING = ("mx", "sx")
 OBSERVED = (0, 1, 2, 3, 5)  # [u, w, q, theta, h] of a step with position states
 MEASURED_NAMES = ("u", "w", "q", "theta", "h")
 CSV_COLUMNS = ("time", *MEASURED_NAMES, "control_1", "control_2", "source", "qp_iterations")
@@ -123,12 +124,15 @@ def rest_indices(problem: TrackingProblem) -> np.ndarray:
     return idx
 
 
-def _functions(problem: TrackingProblem, plant: DiscreteModel) -> list[ca.Function]:
-    """The four generated Functions: linearisation, condensing (dense outputs), the extra
-    states' update and the plant step."""
+def _functions(problem: TrackingProblem, plant: DiscreteModel, condensing: str = "mx"
+               ) -> list[ca.Function]:
+    """The four generated Functions: linearisation, condensing (dense outputs; ``"sx"``: the
+    MX graph expanded to scalar code), the extra states' update and the plant step."""
     lin = linearisation_function(problem, "mpc_gen_lin")
     cond = condensing_function(problem)
-    ins = cond.mx_in()
+    if condensing == "sx":
+        cond = cond.expand()
+    ins = cond.mx_in() if condensing == "mx" else cond.sx_in()
     cond = ca.Function("mpc_gen_cond", ins, [ca.densify(o) for o in cond.call(ins)],
                        cond.name_in(), cond.name_out())
     layout = problem.model.layout
@@ -137,7 +141,8 @@ def _functions(problem: TrackingProblem, plant: DiscreteModel) -> list[ca.Functi
 
 
 def export_mpc_bundle(problem: TrackingProblem, example: MPCExample, out_dir: str | Path,
-                      real: str = "double", force: bool = False) -> Path:
+                      real: str = "double", force: bool = False, condensing: str = "mx"
+                      ) -> Path:
     """Write the controller bundle into ``out_dir`` (a temporary sibling renamed into place;
     a non-empty folder that is not an earlier export is refused unless ``force``).
 
@@ -154,6 +159,12 @@ def export_mpc_bundle(problem: TrackingProblem, example: MPCExample, out_dir: st
         ``"double"`` or ``"float"``.
     force : bool
         Replace a folder that is not an earlier export.
+    condensing : str
+        ``"mx"``: the condensing generated from its matrix graph (dense-block products;
+        compact, builds in seconds); ``"sx"``: expanded to scalar code in its own file
+        ``mpc_condense.c``, compiled with ``-O1`` (measured at horizon 20: 3.8x faster
+        condensing, a third of the memory, but 2.7 MB of C that takes tens of seconds to
+        build; its size grows with the square of the horizon).
 
     Returns
     -------
@@ -168,17 +179,26 @@ def export_mpc_bundle(problem: TrackingProblem, example: MPCExample, out_dir: st
     """
     if real not in ("double", "float"):
         raise ValueError(f"real must be 'double' or 'float', got {real!r}")
+    if condensing not in CONDENSING:
+        raise ValueError(f"condensing must be one of {CONDENSING}, got {condensing!r}")
     if not example.plant.layout.with_position:
         raise ValueError("the example's plant must carry position states (physics_step(..., "
                          "with_position=True)): the controller measures the altitude")
     if example.plant.function.size1_in(2) != np.size(example.plant_p):
         raise ValueError(f"the plant takes {example.plant.function.size1_in(2)} parameters, "
                          f"got {np.size(example.plant_p)}")
-    functions = _functions(problem, example.plant)
+    functions = _functions(problem, example.plant, condensing)
+    apart = condensing == "sx"  # the scalar condensing in a file of its own, built at -O1
     with output_folder(out_dir, "export-c", force) as tmp:
-        source = generate_c(functions[0], tmp, name="mpc_generated", casadi_real=real,
-                            others=tuple(functions[1:]))
-        source.write_text(silence_unused_parameters(source.read_text()))
+        first, *others = functions
+        sources = [generate_c(first, tmp, name="mpc_generated", casadi_real=real,
+                              others=tuple(f for f in others if not apart or f is not
+                                           functions[1]))]
+        if apart:
+            sources.append(generate_c(functions[1], tmp, name="mpc_condense",
+                                      casadi_real=real))
+        for source in sources:
+            source.write_text(silence_unused_parameters(source.read_text()))
         for name in C_SOURCES:
             text = resources.files("uavdyn.deploy.csrc").joinpath(name).read_text()
             if name == "qp_dense.h" and real == "float":
@@ -187,7 +207,7 @@ def export_mpc_bundle(problem: TrackingProblem, example: MPCExample, out_dir: st
         main = resources.files("uavdyn.deploy.csrc").joinpath("mpc_main.c").read_text()
         (tmp / "main.c").write_text(main)
         _write_config(problem, example, functions, real, tmp)
-        _write_makefile(tmp)
+        _write_makefile(tmp, apart)
         _write_readme(problem, example, real, work_sizes(functions), tmp)
     return Path(out_dir)
 
@@ -266,23 +286,28 @@ const double mpc_example_on = {sc.start:.17g};
 """)
 
 
-def _write_makefile(out: Path) -> None:
+def _write_makefile(out: Path, apart: bool) -> None:
+    objects = "mpc_condense.o" if apart else ""
+    rule = ("\n# the scalar condensing: megabytes of straight-line code, built at -O1 (a sixth of "
+            "the\n# build time of -O3, measured)\nmpc_condense.o: mpc_condense.c\n"
+            "\t$(CC) $(CFLAGS) -O1 -c -o $@ mpc_condense.c\n") if apart else ""
     (out / "Makefile").write_text(f"""\
 # make && ./example > closed_loop.csv      (the controller flies the scenario)
 # make bench && ./bench 20                 (solve times over 20 closed loops, JSON)
 CC ?= cc
 CFLAGS ?= {C_FLAGS}
 SOURCES = mpc_rti.c mpc_data.c mpc_generated.c qp_dense.c
+OBJECTS = {objects}
 HEADERS = mpc_rti.h mpc_config.h qp_dense.h
 
-example: main.c $(SOURCES) $(HEADERS)
-\t$(CC) $(CFLAGS) -o $@ main.c $(SOURCES) -lm
+example: main.c $(SOURCES) $(OBJECTS) $(HEADERS)
+\t$(CC) $(CFLAGS) -o $@ main.c $(SOURCES) $(OBJECTS) -lm
 
-bench: main.c $(SOURCES) $(HEADERS)
-\t$(CC) $(CFLAGS) -O3 -DMPC_TIMING -o $@ main.c $(SOURCES) -lm
-
+bench: main.c $(SOURCES) $(OBJECTS) $(HEADERS)
+\t$(CC) $(CFLAGS) -O3 -DMPC_TIMING -o $@ main.c $(SOURCES) $(OBJECTS) -lm
+{rule}
 clean:
-\trm -f example bench
+\trm -f example bench *.o
 """)
 
 
@@ -318,6 +343,7 @@ memory, real type `{real}`. Horizon {problem.N} x {problem.config.dt:g} s, predi
 |---|---|
 | `mpc_rti.h`, `mpc_rti.c` | the controller: `mpc_init`, `mpc_step`, `mpc_plant_step` |
 | `mpc_generated.c` | CasADi-generated: linearisation, condensing, carried states, plant step |
+| `mpc_condense.c` | (`condensing="sx"` only) the condensing as scalar code |
 | `qp_dense.h`, `qp_dense.c` | uavdyn's dense Goldfarb-Idnani QP solver (BSD-3-Clause, as uavdyn) |
 | `mpc_config.h`, `mpc_data.c` | sizes, bounds, parameters, the example's plant and scenario |
 | `main.c`, `Makefile` | the example (CSV) and the timing harness (`-DMPC_TIMING`) |
