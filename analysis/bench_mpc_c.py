@@ -10,7 +10,10 @@ and its solves are replayed in the project's timing harness
 (:func:`uavdyn.evaluation.timing.interleaved_timing`). The two closed loops' largest
 difference and the machine load before and after are recorded. Prints JSON.
 
-Usage: ``python analysis/bench_mpc_c.py [--repeats 20] [--out FILE]``
+The controller is measured twice: with the condensing generated from its matrix graph (the
+default, ``c``) and expanded to scalar code (``--condensing sx``, ``c_sx``).
+
+Usage: ``python analysis/bench_mpc_c.py [--repeats 20] [--no-sx] [--out FILE]``
 """
 
 from __future__ import annotations
@@ -45,9 +48,12 @@ def stats_us(seconds) -> dict:
             "max_us": float(np.max(t)), "min_us": float(np.min(t)), "solves": int(len(t))}
 
 
-def c_side(problem, example, folder: Path, repeats: int) -> tuple[dict, np.ndarray, np.ndarray]:
-    """Export, build, run the example (closed loop) and the timing harness."""
-    out = export_mpc_bundle(problem, example, folder / "mpc")
+def c_side(problem, example, folder: Path, repeats: int, condensing: str = "mx"
+           ) -> tuple[dict, np.ndarray, np.ndarray]:
+    """Export (``condensing`` as in :func:`export_mpc_bundle`), build, run the example (closed
+    loop) and the timing harness."""
+    out = export_mpc_bundle(problem, example, folder / f"mpc_{condensing}",
+                            condensing=condensing)
     t0 = time.perf_counter()
     subprocess.run(["make", "-C", str(out), "example", "bench"], check=True,
                    capture_output=True)
@@ -61,7 +67,9 @@ def c_side(problem, example, folder: Path, repeats: int) -> tuple[dict, np.ndarr
                                        capture_output=True, text=True).stdout)
     timing["build_s"] = build_s
     timing["cflags"] = "-std=c99 -O2 -Wall -Wextra -Werror -O3 -DMPC_TIMING (make bench)"
-    timing["generated_c_bytes"] = (out / "mpc_generated.c").stat().st_size
+    timing["generated_c_bytes"] = sum(f.stat().st_size for f in out.glob("mpc_*.c")
+                                      if f.name != "mpc_rti.c")
+    timing["condensing_code"] = condensing
     return timing, states, controls
 
 
@@ -107,6 +115,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=20, help="closed loops timed")
     parser.add_argument("--out", default=None, help="JSON file")
+    parser.add_argument("--no-sx", dest="sx", action="store_false",
+                        help="skip the scalar-code condensing (its build takes minutes)")
     args = parser.parse_args()
     if shutil.which("make") is None or shutil.which("cc") is None:
         raise SystemExit("bench_mpc_c needs make and a C compiler (cc)")
@@ -119,6 +129,8 @@ def main() -> None:
     example = example_closed_loop(setup.plant_airframe, config.dt)
     with tempfile.TemporaryDirectory() as tmp:
         c, c_states, c_controls = c_side(problem, example, Path(tmp), args.repeats)
+        c_sx, sx_states, sx_controls = (c_side(problem, example, Path(tmp), args.repeats, "sx")
+                                        if args.sx else (None, None, None))
     py, py_states, py_controls = python_side(problem, example, args.repeats)
     after = load()
     doc = {
@@ -128,11 +140,14 @@ def main() -> None:
                     "plant": f"RK4 physics step of {setup.plant_airframe.name} (exported)",
                     "solves_per_flight": example.steps, "qp_variables": problem.nu * problem.N
                     + problem.ns},
-        "c": c, "python": py,
+        "c": c, "c_sx": c_sx, "python": py,
         "c_median_speedup_over_python": py["median_us"] / c["mpc_step"]["median_us"],
         "closed_loop_max_abs_diff": {
             "states": float(np.max(np.abs(c_states - py_states))),
-            "controls": float(np.max(np.abs(c_controls - py_controls)))},
+            "controls": float(np.max(np.abs(c_controls - py_controls))),
+            **({} if sx_states is None else {
+                "states_sx": float(np.max(np.abs(sx_states - py_states))),
+                "controls_sx": float(np.max(np.abs(sx_controls - py_controls)))})},
         "acados_target_ms": ACADOS_TARGET_MS,
         "acados_note": "the issue's figure for tuned acados' generated C on this problem; "
                        "acados is not installed here, so it is not re-measured in this run",
