@@ -286,3 +286,25 @@ def test_scalar_condensing_bundle_flies_as_python(tmp_path, aerosonde_problem):
     assert np.max(np.abs(controls - res.controls)) < 1e-9
     with pytest.raises(ValueError, match="condensing"):
         export_mpc_bundle(problem, example, tmp_path / "z", condensing="qr")
+
+
+@needs_make
+def test_prediction_without_carried_states_flies_as_python(tmp_path):
+    """The nominal Aerosonde physics has no actuator lags: no carried states in C either."""
+    from uavdyn.airframes import load_airframe
+    from uavdyn.integrate import physics_step
+    from uavdyn.linear import trim
+
+    airframe = load_airframe("aerosonde")
+    model, point = physics_step(airframe), trim(airframe)
+    assert model.layout.n_extra == 0
+    config = MPCConfig(horizon=10, mode="rti")
+    problem = TrackingProblem(model, point.u, config, speed_trim=point.airspeed)
+    example = example_closed_loop(airframe, config.dt)
+    out = export_mpc_bundle(problem, example, tmp_path / "mpc")
+    subprocess.run([MAKE, "-C", str(out), "example"], check=True, capture_output=True)
+    states, controls, _ = _read_csv(subprocess.run([str(out / "example")], capture_output=True,
+                                                   text=True, check=True).stdout)
+    res = python_closed_loop(problem, example)
+    assert np.max(np.abs(states - res.states)) < 1e-9
+    assert np.max(np.abs(controls - res.controls)) < 1e-9
