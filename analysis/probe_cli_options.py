@@ -180,6 +180,8 @@ OPTIONS: dict[tuple[str, str], Num | Values] = {
         ("1abc", "starts with a digit"), ("a-b", "not a C identifier"),
         ("int", "a C keyword"), ("", "empty"))),
     ("export-c", "--out"): OUT_FOLDER,
+    ("export-c", "--horizon"): count("1 <= intervals <= 200 (with --mpc)", 200),
+    ("export-c", "--condensing"): choice("mx, sx (with --mpc)"),
     ("import-log", "log"): Values("an existing .ulg/.bin/.csv file or ALFA folder", (
         (MISSING, "does not exist"),)),
     ("import-log", "--format"): choice("auto, ulog, alfa, ardupilot, csv"),
@@ -285,6 +287,9 @@ RELATIONS: tuple[tuple[str, tuple[str, ...], tuple[str, ...], str], ...] = (
      "--weights applies to --hybrid only"),
     ("export-c", ("--weights", "{WEIGHTS}"), ("--weights", "--model"),
      "--weights with --model rk4 is ignored"),
+    ("export-c", ("--horizon", "5"), ("--horizon", "--mpc"), "--horizon applies to --mpc only"),
+    ("export-c", ("--mpc", "--rollout", "5"), ("--rollout", "--mpc"),
+     "the controller bundle has no rollout"),
     ("generate-data", ("--rate", "300"), ("--internal-dt", "--rate"),
      "the 0.001 s step does not divide the 1/300 s log interval"),
     ("generate-data", ("--duration", "1e6"), ("--duration", "--rate"),
