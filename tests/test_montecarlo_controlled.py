@@ -78,3 +78,24 @@ def test_controller_of_another_kind_is_refused(setup):
     f450 = load_airframe("f450")
     with pytest.raises(MonteCarloError, match="fixed_wing"):
         fly_controlled_runs(controller, f450, parse_dispersions({}, f450), sc, runs=1)
+
+
+def test_cli_flies_the_mpc_runs_and_refuses_batch_options(tmp_path, capsys):
+    import json
+
+    from uavdyn.cli import main
+
+    out = tmp_path / "mc_mpc"
+    assert main(["montecarlo", "--mpc", "pitch-step", "--dispersions", "aerosonde_gusty",
+                 "--runs", "3", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "3 runs of the pitch-step" in said
+    rows = (out / "runs.csv").read_text().strip().splitlines()
+    assert rows[0].split(",")[:len(OUTCOMES)] == list(OUTCOMES) and len(rows) == 4
+    drivers = json.loads((out / "drivers.json").read_text())
+    assert drivers["runs"] == 3 and len(drivers["drivers"]) == 8
+    assert "RTI MPC, horizon 20" in (out / "summary.md").read_text()
+    for extra in (["--closed-loop"], ["--duration", "5"], ["--workers", "2"]):
+        assert main(["montecarlo", "--mpc", "pitch-step", "--dispersions", "aerosonde_gusty",
+                     "--runs", "3", "--out", str(tmp_path / "x"), *extra]) == 2
+        assert f"{extra[0]} applies to the batch study" in capsys.readouterr().err
