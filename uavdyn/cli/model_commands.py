@@ -137,6 +137,9 @@ MAX_SIMULATION_ROWS = 2_000_000  # ~100 MB of CSV; beyond that, simulate in piec
 # steps of an exported rollout: generating its code peaked at 0.3 GB for 50 000 steps, 1.9 GB
 # for 100 000 and 18 GB for 1 000 000 (measured, CasADi 3.6)
 MAX_ROLLOUT = 50_000
+MAX_MPC_HORIZON = 200
+MODEL_DT, MPC_DT = 0.005, 0.05  # default step of a model bundle, interval of the MPC
+DEFAULT_NAME = "uav_step"
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -187,9 +190,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_export_c(args: argparse.Namespace) -> int:
-    """Write a dependency-free C bundle (step or rollout, double or float) and say how to build."""
+    """Write a dependency-free C bundle (step or rollout, double or float; or with ``--mpc``
+    the real-time-iteration controller) and say how to build."""
 
     refuse_unused(args, ("--weights",), args.model != "rk4", "with --model hybrid")
+    refuse_unused(args, ("--horizon", "--condensing"), args.mpc, "with --mpc")
+    if args.mpc:
+        return _export_mpc(args)
     airframe = load_airframe(args.airframe)
     if args.lateral:  # turning flight: the step takes phi, p, r, beta after the controls
         airframe = airframe.with_lateral()
@@ -204,13 +211,45 @@ def cmd_export_c(args: argparse.Namespace) -> int:
     else:
         model = physics_step(airframe)
     point = trim(airframe, args.airspeed, math.radians(args.gamma_deg))
-    spec = model_bundle_spec(args.name, model, point, args.dt, real=args.real,
+    spec = model_bundle_spec(args.name, model, point, args.dt or MODEL_DT, real=args.real,
                              rollout_steps=args.rollout)
     out = export_bundle(model, spec, args.out, force=args.force)
     what = f"rollout of {args.rollout} steps" if args.rollout else "one step"
     print(f"wrote {out}/ ({args.name}.h, {args.name}.c, {args.name}_generated.c, main.c, "
           f"Makefile; {args.real}, {what})")
     print(f"build and run: make -C {out} && {out}/example > trajectory.csv")
+    return 0
+
+
+def _export_mpc(args: argparse.Namespace) -> int:
+    """``export-c --mpc``: the RTI controller of ``uavdyn mpc --rti`` (same prediction models)
+    with the pitch step against the airframe's physics step as its example."""
+    from uavdyn.deploy.mpc_bundle import example_closed_loop, export_mpc_bundle
+    from uavdyn.mpc import MPCConfig, TrackingProblem
+    from uavdyn.mpc.study import prediction_models
+
+    refuse_unused(args, ("--lateral", "--airspeed"), False, "without --mpc")
+    if args.rollout or args.name != DEFAULT_NAME or args.gamma_deg:
+        raise CliError("--rollout, --name and --gamma-deg apply only without --mpc (the "
+                       "controller's API is mpc_init/mpc_step; its example flies the pitch "
+                       "step from level trim)")
+    which = "physics" if args.model == "rk4" else "hybrid"
+    setup = prediction_models(args.airframe, args.weights, mode="rti", models=(which,))
+    if which not in setup.models:
+        raise CliError(f"no hybrid prediction for {args.airframe}: "
+                       f"{setup.missing.get(which, 'no correction')}; --model rk4 exports the "
+                       "physics-only controller")
+    chosen = setup.models[which]
+    config = MPCConfig(horizon=args.horizon or 20, dt=args.dt or MPC_DT, mode="rti")
+    problem = TrackingProblem(chosen.model, chosen.trim.u, config,
+                              speed_trim=max(chosen.trim.airspeed, 1.0))
+    example = example_closed_loop(setup.plant_airframe, config.dt)
+    out = export_mpc_bundle(problem, example, args.out, real=args.real, force=args.force,
+                            condensing=args.condensing or "mx")
+    print(f"wrote {out}/ (mpc_rti.h, mpc_rti.c, mpc_generated.c, qp_dense.c, main.c, Makefile; "
+          f"{args.real}; {chosen.description}, horizon {config.horizon} x {config.dt:g} s)")
+    print(f"build and run: make -C {out} && {out}/example > closed_loop.csv "
+          f"(solve times: make -C {out} bench && {out}/bench)")
     return 0
 
 
@@ -285,13 +324,24 @@ def add_export_c(sub) -> None:
     p.add_argument("--rollout", type=number(0, MAX_ROLLOUT, integer=True, name="steps"),
                    default=0, help=f"export a rollout of N steps instead of one step, "
                    f"0..{MAX_ROLLOUT} (default 0: one step)")
-    p.add_argument("--dt", type=STEP, default=0.005, help="default step in s, 1e-6..1 "
-                   "(default 0.005)")
+    p.add_argument("--dt", type=STEP, default=None, help="default step in s, 1e-6..1 "
+                   f"(default {MODEL_DT}; with --mpc the MPC interval, default {MPC_DT})")
+    p.add_argument("--mpc", action="store_true",
+                   help="export the real-time-iteration tracking MPC (the controller of "
+                        "'uavdyn mpc --rti') instead of the step: C controller, QP solver and "
+                        "an example flying the pitch step against the physics step")
+    p.add_argument("--horizon", type=number(1, MAX_MPC_HORIZON, integer=True, name="intervals"),
+                   default=None, help=f"--mpc prediction intervals, 1..{MAX_MPC_HORIZON} "
+                   "(default 20)")
+    p.add_argument("--condensing", choices=["mx", "sx"], default=None,
+                   help="--mpc condensing code: mx (default; compact, builds in seconds) or sx "
+                        "(scalar code: about 4x faster condensing at horizon 20, megabytes of C "
+                        "that take tens of seconds to build; grows with the horizon squared)")
     p.add_argument("--lateral", action="store_true",
                    help="the step with the turning-flight inputs phi, p, r, beta after the "
                         "controls (needs Jx, Jz, Jxz in the airframe file; the weights of a "
                         "correction trained on turning-flight data need it)")
-    p.add_argument("--name", default="uav_step", type=c_identifier,
+    p.add_argument("--name", default=DEFAULT_NAME, type=c_identifier,
                    help="C name of the exported function (a C identifier)")
     p.add_argument("--out", default="results/c_bundle", type=folder_to_write,
                    help="output folder")

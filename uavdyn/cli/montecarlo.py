@@ -37,6 +37,7 @@ from uavdyn.montecarlo import (
 from uavdyn.montecarlo.dispersions import shipped_dispersions
 from uavdyn.montecarlo.report import departure_warning
 from uavdyn.montecarlo.spec import MAX_STEPS
+from uavdyn.mpc.scenarios import SCENARIO_NAMES
 from uavdyn.outputs import check_output_folder
 
 COMMAND = "montecarlo"
@@ -137,6 +138,12 @@ def add_parser(sub) -> argparse.ArgumentParser:
                         f"(default 0.1; runs x samples at most {MAX_HISTORY_SAMPLES})")
     p.add_argument("--out", required=True, type=folder_to_write, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--mpc", default=None, choices=SCENARIO_NAMES,
+                   help="fly this scenario with the real-time-iteration MPC (horizon 20) in "
+                        "the loop of every run instead of a batch study: the physics "
+                        "prediction, or with --weights the hybrid; the plant is each run's "
+                        "dispersed airframe with its gusts. Writes runs.csv, drivers.json "
+                        "(which dispersion drives the worst runs) and summary.md")
     p.set_defaults(func=cmd_montecarlo)
     return p
 
@@ -166,6 +173,10 @@ def check_sizes(args: argparse.Namespace) -> None:
 
 def cmd_montecarlo(args: argparse.Namespace) -> int:
     """Run (or resume) a Monte-Carlo study and print where its results are."""
+    if args.mpc is not None:
+        from uavdyn.cli.montecarlo_mpc import cmd_montecarlo_mpc
+
+        return cmd_montecarlo_mpc(args)
     if args.workers_write and args.scheduler is None:
         raise MonteCarloError("--workers-write applies to --scheduler (a LocalCluster's "
                               "workers write their chunk files anyway)")

@@ -1,4 +1,5 @@
-"""Dependency-free C bundle of a step or rollout Function."""
+"""Dependency-free C bundles: a step or rollout Function (:mod:`uavdyn.deploy.bundle`) and the
+real-time-iteration MPC with its own QP solver (:mod:`uavdyn.deploy.mpc_bundle`)."""
 
 from uavdyn.deploy.bundle import (
     BundleSpec,

@@ -11,7 +11,7 @@ import casadi as ca
 
 def generate_c(func: ca.Function, directory: Path, name: str | None = None,
                with_header: bool = False, casadi_real: str = "double",
-               with_jacobians: bool = False) -> Path:
+               with_jacobians: bool = False, others: tuple[ca.Function, ...] = ()) -> Path:
     """Write the C source of ``func`` (and optionally its Jacobian and a header).
 
     Parameters
@@ -24,6 +24,8 @@ def generate_c(func: ca.Function, directory: Path, name: str | None = None,
         Base name of the files (default ``func.name()``).
     with_header, casadi_real, with_jacobians
         Passed to ``casadi.CodeGenerator`` (header file, ``double``/``float``, Jacobian too).
+    others : tuple of casadi.Function
+        More Functions generated into the same file (one bundle, one set of helpers).
 
     Returns
     -------
@@ -36,6 +38,8 @@ def generate_c(func: ca.Function, directory: Path, name: str | None = None,
     gen.add(func)
     if with_jacobians:
         gen.add(func.jacobian())
+    for other in others:
+        gen.add(other)
     directory.mkdir(parents=True, exist_ok=True)
     gen.generate(str(directory) + os.sep)
     return directory / f"{name}.c"

@@ -128,10 +128,12 @@ class StateLayout:
 
 
 @lru_cache(maxsize=64)
-def _extra_loop(structure: ModelStructure, memory_tau: tuple[float, ...], n: int
-                ) -> ca.Function:
-    """``(extra0, U[nu x n], p, dt) -> extra after each of the n calls``: the step's update of
-    its extra states (they do not depend on the body), looped with ``mapaccum``."""
+def extra_step_function(structure: ModelStructure, memory_tau: tuple[float, ...] = ()
+                        ) -> ca.Function:
+    """``(e, u, p, dt) -> e_next``: the step's update of its extra states (actuators, delay
+    buffers, command memory; they do not depend on the body) as an SX Function, what
+    :meth:`StateLayout.advance` computes in NumPy (the C export of the MPC carries them
+    with it)."""
     layout = StateLayout(structure, memory_tau)
     n_act = layout.n_physics - layout.n_body
     e, u = ca.SX.sym("e", layout.n_extra), ca.SX.sym("u", structure.nu)
@@ -139,9 +141,21 @@ def _extra_loop(structure: ModelStructure, memory_tau: tuple[float, ...], n: int
     rows = [e[i] for i in range(layout.n_extra)]
     act = advance_actuators_ops(structure, rows[:n_act], u, p, dt, CASADI_OPS)
     memory = memory_update(rows[n_act:], u, memory_tau, dt, CASADI_OPS)
-    step = ca.Function("extra_step", [e, p, dt, u], [ca.vertcat(*act, *memory)])
+    return ca.Function("extra_step", [e, u, p, dt], [ca.vertcat(*act, *memory)],
+                       ["e", "u", "p", "dt"], ["e_next"])
+
+
+@lru_cache(maxsize=64)
+def _extra_loop(structure: ModelStructure, memory_tau: tuple[float, ...], n: int
+                ) -> ca.Function:
+    """``(extra0, U[nu x n], p, dt) -> extra after each of the n calls``: the step's update of
+    its extra states (they do not depend on the body), looped with ``mapaccum``."""
+    layout = StateLayout(structure, memory_tau)
+    e, u = ca.SX.sym("e", layout.n_extra), ca.SX.sym("u", structure.nu)
+    p, dt = ca.SX.sym("p", structure.np), ca.SX.sym("dt")
+    step = extra_step_function(structure, memory_tau)
     acc = ca.Function("extra_acc", [ca.vertcat(e, p, dt), u],
-                      [ca.vertcat(step(e, p, dt, u), p, dt)])
+                      [ca.vertcat(step(e, u, p, dt), p, dt)])
     E0, U = ca.MX.sym("e0", layout.n_extra), ca.MX.sym("U", structure.nu, n)
     P, DT = ca.MX.sym("p", structure.np), ca.MX.sym("dt")
     out = acc.mapaccum("extra_loop", n)(ca.vertcat(E0, P, DT), U)

@@ -41,6 +41,8 @@ _QUIET = {
     "hpipm": {"error_on_fail": False},
 }
 
+QP_OUTPUTS = ("H", "g", "A", "lba", "uba", "lbx", "ubx", "X", "check")
+
 
 def qp_function(problem: TrackingProblem, name: str = "mpc_rti_qp") -> ca.Function:
     """The condensed Gauss-Newton QP of one real-time iteration as one MX Function.
@@ -50,13 +52,50 @@ def qp_function(problem: TrackingProblem, name: str = "mpc_rti_qp") -> ca.Functi
     altitude, speed), ``w`` the three tracking weights. The QP variables are the plan's
     increments ``vec(dU)`` then the slacks; ``X`` is the predicted rollout ``nx x (N+1)``;
     ``check`` the sum of every QP matrix entry and every predicted state (non-finite iff any
-    of them is).
+    of them is). The graph is :func:`linearisation_function`'s followed by
+    :func:`condensing_function`'s, inlined.
     """
+    x0, U, u_prev, refs, w = _qp_symbols(problem)
+    X, A, B = problem.stage_jac.mapaccum("mpc_roll", problem.N)(x0, U)
+    return ca.Function(name, [x0, U, u_prev, refs, w],
+                       _condensed(problem, x0, U, u_prev, refs, w, X, A, B),
+                       ["x0", "U", "u_prev", "refs", "w"], list(QP_OUTPUTS))
+
+
+def linearisation_function(problem: TrackingProblem, name: str = "mpc_rti_lin"
+                           ) -> ca.Function:
+    """The first half of :func:`qp_function`: ``(x0, U) -> (X, A, B)``, the rollout
+    ``X`` (``nx x N``, after each interval) with every stage Jacobian ``A`` (``nx x nx N``) and
+    ``B`` (``nx x nu N``). Apart so that the C export can time it on its own."""
+    x0, U = _qp_symbols(problem)[:2]
+    X, A, B = problem.stage_jac.mapaccum("mpc_roll", problem.N)(x0, U)
+    return ca.Function(name, [x0, U], [X, A, B], ["x0", "U"], ["X", "A", "B"])
+
+
+def condensing_function(problem: TrackingProblem, name: str = "mpc_rti_condense"
+                        ) -> ca.Function:
+    """The second half of :func:`qp_function`: ``(x0, U, u_prev, refs, w, X, A, B)`` (the
+    linearisation's outputs last, with its sparsity: a caller passes its nonzeros on as they
+    are) ``-> (H, g, A, lba, uba, lbx, ubx, X, check)``."""
+    syms = _qp_symbols(problem)
+    lin = linearisation_function(problem)
+    X, A, B = (ca.MX.sym(n, lin.sparsity_out(i)) for i, n in enumerate(("X", "A", "B")))
+    return ca.Function(name, [*syms, X, A, B], _condensed(problem, *syms, X, A, B),
+                       ["x0", "U", "u_prev", "refs", "w", "X_lin", "A_lin", "B_lin"],
+                       list(QP_OUTPUTS))
+
+
+def _qp_symbols(problem: TrackingProblem) -> list[ca.MX]:
+    """``x0, U, u_prev, refs, w`` of the QP Functions."""
+    N, nx, nu = problem.N, problem.nx, problem.nu
+    return [ca.MX.sym("x0", nx), ca.MX.sym("U", nu, N), ca.MX.sym("u_prev", nu),
+            ca.MX.sym("refs", 3, N), ca.MX.sym("w", 3)]
+
+
+def _condensed(problem: TrackingProblem, x0, U, u_prev, refs, w, X, A, B) -> list:
+    """The QP's matrices (:data:`QP_OUTPUTS`) from the linearisation ``X, A, B``."""
     N, nx, nu, ns = problem.N, problem.nx, problem.nu, problem.ns
     cfg = problem.config
-    x0, U = ca.MX.sym("x0", nx), ca.MX.sym("U", nu, N)
-    u_prev, refs, w = ca.MX.sym("u_prev", nu), ca.MX.sym("refs", 3, N), ca.MX.sym("w", 3)
-    X, A, B = problem.stage_jac.mapaccum("mpc_roll", N)(x0, U)
     r, Jr, c, Jc = problem.output_jac.map(N)(X, refs, ca.repmat(w, 1, N))
     # condensing, forward: G = d x_{k+1} / d [u_0 .. u_k] (nx x nu (k+1)), one product per
     # stage; the residual and soft-bound rows of stage k are (sparse) J_k G
@@ -94,10 +133,7 @@ def qp_function(problem: TrackingProblem, name: str = "mpc_rti_qp") -> ca.Functi
     Xall = ca.horzcat(x0, X)
     # one number that is non-finite when any QP matrix or the rollout is
     check = ca.sum1(ca.sum2(H)) + ca.sum1(g) + ca.sum1(ca.sum2(Acon)) + ca.sum1(ca.sum2(Xall))
-    return ca.Function(name, [x0, U, u_prev, refs, w],
-                       [H, g, Acon, lba, uba, lbx, ubx, Xall, check],
-                       ["x0", "U", "u_prev", "refs", "w"],
-                       ["H", "g", "A", "lba", "uba", "lbx", "ubx", "X", "check"])
+    return [H, g, Acon, lba, uba, lbx, ubx, Xall, check]
 
 
 def packed_qp_function(func: ca.Function) -> ca.Function:
