@@ -7,8 +7,10 @@ For each airframe and each knocked-out physical term the emulator's truth model 
    a key of the recipe, the generator's code hash and the airframe file's bytes). One dataset
    per airframe serves all its terms: its truth model flies every term (the truth extras of
    the terms that need one, through the recipe's ``truth`` field where ``Recipe`` has it);
-2. two output-error identifications (:func:`uavdyn.identify.identify`, as ``uavdyn identify``
-   calls it) on the train split: (a) WITHOUT the term (its parameters fixed at their
+2. two output-error identifications (:func:`uavdyn.identify.identify`, as ``uavdyn identify
+   --keep-undetermined`` calls it: the raw fit, since the default keeps the file's values for
+   a collinear group, and (b) would then not hold the term it is there to measure) on the
+   train split: (a) WITHOUT the term (its parameters fixed at their
    knockout values in the airframe, not in the list), (b) WITH them added to the list. The
    base list is the pipeline's (:data:`uavdyn.experiments.common.IDENTIFY_PARAMS`) without
    any term's parameters, plus the parameters of every OTHER term the data fly, so (a) and
@@ -595,7 +597,10 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
                          for c in ("calm", "turbulent")} for sp in counts}
     say(f"{nominal.name}: dataset {'reused' if reused else f'generated in {gen_s:.0f} s'} "
         f"({counts['train']}/{counts['validation']}/{counts['test']} train/validation/test)")
-    quick = {"max_windows": 40, "max_iterations": 20} if args.quick else {}
+    # the raw fit (--keep-undetermined) for both models: the default writes the file's values
+    # for a collinear group, and then (b) would not hold the term it is there to measure
+    quick = {"keep_undetermined": True,
+             **({"max_windows": 40, "max_iterations": 20} if args.quick else {})}
     base = [p for p in IDENTIFY_PARAMS[kind]
             if not any(p in TERMS[t]["params"] for t in TERMS)]
     full = base + [p for t in flown if TERMS[t]["in_full"] for p in TERMS[t]["params"]]
