@@ -523,3 +523,27 @@ def test_pooled_state_errors_recover_the_error_against_the_truth_from_noisy_reco
     bad = pred.copy()
     bad[0, 0, 1] = np.nan
     assert pooled_state_errors(bad, records, noise)[1] == math.inf
+
+
+def test_a_gain_within_the_sortie_spread_is_not_a_gain():
+    """The paired t statistic of the per-sortie log ratios: a 0.2 % mean gain with one sortie
+    2 % worse is noise; a 9 % gain on every sortie is not; the rule refuses the first."""
+    import math
+
+    from uavdyn.learned.rules import summarise_ratios
+    from uavdyn.learned.safe import SafeConfig
+    from uavdyn.learned.safe.scoring import beats_physics_in_pitch
+
+    noise = summarise_ratios([0.998, 1.02, 0.99, 0.995, 1.0, 0.985])
+    gain = summarise_ratios([0.9, 0.92, 0.88, 0.91, 0.95, 0.9])
+    logs = [math.log(v) for v in (0.998, 1.02, 0.99, 0.995, 1.0, 0.985)]
+    mean = sum(logs) / 6
+    sd = math.sqrt(sum((v - mean) ** 2 for v in logs) / 5)
+    assert noise.gain_t == pytest.approx(-mean / (sd / math.sqrt(6)))
+    assert noise.gain_t < 2.0 < gain.gain_t
+    assert summarise_ratios([0.9]).gain_t == math.inf  # one sortie: no spread to judge by
+    cfg = SafeConfig()
+    for summary, kept in ((noise, False), (gain, True)):
+        sel = {"val_ratio_worst": summary.worst, "val_ratio_geomean": summary.geomean,
+               "val_theta_rmse": 0.5, "val_gain_t": summary.gain_t}
+        assert beats_physics_in_pitch(sel, cfg, 1.0) is kept

@@ -57,11 +57,14 @@ def is_worse(ratio: float | None, limit: float = WORSE_THAN) -> bool:
 @dataclass(frozen=True)
 class RatioSummary:
     """Per-sortie ratios summarised: their geometric mean (what selects a correction), the
-    worst one (what guards it) and how many sorties were scored."""
+    worst one (what guards it), how many sorties were scored, and the gain's significance:
+    ``-mean(log r)`` over its standard error across the sorties (a paired t statistic; inf
+    when every sortie gains alike or only one was scored and it gains, -inf for none)."""
 
     geomean: float
     worst: float
     scored: int
+    gain_t: float = math.inf
 
 
 def summarise_ratios(ratios) -> RatioSummary:
@@ -69,8 +72,22 @@ def summarise_ratios(ratios) -> RatioSummary:
     figures if none was scored or one is not finite."""
     r = np.array([v for v in ratios if v is not None and not math.isnan(v)], float)
     if not len(r) or not np.all(np.isfinite(r)):
-        return RatioSummary(math.inf, math.inf, len(r))
-    return RatioSummary(float(np.exp(np.mean(np.log(r)))), float(np.max(r)), len(r))
+        return RatioSummary(math.inf, math.inf, len(r), -math.inf)
+    logs = np.log(r)
+    return RatioSummary(float(np.exp(np.mean(logs))), float(np.max(r)), len(r),
+                        gain_significance(logs))
+
+
+def gain_significance(log_ratios: np.ndarray) -> float:
+    """``-mean / (std / sqrt(n))`` of the per-sortie log ratios: how many standard errors the
+    mean gain is away from none (sortie to sortie spread as the noise)."""
+    mean = float(np.mean(log_ratios))
+    if len(log_ratios) < 2:
+        return math.inf if mean < 0 else -math.inf
+    se = float(np.std(log_ratios, ddof=1)) / math.sqrt(len(log_ratios))
+    if se == 0.0:
+        return math.inf if mean < 0 else (-math.inf if mean > 0 else 0.0)
+    return -mean / se
 
 
 def state_noise(sortie: Sortie) -> np.ndarray:

@@ -141,6 +141,7 @@ def score(model: TorchCorrection, V: WindowTensors, ref: ValidationReference, dt
             "val_state_ratio_worst": worst_state if math.isfinite(worst_state) else math.inf,
             "val_ratio_geomean": summary.geomean,
             "val_ratio_worst": summary.worst,
+            "val_gain_t": summary.gain_t,
             "val_sortie_ratios": [None if v is None or not math.isfinite(v) else float(v)
                                   for v in ratios]}
 
@@ -153,6 +154,8 @@ def rank(sel: dict, cfg: SafeConfig) -> tuple:
 
 def beats_physics_in_pitch(sel: dict, cfg: SafeConfig, physics_rmse: float) -> bool:
     """Pooled and on every validation sortie (within the tolerance) at the selection
-    horizon."""
+    horizon, with a gain that stands out of the sortie-to-sortie spread
+    (``cfg.gain_significance``)."""
     return (sel["val_ratio_worst"] <= cfg.worst_sortie_ratio
-            and sel["val_ratio_geomean"] < 1.0 and sel["val_theta_rmse"] < physics_rmse)
+            and sel["val_ratio_geomean"] < 1.0 and sel["val_theta_rmse"] < physics_rmse
+            and sel.get("val_gain_t", math.inf) >= cfg.gain_significance)

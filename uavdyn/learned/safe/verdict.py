@@ -56,7 +56,8 @@ def kept_reason(final: dict, physics_val: float, alpha: float, channels: np.ndar
     return (f"validation pitch RMSE at {horizon_s:g} s "
             f"{physics_val:.4g} -> {final['val_theta_rmse']:.4g} rad (per-sortie "
             f"ratio geometric mean {final['val_ratio_geomean']:.3g}, worst "
-            f"{final['val_ratio_worst']:.3g}, output scale {alpha:g}"
+            f"{final['val_ratio_worst']:.3g}, gain {final.get('val_gain_t', math.inf):.3g} "
+            f"standard errors, output scale {alpha:g}"
             + ("" if np.all(channels == 1) else " x channels ("
                + ", ".join(f"{c:g}" for c in channels) + ")")
             + f"; every body state's error at most "
@@ -68,11 +69,16 @@ def kept_reason(final: dict, physics_val: float, alpha: float, channels: np.ndar
 def _tally(tried: list, cfg: SafeConfig, physics_val: float, horizon_s: float) -> str:
     """How every candidate (epoch, output scales) failed."""
     beat = [r for r in tried if beats_physics_in_pitch(r, cfg, physics_val)]
+    small = [r for r in tried if not beats_physics_in_pitch(r, cfg, physics_val)
+             and beats_physics_in_pitch({**r, "val_gain_t": math.inf}, cfg, physics_val)]
     states_worse = [r["val_state_ratio_worst"] for r in beat
                     if r["val_state_ratio_worst"] > cfg.state_ratio_limit]
     return (f"of {len(tried)} candidates (epoch, output scales): {len(tried) - len(beat)} do "
-            f"not beat the physics in pitch on every validation sortie at {horizon_s:g} s, "
-            f"{len(states_worse)} make a body state's error grow beyond "
+            f"not beat the physics in pitch on every validation sortie at {horizon_s:g} s"
+            + (f" ({len(small)} of them by a gain within the sortie-to-sortie spread: "
+               f"t below {cfg.gain_significance:g}, best "
+               f"{max(r['val_gain_t'] for r in small):.3g})" if small else "")
+            + f", {len(states_worse)} make a body state's error grow beyond "
             f"{cfg.state_ratio_limit:g}x"
             + (f" (least {min(states_worse):.4g}x)" if states_worse else "")
             + f", {sum(r.get('free_run_ok') is False for r in tried)} fail the free-run guard, "
