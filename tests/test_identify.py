@@ -214,3 +214,15 @@ def test_each_sortie_is_weighted_by_its_own_noise_level(aerosonde, truth):
     for e in result.estimates:  # and the fit stays where the truth is
         true = getattr(truth.params, e.name)
         assert abs(e.value - true) <= 3 * e.std_error_corrected, (e.name, e.value, true)
+
+
+def test_a_slew_time_fits_with_its_lag_at_zero(aerosonde, truth):
+    """A rate limit fitted on an actuator whose lag the file keeps at 0 (a pure rate limiter;
+    the default's refit does this when the lag is not determined): the derivatives stay
+    finite, so the fit runs (it was refused as 'not excited', its Jacobian NaN)."""
+    assert aerosonde.params.tau_elevator == 0.0
+    result = identify(aerosonde, _sorties(truth, 2, 5), [], ["C_m_q", "slew_elevator"],
+                      progress=False, check_halves=False, free_run=False, screen=False,
+                      keep_undetermined=True)
+    c_m_q = next(e for e in result.estimates if e.name == "C_m_q")
+    assert np.isfinite(c_m_q.value) and np.isfinite(c_m_q.std_error_corrected)

@@ -32,6 +32,10 @@ from uavdyn.model import (
 STEP_INPUTS = ["x", "u", "p", "dt"]
 TAU_FLOOR = 1e-300  # s; a time constant of 0 is an instant jump, never 0/0 at a stage time 0
 SLEW_FLOOR = 1e-12  # s per unit; a slew time of 0 (no rate limit) is the plain lag to round-off
+# s; inside a rate-limited lag a time constant below this is this: at TAU_FLOOR the pure rate
+# limiter's derivatives were inf * 0 = NaN (identify could not fit a slew time with the lag
+# kept at 0); 1 us is far below any log interval
+SLEW_TAU_FLOOR = 1e-6
 LOG_2 = math.log(2.0)
 
 
@@ -69,10 +73,10 @@ def slew_toward(value, command, elapsed, tau, slew, ops):
 
     Odd and smooth in the error (its derivative at zero error is the lag's ``exp(-t/tau)``, so
     trims linearise as with the plain lag); a slew of 0 is the plain lag (:data:`SLEW_FLOOR`); a
-    time constant of 0 is a pure rate limiter. Large ``|y|`` are computed in the log domain (no
+    time constant of 0 is a pure rate limiter (to :data:`SLEW_TAU_FLOOR`). Large ``|y|`` are computed in the log domain (no
     overflow), and each ``if_else`` branch stays finite for every input (no NaN in
     derivatives)."""
-    tau = ops.fmax(tau, TAU_FLOOR)
+    tau = ops.fmax(tau, SLEW_TAU_FLOOR)
     slew = ops.fmax(slew, SLEW_FLOOR)
     y0 = slew * (command - value) / tau
     log_decay = -elapsed / tau
