@@ -160,7 +160,8 @@ def _build(spec: ControlledSpec, backend: str) -> object:
     from uavdyn.mpc.study import prediction_models
 
     which = "physics" if spec.weights is None else "hybrid"
-    setup = prediction_models(spec.airframe_source, spec.weights, mode="rti", models=(which,))
+    weights = None if spec.weights == "shipped" else spec.weights  # the preset's own
+    setup = prediction_models(spec.airframe_source, weights, mode="rti", models=(which,))
     if which not in setup.models:
         raise MonteCarloError(f"no {which} prediction for {spec.airframe_source}: "
                               f"{setup.missing.get(which, 'no correction')}")
