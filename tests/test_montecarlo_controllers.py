@@ -3,6 +3,7 @@ run, LQR and MPC fly the same dispersed airframes and gusts, a study resumes fro
 and the CLI's controller options refuse what they would ignore."""
 
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from uavdyn.montecarlo.controlled_study import (
 )
 from uavdyn.mpc import scenario
 
+TRAINER = str(Path(__file__).resolve().parents[1] / "examples" / "trainer.toml")
 # outcomes that are wall times, not results
 TIMED = ("median_solve_ms",)
 
@@ -26,13 +28,13 @@ TIMED = ("median_solve_ms",)
 def spec():
     from uavdyn.airframes import load_airframe
 
-    airframe = load_airframe("examples/trainer.toml")
+    airframe = load_airframe(TRAINER)
     dispersions = parse_dispersions({
         "params": {"C_m_alpha": {"dist": "uniform", "low": -0.15, "high": 0.15},
                    "C_m_delta_e": {"dist": "uniform", "low": -0.15, "high": 0.15}},
         "gust": {"intensity": {"dist": "uniform", "low": 0.0, "high": 2.0}}}, airframe)
     sc = replace(scenario("fixed_wing", "pitch-step"), duration=2.0)
-    return ControlledSpec("examples/trainer.toml", None, airframe, dispersions, "mpc", sc,
+    return ControlledSpec(TRAINER, None, airframe, dispersions, "mpc", sc,
                           runs=5, seed=2, chunk_size=2, backend="python")
 
 
@@ -104,7 +106,7 @@ def test_study_in_chunks_resumes_and_equals_the_runs_flown_at_once(spec, tmp_pat
 def test_cli_controller_options(tmp_path, capsys):
     from uavdyn.cli import main
 
-    base = ["montecarlo", "--airframe", "examples/trainer.toml", "--dispersions",
+    base = ["montecarlo", "--airframe", TRAINER, "--dispersions",
             "trainer_pm15_gusty", "--runs", "2", "--duration", "1", "--no-progress"]
     assert main([*base, "--controller", "lqr", "--out", str(tmp_path / "lqr")]) == 0
     assert "2 runs x 1 s, LQR" in capsys.readouterr().out

@@ -11,6 +11,7 @@ import argparse
 import sys
 import warnings
 from dataclasses import replace
+from pathlib import Path
 
 from uavdyn.airframes import load_airframe
 from uavdyn.cli.common import CliError
@@ -89,8 +90,11 @@ def cmd_montecarlo_controller(args: argparse.Namespace, controller: str) -> int:
                        f"({sc.start:g} s)")
     dispersions = load_dispersions(args.dispersions, airframe)
     seed = args.seed if args.seed is not None else (dispersions.seed or 0)
-    weights = None if args.weights is None else str(args.weights)
-    spec = ControlledSpec(str(args.airframe), weights, airframe, dispersions, controller, sc,
+    weights = None if args.weights in (None, "shipped") else str(Path(args.weights).resolve())
+    weights = "shipped" if args.weights == "shipped" else weights
+    source = str(Path(args.airframe).resolve()) if Path(args.airframe).is_file() \
+        else str(args.airframe)  # a file: the same for Dask workers started elsewhere
+    spec = ControlledSpec(source, weights, airframe, dispersions, controller, sc,
                           runs=args.runs, seed=seed,
                           chunk_size=args.chunk_size or DEFAULT_CHUNK_SIZE,
                           airspeed=args.airspeed, backend=args.mpc_backend or "auto")

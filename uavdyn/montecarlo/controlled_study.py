@@ -102,7 +102,7 @@ class ControlledSpec:
         content = to_toml_dict(self.plant)
         content["params"] = {n: repr(float(v["value"])) for n, v in content["params"].items()}
         doc = {"format": CHUNK_FORMAT, "uavdyn": __version__, "plant": content,
-               "source": self.airframe_source, "weights": self.weights,
+               "prediction": _prediction_identity(self.airframe_source, self.weights),
                "dispersions": self.dispersions.to_dict(), "controller": self.controller,
                "scenario": asdict(self.scenario), "seed": self.seed,
                "chunk_size": self.chunk_size, "altitude": self.altitude,
@@ -112,6 +112,7 @@ class ControlledSpec:
 
     @property
     def n_chunks(self) -> int:
+        """Chunks of :attr:`chunk_size` runs (the last one may be shorter)."""
         return -(-self.runs // self.chunk_size)
 
     def chunk_runs(self, index: int) -> tuple[int, int]:
@@ -120,6 +121,7 @@ class ControlledSpec:
         return start, min(start + self.chunk_size, self.runs)
 
     def columns(self) -> tuple[str, ...]:
+        """The per-run table's columns."""
         return OUTCOMES + tuple(self.dispersions.column_names())
 
     def describe(self) -> dict:
@@ -128,6 +130,21 @@ class ControlledSpec:
                 "source": self.airframe_source, "weights": self.weights,
                 "scenario": asdict(self.scenario), "runs": self.runs, "seed": self.seed,
                 "chunk_size": self.chunk_size, "horizon": HORIZON}
+
+
+def _prediction_identity(source: str, weights: str | None) -> list:
+    """What decides the controller's prediction model beyond the plant: a preset's name (its
+    shipped identified airframe or correction) or a file's content, and the weights' content
+    (not their paths, so a moved file keeps its study)."""
+    def content(path: str) -> str:
+        try:
+            return hashlib.sha256(read_regular(Path(path), 256 * 2**20, "a file")).hexdigest()
+        except UnreadableFile:
+            return str(path)
+
+    preset = not Path(source).is_file()
+    return [source if preset else content(source),
+            weights if weights in (None, "shipped") else content(weights)]
 
 
 # ------------------------------------------------------------------------------ controllers
