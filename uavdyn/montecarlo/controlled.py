@@ -40,6 +40,7 @@ OUTCOMES = ("run", "trim_ok", "departed", "tracking_rmse", "max_pitch_error_deg"
 # of the rate limit's step is on the rate limit
 ACTIVE_TOLERANCE = 1e-6
 WORST_SHARE = 0.1  # the worst runs: this share of them (at least one)
+SHOWN_WORST = 10  # the worst runs a summary names
 
 
 @dataclass(frozen=True)
@@ -318,9 +319,11 @@ def describe(result: ControlledRuns) -> list[str]:
              f"{np.nanmean(result.column('bound_share')):.1%}, on a rate limit "
              f"{np.nanmean(result.column('rate_share')):.1%} of the intervals (mean)"]
     if len(ok):
-        lines.append(f"tracking RMSE median {np.median(ok):.4g}, worst "
-                     f"{np.max(ok):.4g} (runs {', '.join(map(str, result.worst_runs()))} "
-                     "worst)")
+        worst = result.worst_runs()
+        shown = ", ".join(map(str, worst[:SHOWN_WORST]))
+        more = f" of the {len(worst)} worst" if len(worst) > SHOWN_WORST else " worst"
+        lines.append(f"tracking RMSE median {np.median(ok):.4g}, worst {np.max(ok):.4g} "
+                     f"(runs {shown}{more})")
     lines += [f"{d.column}: explains {d.explained:.0%} of the error ranks, rank correlation "
               f"{d.spearman:+.2f}, worst runs {d.worst_shift_sd:+.2f} sd"
               for d in result.drivers]
