@@ -43,8 +43,6 @@ def resolve_controller(args: argparse.Namespace) -> str:
                            f"--controller mpc --scenario {args.mpc}")
         if args.scenario not in (None, args.mpc):
             raise CliError(f"--mpc {args.mpc} contradicts --scenario {args.scenario}")
-        print(f"note: --mpc SCENARIO is deprecated; give --controller mpc --scenario "
-              f"{args.mpc}", file=sys.stderr)
         controller, args.scenario = "mpc", args.mpc
     controller = controller or "none"
     if args.closed_loop and controller != "none":
@@ -71,6 +69,9 @@ def resolve_controller(args: argparse.Namespace) -> str:
             if getattr(args, name) is not None:
                 raise CliError(f"--{name.replace('_', '-')} applies to --controller mpc, not "
                                "to --controller lqr")
+    if args.mpc is not None:  # after the refusals: a refused command says one line
+        print(f"note: --mpc SCENARIO is deprecated; give --controller mpc --scenario "
+              f"{args.mpc}", file=sys.stderr)
     return controller
 
 
