@@ -86,16 +86,23 @@ def test_cli_flies_the_mpc_runs_and_refuses_batch_options(tmp_path, capsys):
     from uavdyn.cli import main
 
     out = tmp_path / "mc_mpc"
+    # the deprecated spelling still works: --controller mpc --scenario pitch-step
     assert main(["montecarlo", "--mpc", "pitch-step", "--dispersions", "aerosonde_gusty",
-                 "--runs", "3", "--out", str(out)]) == 0
-    said = capsys.readouterr().out
-    assert "3 runs of the pitch-step" in said
+                 "--runs", "3", "--duration", "3", "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "3 runs of the pitch-step" in captured.out and "deprecated" in captured.err
     rows = (out / "runs.csv").read_text().strip().splitlines()
     assert rows[0].split(",")[:len(OUTCOMES)] == list(OUTCOMES) and len(rows) == 4
     drivers = json.loads((out / "drivers.json").read_text())
     assert drivers["runs"] == 3 and len(drivers["drivers"]) == 8
+    assert drivers["summary"]["departed"] == 0
     assert "RTI MPC, horizon 20" in (out / "summary.md").read_text()
-    for extra in (["--closed-loop"], ["--duration", "5"], ["--workers", "2"]):
+    for extra, message in ((["--closed-loop"], "--closed-loop is the batch study's LQR"),
+                           (["--mission", "3211"], "--mission applies to the batch study"),
+                           (["--dt", "0.02"], "--dt applies to the batch study"),
+                           (["--vector-math"], "--vector-math applies to the batch study"),
+                           (["--controller", "lqr"], "contradicts --controller lqr")):
         assert main(["montecarlo", "--mpc", "pitch-step", "--dispersions", "aerosonde_gusty",
                      "--runs", "3", "--out", str(tmp_path / "x"), *extra]) == 2
-        assert f"{extra[0]} applies to the batch study" in capsys.readouterr().err
+        err = capsys.readouterr().err.strip().splitlines()
+        assert message in err[-1] and "Traceback" not in "".join(err)

@@ -91,16 +91,32 @@ def add_parser(sub) -> argparse.ArgumentParser:
                         "default: the physics RK4 step")
     p.add_argument("--runs", type=count(MAX_RUNS, "runs"), default=1000,
                    help=f"number of runs, 1..{MAX_RUNS} (default 1000)")
-    p.add_argument("--duration", type=seconds(name="duration"), default=60.0,
-                   help=f"seconds per run (default 60; at most {MAX_STEPS} steps of --dt)")
+    p.add_argument("--duration", type=seconds(name="duration"), default=None,
+                   help=f"seconds per run (default 60, at most {MAX_STEPS} steps of --dt; "
+                        "with --controller: the scenario's, at most 100000 intervals)")
     p.add_argument("--dispersions", required=True,
                    type=existing_file("dispersion file", also=shipped_dispersions()),
                    help="dispersion file (TOML; format in docs/montecarlo.md) or the name of "
                         f"a shipped example ({', '.join(shipped_dispersions())})")
+    p.add_argument("--controller", default=None, choices=("none", "lqr", "mpc"),
+                   help="none (default): the batch study (open loop, or --closed-loop); lqr "
+                        "or mpc: that controller in the loop of every run, tracking the "
+                        "--scenario reference on its dispersed airframe in its gusts, in "
+                        "chunks (--workers, --scheduler, resumable); writes runs.csv, "
+                        "drivers.json (which dispersion drives the worst runs), summary.md")
+    p.add_argument("--scenario", default=None, choices=SCENARIO_NAMES,
+                   help="with --controller: the reference each run tracks (default "
+                        "pitch-step; references in docs/mpc.md), over --duration")
+    p.add_argument("--mpc-backend", default=None, choices=("auto", "c", "python"),
+                   help="with --controller mpc: auto (default) the exported C controller where "
+                        "a C compiler is found, else the Python one with a warning; c or "
+                        "python to choose (the same outcomes to round-off)")
     p.add_argument("--closed-loop", action="store_true",
-                   help="fly every run with an LQR state feedback about its own trim (the "
-                        "gain of the model linearised at the nominal trim, stated in the "
-                        "summary); default open loop (an unstable airframe departs)")
+                   help="batch study: fly every run with an LQR state feedback about its own "
+                        "trim under --mission (the gain of the model linearised at the "
+                        "nominal trim, stated in the summary); default open loop (an "
+                        "unstable airframe departs). Deprecated: --controller lqr flies the "
+                        "LQR tracking a --scenario reference")
     p.add_argument("--vector-math", action="store_true",
                    help="evaluate the maths functions of four runs in one call of glibc's "
                         "vector library (x86-64 with AVX2, glibc 2.35+): about 1.5x faster, "
@@ -128,9 +144,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
                         "default the client writes them (a LocalCluster's workers always do)")
     p.add_argument("--threads", type=THREADS, default=1,
                    help="CasADi threads per chunk (default 1)")
-    p.add_argument("--chunk-size", type=count(MAX_CHUNK_SIZE, "runs"), default=200,
-                   help="runs per chunk: one task, one file, the unit of resume (default 200; "
-                        f"chunk-size x steps per run at most {MAX_CHUNK_RUN_STEPS})")
+    p.add_argument("--chunk-size", type=count(MAX_CHUNK_SIZE, "runs"), default=None,
+                   help="runs per chunk: one task, one file, the unit of resume (default 200, "
+                        "25 with --controller; chunk-size x steps per run at most "
+                        f"{MAX_CHUNK_RUN_STEPS})")
     p.add_argument("--seed", type=SEED, default=None,
                    help="study seed >= 0 (default: the dispersion file's, else 0)")
     p.add_argument("--history-dt", type=seconds(name="history-dt"), default=0.1,
@@ -139,11 +156,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, type=folder_to_write, help="output folder")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--mpc", default=None, choices=SCENARIO_NAMES,
-                   help="fly this scenario with the real-time-iteration MPC (horizon 20) in "
-                        "the loop of every run instead of a batch study: the physics "
-                        "prediction, or with --weights the hybrid; the plant is each run's "
-                        "dispersed airframe with its gusts. Writes runs.csv, drivers.json "
-                        "(which dispersion drives the worst runs) and summary.md")
+                   help="deprecated spelling of --controller mpc --scenario SCENARIO")
     p.set_defaults(func=cmd_montecarlo)
     return p
 
@@ -173,10 +186,18 @@ def check_sizes(args: argparse.Namespace) -> None:
 
 def cmd_montecarlo(args: argparse.Namespace) -> int:
     """Run (or resume) a Monte-Carlo study and print where its results are."""
-    if args.mpc is not None:
-        from uavdyn.cli.montecarlo_mpc import cmd_montecarlo_mpc
+    from uavdyn.cli.montecarlo_controller import cmd_montecarlo_controller, resolve_controller
 
-        return cmd_montecarlo_mpc(args)
+    controller = resolve_controller(args)
+    if controller != "none":
+        return cmd_montecarlo_controller(args, controller)
+    if args.closed_loop:
+        print("note: --closed-loop is deprecated (the batch study's LQR about trim); "
+              "--controller lqr flies the LQR tracking a --scenario reference", file=sys.stderr)
+    if args.duration is None:
+        args.duration = 60.0
+    if args.chunk_size is None:
+        args.chunk_size = 200
     if args.workers_write and args.scheduler is None:
         raise MonteCarloError("--workers-write applies to --scheduler (a LocalCluster's "
                               "workers write their chunk files anyway)")

@@ -20,6 +20,7 @@ Dask (``pip install 'dask[distributed]'``) is imported only for ``workers > 1`` 
 
 from uavdyn.montecarlo.batch import SIGNALS, STAT_NAMES, batch_function, gust_step, run_function
 from uavdyn.montecarlo.chunks import RESULT_COLUMNS, ChunkResult, evaluate_chunk
+from uavdyn.montecarlo.commands import command_deviations, input_names
 from uavdyn.montecarlo.dispersions import (
     DispersionError,
     Dispersions,
@@ -28,14 +29,8 @@ from uavdyn.montecarlo.dispersions import (
     load_dispersions,
     parse_dispersions,
 )
-from uavdyn.montecarlo.spec import (
-    MonteCarloError,
-    StudySpec,
-    build_spec,
-    command_deviations,
-    input_names,
-    resolve_limits,
-)
+from uavdyn.montecarlo.errors import MonteCarloError
+from uavdyn.montecarlo.spec import StudySpec, build_spec, resolve_limits
 from uavdyn.montecarlo.statistics import (
     Envelopes,
     Exceedance,

@@ -137,7 +137,7 @@ def run_function(step: ca.Function, airframe: Airframe, structure: ModelStructur
         Whether the step takes gust inputs.
     feedback : ndarray, shape (nu, 4), optional
         Closed loop: the command is ``u0 + du - K (x_body - xref)`` before saturation (a
-        state feedback such as :func:`uavdyn.montecarlo.spec.lqr_gain`), ``xref`` the run's
+        state feedback such as :func:`uavdyn.montecarlo.feedback.lqr_gain`), ``xref`` the run's
         trim body state; None flies the commands open loop.
     """
     return pieces_run(run_pieces(step, airframe, structure, gusts, name, feedback), n_steps,

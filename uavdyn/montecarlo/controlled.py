@@ -33,9 +33,14 @@ from uavdyn.montecarlo.spec import MonteCarloError
 from uavdyn.mpc import Controller, Scenario
 from uavdyn.mpc.tracking import fly_closed_loop
 
-OUTCOMES = ("run", "trim_ok", "departed", "tracking_rmse", "max_abs_pitch_deg",
-            "failed_solves", "fallbacks", "median_solve_ms")
+OUTCOMES = ("run", "trim_ok", "departed", "tracking_rmse", "max_pitch_error_deg",
+            "max_abs_pitch_deg", "bound_share", "rate_share", "failed_solves", "fallbacks",
+            "median_solve_ms")
+# a control within this share of its travel from a bound is on it; a change within this share
+# of the rate limit's step is on the rate limit
+ACTIVE_TOLERANCE = 1e-6
 WORST_SHARE = 0.1  # the worst runs: this share of them (at least one)
+SHOWN_WORST = 10  # the worst runs a summary names
 
 
 @dataclass(frozen=True)
@@ -83,6 +88,13 @@ class ControlledRuns:
     table: np.ndarray
     drivers: list[Driver]
     scenario: str
+
+    @classmethod
+    def from_table(cls, columns: tuple[str, ...], table: np.ndarray, scenario: str
+                   ) -> ControlledRuns:
+        """The runs of a table (e.g. chunks put together), their drivers computed anew."""
+        drawn = list(columns[len(OUTCOMES):])
+        return cls(tuple(columns), table, _drivers(tuple(columns), table, drawn), scenario)
 
     def column(self, name: str) -> np.ndarray:
         """One column of :attr:`table`."""
@@ -147,14 +159,15 @@ def _gusts(dispersions: Dispersions, seed: int, run: int, n: int, dt: float, spe
 
 def fly_controlled_runs(controller: Controller, nominal: Airframe, dispersions: Dispersions,
                         scenario: Scenario, runs: int, seed: int = 0,
-                        altitude: float = 100.0, airspeed: float | None = None
-                        ) -> ControlledRuns:
+                        altitude: float = 100.0, airspeed: float | None = None,
+                        first: int = 0) -> ControlledRuns:
     """Fly ``runs`` dispersed airframes through ``scenario`` with ``controller`` in the loop.
 
     Parameters
     ----------
     controller : Controller
-        The MPC (reset before each run); it predicts with its own model.
+        The MPC (reset before each run; it predicts with its own model), or anything with its
+        interface (:mod:`uavdyn.montecarlo.controllers`: the LQR, the C MPC).
     nominal : Airframe
         The airframe the dispersions apply to (the plant before dispersion).
     dispersions : Dispersions
@@ -162,11 +175,13 @@ def fly_controlled_runs(controller: Controller, nominal: Airframe, dispersions: 
     scenario : Scenario
         References and weights (:func:`uavdyn.mpc.scenario`).
     runs, seed : int
-        Runs ``0..runs-1`` of study seed ``seed``.
+        ``runs`` runs of study seed ``seed``.
     altitude : float
         Start altitude (m).
     airspeed : float, optional
         Nominal trim airspeed before dispersion (default the airframe's).
+    first : int
+        The first run's number (a chunk of a study: runs ``first..first+runs-1``).
 
     Returns
     -------
@@ -185,13 +200,13 @@ def fly_controlled_runs(controller: Controller, nominal: Airframe, dispersions: 
     drawn = dispersions.column_names()
     columns = OUTCOMES + tuple(drawn)
     table = np.full((runs, len(columns)), np.nan)
-    for run in range(runs):
+    for i, run in enumerate(range(first, first + runs)):
         draw = dispersions.sample(seed, run)
         airframe = _run_airframe(nominal, dispersions, draw, run)
         values = dict(draw.offsets)
         values.update({f"params.{k}": float(v) for k, v in
                        zip(airframe.param_names, airframe.p) if f"params.{k}" in values})
-        row = table[run]
+        row = table[i]
         row[0] = run
         row[len(OUTCOMES):] = [values[c] for c in drawn]
         speed = airspeed if airspeed is not None else airframe.nominal_airspeed
@@ -210,7 +225,7 @@ def fly_controlled_runs(controller: Controller, nominal: Airframe, dispersions: 
 
 def _fly(controller, airframe, dispersions, scenario, seed, run, n, point, draw, altitude,
          speed) -> np.ndarray:
-    """One run's outcomes ``departed .. median_solve_ms``."""
+    """One run's outcomes ``departed .. median_solve_ms`` (:data:`OUTCOMES`)."""
     x0 = np.array(trim_state(airframe, point), float)
     for name, dist in dispersions.initial.items():
         i = STATE_KEYS.index(name)
@@ -228,9 +243,28 @@ def _fly(controller, airframe, dispersions, scenario, seed, run, n, point, draw,
     counts = res.counts()
     ok = res.solve_times_s[res.success] if np.any(res.success) else np.array([np.nan])
     rmse = np.nan if departed else res.rmse(scenario.tracked, scenario.start)
-    return np.array([float(departed), rmse, float(np.degrees(np.max(np.abs(res.states[:, 3])))),
+    pitch_error = np.max(np.abs(res.states[1:, 3] - res.theta_ref)) if len(res.theta_ref) \
+        else 0.0
+    bound, rate = limit_activity(controller, res.controls, point.u)
+    return np.array([float(departed), rmse, float(np.degrees(pitch_error)),
+                     float(np.degrees(np.max(np.abs(res.states[:, 3])))), bound, rate,
                      float(np.sum(~res.success)), float(counts["shifted"] + counts["held"]),
                      float(np.median(ok) * 1e3)])
+
+
+def limit_activity(controller, controls: np.ndarray, u0) -> tuple[float, float]:
+    """Shares of the intervals with a control on its bound and with a control changed by its
+    rate limit's step (within :data:`ACTIVE_TOLERANCE`), ``u0`` the command before the first.
+    """
+    if not len(controls):
+        return 0.0, 0.0
+    lo, hi = controller.bounds[:, 0], controller.bounds[:, 1]
+    tol = ACTIVE_TOLERANCE * (hi - lo)
+    on_bound = np.any((controls <= lo + tol) | (controls >= hi - tol), axis=1)
+    step = np.abs(np.diff(np.vstack([np.asarray(u0, float)[None, :], controls]), axis=0))
+    limit = controller.rates * controller.config.dt
+    on_rate = np.any(step >= limit * (1 - ACTIVE_TOLERANCE), axis=1)
+    return float(np.mean(on_bound)), float(np.mean(on_rate))
 
 
 def _badness(result: ControlledRuns) -> np.ndarray:
@@ -281,11 +315,15 @@ def describe(result: ControlledRuns) -> list[str]:
              f"{int(np.nansum(result.column('departed')))} departed, "
              f"{int(np.sum(result.column('trim_ok') == 0))} did not trim, "
              f"{int(np.nansum(result.column('failed_solves')))} failed solves, "
-             f"{int(np.nansum(result.column('fallbacks')))} fallbacks"]
+             f"{int(np.nansum(result.column('fallbacks')))} fallbacks; controls on a bound "
+             f"{np.nanmean(result.column('bound_share')):.1%}, on a rate limit "
+             f"{np.nanmean(result.column('rate_share')):.1%} of the intervals (mean)"]
     if len(ok):
-        lines.append(f"tracking RMSE median {np.median(ok):.4g}, worst "
-                     f"{np.max(ok):.4g} (runs {', '.join(map(str, result.worst_runs()))} "
-                     "worst)")
+        worst = result.worst_runs()
+        shown = ", ".join(map(str, worst[:SHOWN_WORST]))
+        more = f" of the {len(worst)} worst" if len(worst) > SHOWN_WORST else " worst"
+        lines.append(f"tracking RMSE median {np.median(ok):.4g}, worst {np.max(ok):.4g} "
+                     f"(runs {shown}{more})")
     lines += [f"{d.column}: explains {d.explained:.0%} of the error ranks, rank correlation "
               f"{d.spearman:+.2f}, worst runs {d.worst_shift_sd:+.2f} sd"
               for d in result.drivers]
@@ -293,4 +331,4 @@ def describe(result: ControlledRuns) -> list[str]:
 
 
 __all__ = ["OUTCOMES", "ControlledRuns", "Driver", "describe", "fly_controlled_runs",
-           "gusty_plant"]
+           "gusty_plant", "limit_activity"]

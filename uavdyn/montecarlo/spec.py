@@ -1,12 +1,11 @@
 """What a Monte-Carlo study is: airframe, step (physics or hybrid), dispersions, command input,
-grid and seed gathered in one picklable :class:`StudySpec` with a content key, plus the command
-deviations of a mission, an input profile or a recorded control CSV.
+grid and seed gathered in one picklable :class:`StudySpec` with a content key. The command
+deviations are :mod:`uavdyn.montecarlo.commands`', the closed loop's gain
+:mod:`uavdyn.montecarlo.feedback`'s.
 
 The key hashes everything that decides a run's numbers (but not the number of runs, so a study
 can be extended); chunk files carry it, and a resumed study reuses only chunks made with it.
 
-The emulator and the flight-data reader are imported only where a mission or a CSV is turned
-into command deviations: a Dask worker that unpickles a spec does not pay for them.
 """
 
 from __future__ import annotations
@@ -23,28 +22,24 @@ import numpy as np
 from uavdyn import __version__
 from uavdyn.airframes import Airframe, to_toml_dict
 from uavdyn.integrate import DiscreteModel, physics_step
-from uavdyn.integrate.inputs import PROFILES, control_sequence
+from uavdyn.integrate.inputs import PROFILES
 from uavdyn.integrate.lanes import vector_math_unavailable
 from uavdyn.learned import CorrectionNet, hybrid_step, load_weights, shipped_weights
 from uavdyn.learned.hybrid import correction_structure
-from uavdyn.linear import TrimError, linearise, stall_speed, trim
-from uavdyn.model import CONTROL_NAMES, ModelStructure, structure_of
+from uavdyn.linear import TrimError, stall_speed, trim
+from uavdyn.model import ModelStructure, structure_of
 from uavdyn.montecarlo.batch import gust_step
+from uavdyn.montecarlo.commands import command_deviations, emulator_missions
 from uavdyn.montecarlo.dispersions import LIMIT_KEYS, Dispersions
+from uavdyn.montecarlo.errors import MonteCarloError
+from uavdyn.montecarlo.feedback import lqr_gain
 from uavdyn.safefiles import UnreadableFile, read_regular
 
 SPEC_FORMAT = 3  # 2: the whole airframe and the step Function; 3: departures end a run
-MISSION_LOG_RATE_HZ = 100.0   # the emulator flies a mission at this log rate
 DEFAULT_HISTORY_DT = 0.1      # s between two envelope samples
 MAX_STEPS = 10_000_000        # per run
 DEFAULT_PITCH_LIMIT_DEG = 30.0
 DEFAULT_LOAD_LIMIT = {"fixed_wing": 2.5, "multirotor": 2.0}
-# input profiles (uavdyn.integrate.inputs): the channel and amplitude they act on
-PROFILE_INPUT = {"fixed_wing": (0, math.radians(2.0)), "multirotor": (1, 0.05)}
-
-
-class MonteCarloError(ValueError):
-    """A Monte-Carlo study cannot be set up or run as asked; the message says why."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -260,78 +255,6 @@ def resolve_limits(dispersions: Dispersions, airframe: Airframe
             else math.inf)
 
 
-def input_names(kind: str) -> list[str]:
-    """Names ``--mission`` accepts for an airframe kind (a CSV path is accepted too)."""
-    return list(PROFILES) + [n for n, (_, kinds) in _missions().items() if kind in kinds]
-
-
-def _missions() -> dict:
-    from uavdyn.emulation import MISSIONS
-
-    return MISSIONS
-
-
-def command_deviations(source: str, airframe: Airframe, n_steps: int, dt: float,
-                       seed: int = 0) -> np.ndarray:
-    """``n_steps x nu`` command deviations, zero-order held over each step, that every run adds
-    to its own trim command.
-
-    Parameters
-    ----------
-    source : str
-        An input profile (``step``, ``doublet``, ``3211``, ``chirp``, ``none``: 2 deg of
-        elevator, or 0.05 of pitch command for a multirotor, from 1 s), an emulator mission
-        (:data:`uavdyn.emulation.MISSIONS`: the commands its autopilot gave flying it once in
-        calm air with the nominal airframe, seeded with ``seed``, at 100 Hz), or the path of a
-        recorded interchange CSV (its controls). Missions and CSVs count from their first
-        command.
-    airframe : Airframe
-        The nominal airframe.
-    n_steps, dt : int, float
-        The run grid.
-    seed : int
-        Seed of the mission draw.
-
-    Raises
-    ------
-    MonteCarloError
-        For an unknown name or an input shorter than the runs.
-    """
-    t = np.arange(n_steps) * dt
-    nu = len(CONTROL_NAMES[airframe.kind])
-    if source in PROFILES:
-        channel, amplitude = PROFILE_INPUT[airframe.kind]
-        return control_sequence(source, t, np.zeros(nu), amplitude, channel=channel)
-    if source in _missions():
-        from uavdyn.emulation import Emulator, plan_mission
-
-        plan = plan_mission(source, airframe, n_steps * dt, MISSION_LOG_RATE_HZ,
-                            np.random.default_rng(seed))
-        emulator = Emulator(airframe, sample_rate_hz=MISSION_LOG_RATE_HZ)
-        flight = emulator.fly(emulator.initial_state(plan.x0, plan.u0, plan.altitude),
-                              plan.references)
-        return _resample(flight.time, flight.controls, t, source)
-    path = Path(source)
-    if path.suffix.lower() == ".csv" or path.exists():
-        from uavdyn.flightdata import read_csv
-
-        sortie = read_csv(path, kind=airframe.kind)
-        return _resample(sortie.time - sortie.time[0], sortie.controls, t, str(path))
-    raise MonteCarloError(f"unknown input '{source}': expected a mission or profile "
-                          f"({', '.join(input_names(airframe.kind))}) or a control CSV path")
-
-
-def _resample(time: np.ndarray, controls: np.ndarray, t: np.ndarray, what: str) -> np.ndarray:
-    """Zero-order hold of ``controls`` (row i from ``time[i]``) at the times ``t``, minus the
-    first command."""
-    interval = float(np.median(np.diff(time))) if len(time) > 1 else 0.0
-    if len(time) < 2 or time[-1] + interval < t[-1] - 1e-9:
-        raise MonteCarloError(f"{what}: its commands cover {time[-1] + interval:.3f} s, less "
-                              f"than the {t[-1]:.3f} s the runs need")
-    idx = np.clip(np.searchsorted(time, t + 1e-9, side="right") - 1, 0, len(time) - 1)
-    return controls[idx] - controls[0]
-
-
 def _weights(weights: str | Path | None, airframe: Airframe
              ) -> tuple[CorrectionNet | None, str, str]:
     if weights is None:
@@ -365,37 +288,6 @@ def _given_model(model: DiscreteModel, weights, dispersions: Dispersions, airfra
                               "(compile=False): the study compiles its own batch")
     digest = hashlib.sha256(model.function.serialize().encode()).hexdigest()
     return model.description or model.name, digest
-
-
-# Bryson's rule for the closed-loop studies' LQR: the largest deviation the loop should
-# tolerate of u, w (m/s), q (rad/s), theta (rad), and the share of each control's half travel
-LQR_MAX_DEVIATION = (2.0, 2.0, 0.5, 0.1)
-LQR_CONTROL_SHARE = 0.5
-
-
-def lqr_gain(airframe: Airframe, point) -> np.ndarray:
-    """The gain ``K`` (``nu x 4``) of a continuous LQR on the body states ``u, w, q, theta``
-    linearised at ``point`` (actuator lags left out), weighted by Bryson's rule
-    (:data:`LQR_MAX_DEVIATION`; each control up to :data:`LQR_CONTROL_SHARE` of its half
-    travel): the stated feedback a closed-loop study flies each run with.
-
-    Raises
-    ------
-    MonteCarloError
-        If the linearised airframe cannot be stabilised from its controls.
-    """
-    import control
-
-    A, B = linearise(airframe, point, actuators=False)
-    half = np.array([(hi - lo) / 2 for lo, hi in airframe.control_bounds()])
-    Q = np.diag(1.0 / np.square(LQR_MAX_DEVIATION))
-    R = np.diag(1.0 / np.square(LQR_CONTROL_SHARE * half))
-    try:
-        K, _, _ = control.lqr(A, B, Q, R)
-    except Exception as exc:  # python-control raises its own types for an unsolvable Riccati
-        raise MonteCarloError(f"no LQR for airframe '{airframe.name}' at its trim: "
-                              f"{' '.join(str(exc).split())}") from None
-    return np.asarray(K, float)
 
 
 def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration: float,
@@ -498,7 +390,8 @@ def build_spec(airframe: Airframe, dispersions: Dispersions, runs: int, duration
     deviations = command_deviations(mission, airframe, n_steps, dt, seed)
     stride = max(1, int(round(history_dt / dt)))
     # a CSV is known by its name (its content is in the key through the deviations)
-    name = mission if mission in PROFILES or mission in _missions() else f"csv:{Path(mission).name}"
+    known = mission in PROFILES or mission in emulator_missions()
+    name = mission if known else f"csv:{Path(mission).name}"
     return StudySpec(airframe=airframe, dispersions=dispersions, net=net, model=label,
                      runs=runs, dt=float(dt), n_steps=n_steps, stride=min(stride, n_steps),
                      seed=int(seed), chunk_size=chunk_size, airspeed=speed,
