@@ -73,9 +73,9 @@ def slew_toward(value, command, elapsed, tau, slew, ops):
 
     Odd and smooth in the error (its derivative at zero error is the lag's ``exp(-t/tau)``, so
     trims linearise as with the plain lag); a slew of 0 is the plain lag (:data:`SLEW_FLOOR`); a
-    time constant of 0 is a pure rate limiter (to :data:`SLEW_TAU_FLOOR`). Large ``|y|`` are computed in the log domain (no
-    overflow), and each ``if_else`` branch stays finite for every input (no NaN in
-    derivatives)."""
+    time constant of 0 is a pure rate limiter (to :data:`SLEW_TAU_FLOOR`). Large ``|y|`` are
+    computed in the log domain (no overflow), and each ``if_else`` branch stays finite for
+    every input (no NaN in derivatives)."""
     tau = ops.fmax(tau, SLEW_TAU_FLOOR)
     slew = ops.fmax(slew, SLEW_FLOOR)
     y0 = slew * (command - value) / tau
