@@ -107,5 +107,7 @@ def test_evaluate_writes_the_figure_its_report_refers_to(tmp_path, capsys):
     assert png.read_bytes().startswith(PNG_MAGIC)
     assert "![1 s pitch RMSE per sortie](metrics.png)" in out.with_suffix(".md").read_text()
     assert str(png) in capsys.readouterr().out
-    assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "hand", "metrics.json", "metrics.md", "metrics.png"]  # no temporary file left
+    from uavdyn.outputs import REGISTRY  # the record of the single files uavdyn wrote here
+
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([
+        "hand", "metrics.json", "metrics.md", "metrics.png", REGISTRY])  # no temporary left
