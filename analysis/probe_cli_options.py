@@ -275,6 +275,50 @@ OPTIONS: dict[tuple[str, str], Num | Values] = {
                          extra=("0.015",)),
     ("mpc", "--model"): choice("hybrid, physics, both"),
     ("mpc", "--out"): OUT_FOLDER,
+    ("generate-data", "--truth"): Values(
+        "KEY=VALUE[,...]: truth parameters of the airframe's kind, each once; time constants "
+        ">= 0, rate limits > 0, shares 0..1, gains >= 0, coefficients finite", (
+            ("eta_slipstream", "no value"), ("no_such_key=1", "an unknown truth parameter"),
+            ("eta_slipstream=abc", "not a number"), ("eta_slipstream=nan", "not finite"),
+            ("eta_slipstream=0.5,eta_slipstream=0.6", "a key twice"),
+            ("=1", "no key"), ("tau_elevator=-0.04", "a negative time constant"),
+            ("rate_elevator=0", "a zero rate limit"),
+            ("eta_slipstream=2", "a share of the tail above 1"))),
+    ("import-log", "--max-bank"): positive("0 < angle <= 89 deg (with --turns)", 89,
+                                           extra=("90", "95")),
+    ("identify", "--prior"): Values("nominal or nominal:REL_SD, 0 < REL_SD < inf", (
+        ("nominal:0", "a zero standard deviation"), ("nominal:-0.1", "negative"),
+        ("nominal:nan", "not a number"), ("nominal:inf", "not finite"),
+        ("nominal:abc", "not a number"), ("nominal:", "no REL_SD after the colon"),
+        ("flat", "not 'nominal'"), ("", "empty"))),
+    ("design-input", "--airframe"): AIRFRAME,
+    ("design-input", "--out"): OUT_FOLDER,
+    ("design-input", "--signal"): choice("mixed, 3211, doublet, multisine"),
+    ("design-input", "--params"): Values("comma-separated parameter names of the airframe's "
+                                         "model", (
+        ("no_such_param", "not a parameter of the model"), (",", "no parameter named"),
+        ("C_m_q,C_m_q", "a parameter twice"))),
+    ("design-input", "--duration"): positive("0 < duration <= 600 s, long enough for one input "
+                                             "and at most 50000 log rows per sortie at --rate",
+                                             600, extra=("601",)),
+    ("design-input", "--sorties"): count("1 <= sorties <= 500", 500),
+    ("design-input", "--rate"): Num("10 <= rate <= 1000 Hz",
+                                    lambda x: finite(x) and 10 <= x <= 1000,
+                                    extra=("5", "1001")),
+    ("design-input", "--alpha-deg"): Num("0.1 <= alpha <= 10 deg (fixed wing)",
+                                         lambda x: finite(x) and 0.1 <= x <= 10,
+                                         extra=("0.05", "11")),
+    ("design-input", "--amplitude"): positive("0 < amplitude <= 80 % of the [limits] travel "
+                                              "about trim (aerosonde elevator: about 0.3 rad)",
+                                              0.3, extra=("5",)),
+    ("design-input", "--mode-hz"): positive("0 < frequency <= 100 Hz, its inputs fitting in "
+                                            "--duration", 100, extra=("101",)),
+    ("design-input", "--turbulent-fraction"): Num("0 <= fraction <= 1", lambda x: 0 <= x <= 1,
+                                                  extra=("1.5",)),
+    ("train", "--inputs"): choice("state, physical (improved/data only)"),
+    ("train", "--output"): choice("acceleration, coefficient (coefficient: fixed wing; "
+                                  "improved/data only)"),
+    ("train", "--linear-path"): choice("on, off (improved/data only)"),
 }
 
 # valid values that break a relation to another option or to the data: (command, argv added
@@ -372,6 +416,41 @@ RELATIONS: tuple[tuple[str, tuple[str, ...], tuple[str, ...], str], ...] = (
      "--no-identify applies to --retrain only"),
     ("reproduce", ("--sorties", "100000", "--duration", "60"), ("--sorties", "--duration"),
      "6e8 log rows in the pipeline's dataset, more than 5e6 (memory)"),
+    ("generate-data", ("--truth", "k_etl=0.1"), ("--truth",),
+     "a multirotor truth parameter for a fixed-wing airframe"),
+    ("import-log", ("--max-bank", "30"), ("--max-bank", "--turns"),
+     "--max-bank applies with --turns only: ignored"),
+    ("import-log", ("--turns", "--max-bank", "90"), ("--max-bank",),
+     "a bank of 90 deg: no longitudinal flight left to model"),
+    ("import-log", ("--turns", "--max-roll", "5"), ("--max-roll", "--turns"),
+     "with --turns the log is cut by --max-bank: --max-roll is ignored"),
+    ("import-log", ("--turns", "--max-yaw-rate", "5"), ("--max-yaw-rate", "--turns"),
+     "with --turns the log is cut by --max-bank: --max-yaw-rate is ignored"),
+    ("identify", ("--prior", "nominal:0"), ("--prior",), "a zero prior width"),
+    ("identify", ("--prior", "nominal:-1"), ("--prior",), "a negative prior width"),
+    ("identify", ("--prior", "nominal:nan"), ("--prior",), "a prior width that is not a number"),
+    ("identify", ("--prior", "nominal:abc"), ("--prior",), "a prior width that is not a number"),
+    ("identify", ("--prior", "nominal:"), ("--prior",), "a colon and no prior width"),
+    ("design-input", ("--params", "pitch_mix"), ("--params", "--airframe"),
+     "a multirotor parameter for the fixed-wing airframe"),
+    ("design-input", ("--airframe", "f450", "--alpha-deg", "5"), ("--alpha-deg", "--airframe"),
+     "--alpha-deg sizes a fixed wing's elevator input: ignored for a multirotor"),
+    ("design-input", ("--duration", "1"), ("--duration",),
+     "too short for one input after the lead-in"),
+    ("design-input", ("--amplitude", "0.9"), ("--amplitude",),
+     "beyond 80 % of the elevator's travel about trim"),
+    ("design-input", ("--duration", "600", "--rate", "1000"), ("--duration", "--rate"),
+     "6e5 log rows per sortie, more than 50000 (memory)"),
+    ("design-input", ("--mode-hz", "0.01"), ("--mode-hz", "--duration"),
+     "a 3-2-1-1 timed from 0.01 Hz is far longer than the sortie"),
+    ("design-input", ("--airspeed", "0"), ("--airspeed", "--airframe"),
+     "a fixed wing has no trim at 0 m/s"),
+    ("train", ("--formulation", "paper", "--inputs", "state"), ("--inputs", "--formulation"),
+     "an improved/data option: ignored by the paper formulation"),
+    ("train", ("--target", "reference", "--output", "acceleration"),
+     ("--output", "--target"), "an improved/data option: ignored with --target reference"),
+    ("train", ("--formulation", "hypersolver", "--linear-path", "off"),
+     ("--linear-path", "--formulation"), "an improved/data option: ignored"),
 )
 
 # the smallest valid arguments of each command (cwd is the run's own folder; {F} fixtures)
@@ -399,6 +478,8 @@ BASE: dict[str, list[str]] = {
                    "--chunk-size", "2", "--no-progress", "--out", "mc"],
     "mpc": ["mpc", "--scenario", "pitch-step", "--model", "physics", "--horizon", "5",
             "--out", "mpc"],
+    "design-input": ["design-input", "--airframe", "aerosonde", "--sorties", "1",
+                     "--duration", "5", "--out", "di"],
 }
 # flags take no value: nothing to probe
 FLAGS_NOTE = "store_true flags take no value"
@@ -675,8 +756,12 @@ def markdown(runs: list[Run], info: dict) -> str:
         "",
         f"**{info['runs']} runs over {info['options']} options and {info['relations']} "
         f"relations: {c['refused']} refused, {c['accepted']} silently accepted, "
-        f"{c['unclear']} unclear, {c['traceback']} tracebacks, {c['hang/OOM']} hang/OOM.** "
-        f"Flags (store_true, no value) are not probed ({info['flags_not_probed']}).",
+        f"{c['unclear']} unclear, {c['traceback']} tracebacks, {c['hang/OOM']} hang/OOM; "
+        f"{len(info['undescribed'])} options undescribed (not probed).** "
+        + ("Undescribed: " + ", ".join(f"`{u['command']} {u['option']}`"
+                                       for u in info["undescribed"]) + ". "
+           if info["undescribed"] else "")
+        + f"Flags (store_true, no value) are not probed ({info['flags_not_probed']}).",
     ]
     if info.get("before"):
         b, bc = info["before"], info["before"]["counts"]

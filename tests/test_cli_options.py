@@ -99,6 +99,14 @@ BAD_VALUES = [
      "1 <= intervals <= 200"),
     (["mpc", "--scenario", "climb", "--out", "x", "--dt", "0.015"], "--dt",
      "a multiple of 0.01 s"),
+    (["generate-data", "--out", "x", "--truth", "tau_elevator=-0.04"], "--truth",
+     "a time constant >= 0 s"),
+    (["generate-data", "--out", "x", "--truth", "rate_elevator=0"], "--truth",
+     "a rate limit > 0"),
+    (["generate-data", "--out", "x", "--truth", "eta_slipstream=2"], "--truth",
+     "a share 0..1"),
+    (["design-input", "--airframe", "aerosonde", "--out", "x", "--rate", "5"], "--rate",
+     "10 <= rate <= 1000 Hz"),
 ]
 
 
@@ -156,6 +164,20 @@ RELATIONS = [
     (["mpc", "--scenario", "climb", "--out", "x", "--model", "physics", "--weights", __file__],
      ("--weights", "--model"), "applies only"),
     (["reproduce", "--no-identify"], ("--no-identify", "--retrain"), "applies only"),
+    (["import-log", __file__, "--out", "x", "--max-bank", "30"], ("--max-bank", "--turns"),
+     "applies only"),
+    (["import-log", __file__, "--out", "x", "--turns", "--max-roll", "5"],
+     ("--max-roll", "--turns"), "applies only"),
+    (["import-log", __file__, "--out", "x", "--turns", "--max-yaw-rate", "5"],
+     ("--max-yaw-rate", "--turns"), "applies only"),
+    (["design-input", "--airframe", "aerosonde", "--out", "x", "--duration", "600", "--rate",
+      "1000"], ("--duration", "--rate"), "more than 50000 (memory)"),
+    (["design-input", "--airframe", "f450", "--out", "x", "--alpha-deg", "5"],
+     ("--alpha-deg", "--airframe"), "a fixed wing's elevator input"),
+    (["design-input", "--airframe", "aerosonde", "--out", "x", "--duration", "5",
+      "--mode-hz", "0.01"], ("--duration", "--mode-hz"), "too short"),
+    (["design-input", "--airframe", "aerosonde", "--out", "x", "--airspeed", "0"],
+     ("--airspeed", "--airframe"), "no trim"),
 ]
 
 

@@ -75,10 +75,27 @@ def control_map(text: str):
     return m
 
 
+def truth_range(key: str) -> tuple[float | None, float | None, bool, str]:
+    """The physical range of the truth parameter ``key``: ``(low, high, low_open, what)``
+    (None: unbounded); the coefficients ``C_*`` take either sign."""
+    if key.startswith("tau_"):
+        return 0.0, None, False, "a time constant >= 0 s"
+    if key.startswith("rate_"):
+        return 0.0, None, True, "a rate limit > 0"
+    if key == "eta_slipstream":
+        return 0.0, 1.0, False, "a share 0..1"
+    if key == "v_induced":
+        return 0.0, None, True, "a speed > 0 m/s"
+    if key.startswith("k_"):
+        return 0.0, None, False, "a gain >= 0"
+    return None, None, False, "a finite number"
+
+
 def truth_values(text: str) -> dict[str, float]:
     """``--truth`` value: ``KEY=VALUE[,KEY=VALUE...]``, each key a truth-model parameter of
     some airframe kind (:data:`~uavdyn.emulation.truth.TRUTH_DEFAULTS`), each once, each value a
-    finite number (the kind is checked once the airframe is known)."""
+    finite number in the key's physical range (:func:`truth_range`; the kind is checked once
+    the airframe is known)."""
     known = tuple(dict.fromkeys(k for table in TRUTH_DEFAULTS.values() for k in table))
     out: dict[str, float] = {}
     for item in text.split(","):
@@ -97,6 +114,11 @@ def truth_values(text: str) -> dict[str, float]:
         if not math.isfinite(parsed):
             raise argparse.ArgumentTypeError(f"truth parameter {key!r} must be a finite "
                                              f"number, got {value!r}")
+        low, high, low_open, what = truth_range(key)
+        if (low is not None and (parsed < low or low_open and parsed == low)) or (
+                high is not None and parsed > high):
+            raise argparse.ArgumentTypeError(f"truth parameter {key!r} must be {what}, got "
+                                             f"{value!r}")
         out[key] = parsed
     return out
 
@@ -167,14 +189,19 @@ def cmd_import_log(args: argparse.Namespace) -> int:
     """Import one log or a campaign of several (files and folders, one format), cut them into
     longitudinal segments and write them as one dataset on one grid rate with a split, a
     summary and a timeline figure per log."""
+    refuse_unused(args, ("--max-bank",), args.turns, "with --turns")
+    refuse_unused(args, ("--max-roll", "--max-yaw-rate"), not args.turns,
+                  "without --turns (with --turns the log is cut by --max-bank)")
     sources = find_logs(args.log, args.format)
     check_output_folder(args.out, "import-log", args.force)
     flights, rate = on_one_rate([_read_flight(s.path, s.format, args) for s in sources],
                                 args.rate)
-    rules = SegmentRules(max_roll_deg=args.max_roll, max_yaw_rate_deg_s=args.max_yaw_rate,
-                         max_sideslip_deg=args.max_sideslip, min_duration_s=args.min_duration,
+    given = {k: v for k, v in (("max_roll_deg", args.max_roll),
+                               ("max_yaw_rate_deg_s", args.max_yaw_rate),
+                               ("max_bank_deg", args.max_bank)) if v is not None}
+    rules = SegmentRules(max_sideslip_deg=args.max_sideslip, min_duration_s=args.min_duration,
                          min_speed_m_s=args.min_speed, kinematic=not args.no_kinematic_check,
-                         turns=args.turns, max_bank_deg=args.max_bank)
+                         turns=args.turns, **given)
     said = rate.reason if len(flights) > 1 or args.rate else ""  # one log: its own line
     planned = plan_log_dataset(flights, rules, split_options_from(args), said)  # refusals first
     with output_folder(args.out, "import-log", args.force) as tmp:
@@ -284,9 +311,9 @@ def add_import_log(sub) -> None:
                    help=f"resample every log to this rate in Hz, up to {MAX_RATE_HZ:g}, "
                         "low-pass filtered first when lower (default: the logs' own rate; "
                         "logs at different rates go to the lowest of them)")
-    p.add_argument("--max-roll", type=positive(90.0, "angle", "deg"), default=10.0,
+    p.add_argument("--max-roll", type=positive(90.0, "angle", "deg"), default=None,
                    help="wings level: |roll| at most this, deg (default 10)")
-    p.add_argument("--max-yaw-rate", type=positive(360.0, "rate", "deg/s"), default=10.0,
+    p.add_argument("--max-yaw-rate", type=positive(360.0, "rate", "deg/s"), default=None,
                    help="|yaw rate| at most this, deg/s (default 10)")
     p.add_argument("--max-sideslip", type=positive(90.0, "angle", "deg"), default=10.0,
                    help="|sideslip| at most this, deg; checked only with air-relative "
@@ -302,7 +329,7 @@ def add_import_log(sub) -> None:
                         "model, and the log is cut only where unusable or beyond --max-bank "
                         "(--max-roll and --max-yaw-rate then do not apply; the airframe file "
                         "needs Jx, Jz, Jxz)")
-    p.add_argument("--max-bank", type=positive(89.0, "angle", "deg"), default=60.0,
+    p.add_argument("--max-bank", type=positive(89.0, "angle", "deg"), default=None,
                    help="with --turns: |roll| at most this, deg (default 60)")
     p.add_argument("--no-kinematic-check", action="store_true",
                    help="keep segments whose pitch and pitch rate disagree (not advised)")

@@ -9,10 +9,12 @@ from pathlib import Path
 from uavdyn.airframes import load_airframe
 from uavdyn.cli.common import (
     FRACTION,
+    MAX_SORTIE_ROWS,
     SEED,
     CliError,
     add_airframe,
     add_force,
+    check_sortie_rows,
     count,
     folder_to_write,
     name_list,
@@ -21,9 +23,10 @@ from uavdyn.cli.common import (
     seconds,
 )
 from uavdyn.excitation import SIGNALS, design_input, emulate_design, predict_errors
-from uavdyn.excitation.design import MOMENT_PARAMS
+from uavdyn.excitation.design import MOMENT_PARAMS, MULTIROTOR_AMPLITUDE
 from uavdyn.excitation.outputs import write_design
 from uavdyn.excitation.predict import calm_screen, write_emulated
+from uavdyn.linear import TrimError, trim
 from uavdyn.outputs import output_folder
 
 MAX_SORTIES = 500
@@ -32,14 +35,26 @@ MAX_DURATION_S = 600.0
 
 def cmd_design_input(args: argparse.Namespace) -> int:
     """Design the input, fly it on the emulator, predict the standard errors, write it all."""
+    check_sortie_rows(args.duration, args.rate, "--rate")  # the emulator's memory
     airframe = load_airframe(args.airframe)
+    if airframe.kind != "fixed_wing" and args.alpha_deg is not None:
+        raise CliError(f"--alpha-deg sizes a fixed wing's elevator input; --airframe "
+                       f"{args.airframe} is a {airframe.kind} (its pitch input is "
+                       f"{MULTIROTOR_AMPLITUDE:g}, or give --amplitude)")
     names = args.params or list(MOMENT_PARAMS[airframe.kind])
     unknown = [n for n in names if n not in airframe.param_names]
     if unknown:
         raise CliError(f"--params {', '.join(unknown)}: not in the {airframe.kind} model of "
                        f"--airframe {args.airframe}")
+    if args.airspeed is not None:
+        try:
+            trim(airframe, args.airspeed)
+        except TrimError as exc:
+            raise CliError(f"--airspeed {args.airspeed:g} m/s: --airframe {args.airframe} has "
+                           f"no trim there ({exc})") from None
     design = design_input(airframe, args.signal, args.duration, args.rate, args.airspeed,
-                          args.alpha_deg, args.amplitude, args.mode_hz)
+                          3.0 if args.alpha_deg is None else args.alpha_deg, args.amplitude,
+                          args.mode_hz)
     flights = emulate_design(design, airframe, args.sorties, args.seed,
                              args.turbulent_fraction)
     predicted = predict_errors(airframe, flights, names, max_windows=None)
@@ -92,7 +107,8 @@ def add_design_input(sub) -> None:
                         "moment terms, C_m_alpha,C_m_q,C_m_delta_e,C_m_0 or pitch_mix,"
                         "pitch_damping,M_u,M_0)")
     p.add_argument("--duration", type=seconds(MAX_DURATION_S, "duration"), default=20.0,
-                   help="one sortie's length in s (default 20)")
+                   help=f"one sortie's length in s (default 20; at most {MAX_SORTIE_ROWS} log "
+                        "rows at --rate)")
     p.add_argument("--sorties", type=count(MAX_SORTIES, "sorties"), default=20,
                    help="sorties flown for the prediction (default 20)")
     p.add_argument("--rate", type=number(10.0, 1000.0, name="rate", unit="Hz"), default=100.0,
@@ -100,8 +116,8 @@ def add_design_input(sub) -> None:
     p.add_argument("--airspeed", type=number(0.0, 100.0, name="airspeed", unit="m/s"),
                    default=None, help="trim speed in m/s (default the airframe's nominal)")
     p.add_argument("--alpha-deg", type=number(0.1, 10.0, name="alpha", unit="deg"),
-                   default=3.0, help="fixed wing: static angle-of-attack change the elevator "
-                   "input aims at, 0.1..10 deg (default 3)")
+                   default=None, help="fixed wing: static angle-of-attack change the "
+                   "elevator input aims at, 0.1..10 deg (default 3)")
     p.add_argument("--amplitude", type=positive(name="amplitude"), default=None,
                    help="input amplitude in the control's units instead of the rule "
                         "(refused beyond the [limits] travel about trim)")

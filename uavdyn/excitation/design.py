@@ -337,8 +337,9 @@ def design_input(airframe: Airframe, signal: str = "mixed", duration_s: float = 
     unit_input, hands, events = _layout(t, signal, kind, unit_3211, unit_doublet, 1.0, band,
                                         settle)
     if not events:
-        raise DesignError(f"--duration {duration_s:g} s is too short for one {signal} input "
-                          f"with its {LEAD_S:g} s lead-in and {settle:.3g} s response")
+        timed = f" timed from --mode-hz {mode_hz:g}" if mode_hz is not None else ""
+        raise DesignError(f"--duration {duration_s:g} s is too short for one {signal} input"
+                          f"{timed} with its {LEAD_S:g} s lead-in and {settle:.3g} s response")
     amp, why = _size(airframe, point, channel, signal, unit_input, events, dt,
                      unit_doublet if signal == "doublet" else unit_3211, alpha_deg, amplitude)
     u = amp * unit_input
