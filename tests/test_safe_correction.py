@@ -547,3 +547,17 @@ def test_a_gain_within_the_sortie_spread_is_not_a_gain():
         sel = {"val_ratio_worst": summary.worst, "val_ratio_geomean": summary.geomean,
                "val_theta_rmse": 0.5, "val_gain_t": summary.gain_t}
         assert beats_physics_in_pitch(sel, cfg, 1.0) is kept
+
+
+def test_a_refusal_for_a_gain_within_the_spread_says_so():
+    """Every candidate beat the physics on every validation sortie, by too little: the reason
+    names the significance rule and the best t, not 'does not beat the physics'."""
+    from uavdyn.learned.safe import SafeConfig
+    from uavdyn.learned.safe.verdict import refusal_reason
+    from uavdyn.learned.stability import StabilityReport
+
+    row = {"epoch": 3, "scale": 1.0, "val_ratio_worst": 0.999, "val_ratio_geomean": 0.978,
+           "val_theta_rmse": 0.0592, "val_state_ratio_worst": 1.0, "val_gain_t": 1.03}
+    text = refusal_reason([row], SafeConfig(), 0.0593, row, StabilityReport(0.01, 0.5), 1.0)
+    assert "1.03 standard errors of the sortie-to-sortie spread, below 2" in text
+    assert "the physics is kept" in text
