@@ -39,7 +39,13 @@ from uavdyn.linear import trim
 from uavdyn.montecarlo.controlled import OUTCOMES, ControlledRuns, describe, fly_controlled_runs
 from uavdyn.montecarlo.dispersions import Dispersions
 from uavdyn.montecarlo.errors import MonteCarloError
-from uavdyn.montecarlo.study import _locked, _remove_dead_temporaries, _write_marker
+from uavdyn.montecarlo.spec import ChunkedRuns
+from uavdyn.montecarlo.study import (
+    _locked,
+    _remove_dead_temporaries,
+    _write_marker,
+    prepare_folder,
+)
 from uavdyn.mpc import MPCConfig, Scenario
 from uavdyn.outputs import atomic_file, check_output_folder, write_text_atomic
 from uavdyn.safefiles import UnreadableFile, read_regular
@@ -54,7 +60,7 @@ NO_COMPILER = ("the C controller needs a C compiler (cc, gcc or clang; or $UAVDY
 
 
 @dataclass(frozen=True, eq=False)
-class ControlledSpec:
+class ControlledSpec(ChunkedRuns):
     """Everything that decides a controller study's runs (picklable: sent to Dask workers).
 
     Attributes
@@ -109,16 +115,6 @@ class ControlledSpec:
                "airspeed": self.airspeed, "horizon": HORIZON}
         text = json.dumps(doc, sort_keys=True, default=str)
         object.__setattr__(self, "key", hashlib.sha256(text.encode()).hexdigest())
-
-    @property
-    def n_chunks(self) -> int:
-        """Chunks of :attr:`chunk_size` runs (the last one may be shorter)."""
-        return -(-self.runs // self.chunk_size)
-
-    def chunk_runs(self, index: int) -> tuple[int, int]:
-        """``(start, stop)`` run numbers of chunk ``index``."""
-        start = index * self.chunk_size
-        return start, min(start + self.chunk_size, self.runs)
 
     def columns(self) -> tuple[str, ...]:
         """The per-run table's columns."""
@@ -376,23 +372,10 @@ def run_controlled_study(spec: ControlledSpec, out: str | Path, workers: int = 1
 
 
 def _prepare(folder: Path, spec: ControlledSpec, force: bool) -> None:
-    study_file = folder / "study.json"
-    if study_file.is_file():
-        try:
-            key = json.loads(study_file.read_text()).get("key")
-        except (OSError, ValueError, AttributeError):
-            key = None
-        if key != spec.key:
-            if not force:
-                raise MonteCarloError(
-                    f"{folder}: holds another Monte-Carlo study (different airframe, "
-                    "controller, scenario, dispersions, seed or chunk size); choose another "
-                    "folder, or give --force to discard its chunks")
-            for path in (folder / "chunks").glob("*.npz"):
-                path.unlink()
-    (folder / "chunks").mkdir(parents=True, exist_ok=True)
-    _write_marker(folder, ["study.json"])
-    write_text_atomic(study_file, json.dumps(spec.describe(), indent=2, default=str) + "\n")
+    prepare_folder(folder, spec.key,
+                   json.dumps(spec.describe(), indent=2, default=str) + "\n", force,
+                   "airframe, controller, scenario, dispersions, seed or chunk size",
+                   OUTPUT_FILES)
 
 
 def _on_dask(spec: ControlledSpec, todo: list[int], workers: int, scheduler: str | None,

@@ -42,8 +42,26 @@ DEFAULT_PITCH_LIMIT_DEG = 30.0
 DEFAULT_LOAD_LIMIT = {"fixed_wing": 2.5, "multirotor": 2.0}
 
 
+class ChunkedRuns:
+    """Runs ``0..runs`` cut in chunks of ``chunk_size`` (a study's unit of work and resume);
+    mixed into a spec with those two fields."""
+
+    runs: int
+    chunk_size: int
+
+    @property
+    def n_chunks(self) -> int:
+        """Chunks of :attr:`chunk_size` runs (the last one may be shorter)."""
+        return -(-self.runs // self.chunk_size)
+
+    def chunk_runs(self, index: int) -> tuple[int, int]:
+        """``(start, stop)`` run numbers of chunk ``index``."""
+        start = index * self.chunk_size
+        return start, min(start + self.chunk_size, self.runs)
+
+
 @dataclass(frozen=True, eq=False)
-class StudySpec:
+class StudySpec(ChunkedRuns):
     """Everything a chunk of runs needs (picklable: it is sent to Dask workers).
 
     Attributes
@@ -163,15 +181,6 @@ class StudySpec:
         """Times (s) of the envelope samples."""
         stride = min(self.stride, self.n_steps)
         return np.arange(self.n_steps // stride + 1) * stride * self.dt
-
-    @property
-    def n_chunks(self) -> int:
-        return -(-self.runs // self.chunk_size)
-
-    def chunk_runs(self, index: int) -> tuple[int, int]:
-        """``(start, stop)`` run indices of chunk ``index``."""
-        start = index * self.chunk_size
-        return start, min(start + self.chunk_size, self.runs)
 
     def step(self) -> ca.Function:
         """The (uncompiled) step Function the runs use: ``(x, u, p, dt)``, ``u`` with gusts

@@ -102,26 +102,36 @@ def _write_marker(folder: Path, files: list[str]) -> None:
 
 def _prepare(folder: Path, spec: StudySpec, force: bool) -> None:
     """Set up the output folder (checked by the caller; see the module docstring)."""
+    prepare_folder(folder, spec.key, json_text(spec.describe()), force,
+                   "airframe, model, dispersions, input, grid, seed or chunk size",
+                   OUTPUT_FILES)
+
+
+def prepare_folder(folder: Path, key: str, study_text: str, force: bool, differs: str,
+                   output_files) -> None:
+    """A study's output folder, ready to (re)fill: one holding another study (another
+    ``key`` in its ``study.json``) is refused, naming what ``differs``, unless ``force``,
+    which discards that study's chunks and ``output_files`` (nothing stale is reused); then
+    the chunk folder, the marker and ``study.json`` (``study_text``)."""
     study_file = folder / "study.json"
     if study_file.is_file():
         try:
-            key = json.loads(study_file.read_text()).get("key")
+            old_key = json.loads(study_file.read_text()).get("key")
         except (OSError, ValueError, AttributeError):
-            key = None
-        if key != spec.key:
+            old_key = None
+        if old_key != key:
             if not force:
                 raise MonteCarloError(
-                    f"{folder}: holds another Monte-Carlo study (different airframe, model, "
-                    "dispersions, input, grid, seed or chunk size); choose another folder, or "
-                    "give --force to discard its chunks")
-            for path in (folder / "chunks").glob("chunk_*.npz"):
+                    f"{folder}: holds another Monte-Carlo study (different {differs}); "
+                    "choose another folder, or give --force to discard its chunks")
+            for path in (folder / "chunks").glob("*.npz"):  # any study's chunks
                 path.unlink()
-            for name in OUTPUT_FILES:
+            for name in output_files:
                 (folder / name).unlink(missing_ok=True)
     (folder / "chunks").mkdir(parents=True, exist_ok=True)
     if not (folder / MARKER).is_file() or force:
         _write_marker(folder, ["study.json"])
-    write_text_atomic(study_file, json_text(spec.describe()))
+    write_text_atomic(study_file, study_text)
 
 
 def run_study(spec: StudySpec, out: str | Path | None = None, workers: int = 1,
