@@ -50,25 +50,17 @@ def resolve_controller(args: argparse.Namespace) -> str:
                        f"--mission); --controller {controller} flies its own controller: give "
                        "one of them")
     if controller == "none":
-        for name in ("scenario", "mpc_backend"):
-            if getattr(args, name) is not None:
-                raise CliError(f"--{name.replace('_', '-')} applies to --controller lqr|mpc "
-                               "only")
+        _refuse_given(args, {n: None for n in ("scenario", "mpc_backend")},
+                      "applies to --controller lqr|mpc only")
         return controller
-    for name in BATCH_FLAGS:
-        if getattr(args, name):
-            raise CliError(f"--{name.replace('_', '-')} applies to the batch study, not to "
-                           f"--controller {controller}")
-    for name, default in BATCH_DEFAULTS.items():
-        if getattr(args, name) != default:
-            raise CliError(f"--{name.replace('_', '-')} applies to the batch study, not to "
-                           f"--controller {controller} (the --scenario sets the reference, "
-                           "the controller the interval)")
+    _refuse_given(args, {n: False for n in BATCH_FLAGS},
+                  f"applies to the batch study, not to --controller {controller}")
+    _refuse_given(args, BATCH_DEFAULTS,
+                  f"applies to the batch study, not to --controller {controller} (the "
+                  "--scenario sets the reference, the controller the interval)")
     if controller == "lqr":
-        for name in ("weights", "mpc_backend"):
-            if getattr(args, name) is not None:
-                raise CliError(f"--{name.replace('_', '-')} applies to --controller mpc, not "
-                               "to --controller lqr")
+        _refuse_given(args, {n: None for n in ("weights", "mpc_backend")},
+                      "applies to --controller mpc, not to --controller lqr")
     if args.mpc is not None:  # after the refusals: a refused command says one line
         print(f"note: --mpc SCENARIO is deprecated; give --controller mpc --scenario "
               f"{args.mpc}", file=sys.stderr)
@@ -126,3 +118,12 @@ def cmd_montecarlo_controller(args: argparse.Namespace, controller: str) -> int:
     for line in lines[:5]:
         print(f"  {line}")
     return 0
+
+
+def _refuse_given(args, defaults: dict, why: str) -> None:
+    """One line for the first option given away from its default (``name -> default``;
+    a flag's default False) where it does not apply."""
+    for name, default in defaults.items():
+        value = getattr(args, name)
+        if (bool(value) if default is False else value != default):
+            raise CliError(f"--{name.replace('_', '-')} {why}")
