@@ -352,8 +352,9 @@ def _solve(fit: _Fit, max_delay: int, max_iterations: int, progress: bool) -> _O
         z, delays, iterations, stats = _fit_and_recheck(
             fit, z, delays, lower, upper, max_delay, max_iterations, progress, iterations,
             stats, log)
-        rms, floor, new = _residual_weights(fit, z, delays)
-        per_sortie = _sortie_weights(fit, z, delays) if SORTIE_WEIGHTS else None
+        resid = _window_residuals(fit, z, delays)
+        rms, floor, new = _residual_weights(fit, resid)
+        per_sortie = _sortie_weights(fit, resid) if SORTIE_WEIGHTS else None
         moved = (per_sortie is not None and fit.window_weights is None
                  and np.max(np.abs(np.log(per_sortie))) >= 0.1)
         if (pass_ == REWEIGHT_PASSES or np.all(rms <= floor)  # noise-free: fit exact
@@ -399,15 +400,22 @@ def _fit_and_recheck(fit: _Fit, z: np.ndarray, delays: list[int], lower: np.ndar
     return z, delays, iterations, stats
 
 
-def _sortie_weights(fit: _Fit, z: np.ndarray, delays: list[int]) -> np.ndarray:
-    """Each window's weight: 1 / its sortie's residual RMS (in units of the pooled RMS, after
-    the state weights), so a calm sortie counts as much as its small noise says."""
+def _window_residuals(fit: _Fit, z: np.ndarray, delays: list[int]) -> np.ndarray:
+    """The body-state residuals ``(W, L, N_BODY)`` after the fit, in the states' units (the
+    state and window weights taken off)."""
     r = np.asarray(fit.problem.residual(z, fit.data_for(delays))).ravel()
     W, L = fit.windows.count, fit.L
-    per_window = r[:W * L * N_BODY].reshape(W, L * N_BODY)
+    resid = r[:W * L * N_BODY].reshape(W, L, N_BODY) / fit.weights
     if fit.window_weights is not None:
-        per_window = per_window / fit.window_weights[:, None]
-    ms = np.mean(per_window ** 2, axis=1)
+        resid = resid / fit.window_weights[:, None, None]
+    return resid
+
+
+def _sortie_weights(fit: _Fit, resid: np.ndarray) -> np.ndarray:
+    """Each window's weight: 1 / its sortie's residual RMS (in units of the pooled RMS, the
+    states on the state weights' scale), so a calm sortie counts as much as its small noise
+    says."""
+    ms = np.mean((resid * fit.weights) ** 2, axis=(1, 2))
     sortie = np.array([i for i, _ in fit.windows.starts])
     pooled = math.sqrt(float(np.mean(ms)))
     rms = {i: math.sqrt(float(np.mean(ms[sortie == i]))) for i in set(sortie.tolist())}
@@ -421,13 +429,11 @@ def _per_sortie(fit: _Fit) -> dict[int, float]:
     return {int(i): float(w) for (i, _), w in zip(fit.windows.starts, fit.window_weights)}
 
 
-def _residual_weights(fit: _Fit, z: np.ndarray, delays: list[int]
+def _residual_weights(fit: _Fit, resid: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each state's residual RMS after the fit (unweighted), its floor, and the weights it
     gives."""
-    r = np.asarray(fit.problem.residual(z, fit.data_for(delays))).ravel()
-    rms = np.sqrt(np.mean((r[:r.size - fit.problem.n_dx].reshape(-1, N_BODY)
-                           / fit.weights) ** 2, axis=0))
+    rms = np.sqrt(np.mean(resid.reshape(-1, N_BODY) ** 2, axis=0))
     floor = REWEIGHT_FLOOR / fit.weights_nominal
     return rms, floor, 1.0 / np.maximum(rms, floor)
 
