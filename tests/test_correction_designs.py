@@ -191,6 +191,29 @@ def test_a_weight_file_with_an_unknown_design_is_refused_naming_file_and_key(tmp
         load_weights(bad, airframe)
 
 
+def test_a_format_5_multirotor_file_with_physical_inputs_is_refused_with_the_reason(tmp_path):
+    """Format 6 added the rotor-speed difference to a multirotor's physical inputs: a format-5
+    file of that design was trained on other inputs; it is refused, not misread. A format-5
+    fixed-wing file of the same design still loads."""
+    for file, output, refused in (("x500.toml", "acceleration", True),
+                                  ("trainer.toml", "coefficient", False)):
+        airframe = load_airframe(EXAMPLES / file)
+        layout = CorrectionLayout(structure_of(airframe), MEMORY, inputs="physical",
+                                  output=output)
+        path = save_weights(_net(airframe, layout, np.ones(layout.n_inputs), 4),
+                            tmp_path / f"{airframe.name}.npz")
+        content = dict(np.load(path))
+        content["format_version"] = np.array(5)
+        old = tmp_path / f"{airframe.name}_v5.npz"
+        np.savez(old, **content)
+        if refused:
+            with pytest.raises(WeightFileError, match=r"_v5\.npz: a format-5 multirotor "
+                               r"correction with 'physical' inputs .* retrain it"):
+                load_weights(old, airframe)
+        else:
+            assert load_weights(old, airframe).n_in == layout.n_inputs
+
+
 def test_train_refuses_a_coefficient_output_for_a_multirotor_in_one_line(tmp_path, capsys):
     from emulated_data import emulated_dataset
 

@@ -549,6 +549,26 @@ def test_a_gain_within_the_sortie_spread_is_not_a_gain():
         assert beats_physics_in_pitch(sel, cfg, 1.0) is kept
 
 
+def test_a_gain_smaller_than_the_noise_tolerance_is_not_a_gain():
+    """Ratios 0.995-0.997 on six sorties: a significant (t far above 2) but 0.4 % gain, less
+    than the 2 % a sortie may lose within noise; refused, and the refusal says which rule."""
+    from uavdyn.learned.rules import summarise_ratios
+    from uavdyn.learned.safe import SafeConfig
+    from uavdyn.learned.safe.scoring import beats_physics_in_pitch
+    from uavdyn.learned.safe.verdict import refusal_reason
+    from uavdyn.learned.stability import StabilityReport
+
+    tiny = summarise_ratios([0.995, 0.996, 0.997, 0.995, 0.996, 0.997])
+    assert tiny.gain_t > 10 and tiny.geomean > 0.98
+    row = {"epoch": 4, "scale": 0.35, "val_ratio_worst": tiny.worst,
+           "val_ratio_geomean": tiny.geomean, "val_theta_rmse": 0.498,
+           "val_gain_t": tiny.gain_t, "val_state_ratio_worst": 1.0}
+    assert not beats_physics_in_pitch(row, SafeConfig(), 0.5)
+    assert beats_physics_in_pitch(row, SafeConfig(min_gain=0.0), 0.5)
+    text = refusal_reason([row], SafeConfig(), 0.5, row, StabilityReport(0.01, 0.5), 1.0)
+    assert "smaller than 2 %" in text and "the physics is kept" in text
+
+
 def test_a_refusal_for_a_gain_within_the_spread_says_so():
     """Every candidate beat the physics on every validation sortie, by too little: the reason
     names the significance rule and the best t, not 'does not beat the physics'."""

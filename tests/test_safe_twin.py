@@ -48,7 +48,7 @@ def _model(airframe, point, seed: int, inputs: str = "state",
     width = np.concatenate([[3.0, 1.0, 0.5, 0.2], np.full(n_in - 4, 0.1)])
     if inputs == "physical" and airframe.kind == "fixed_wing":  # alpha, V, q c/2V, ...
         width = np.concatenate([[0.1, 3.0, 0.02, 0.02], np.full(n_in - 4, 0.1)])
-    elif inputs == "physical":  # u, w, q, thrust per weight, rotor speed times u and w
+    elif inputs == "physical":  # u, w, q, thrust per weight, rotor speed times u, w; ...
         width = np.concatenate([[3.0, 1.0, 0.5, 0.2, 3.0, 1.0], np.full(n_in - 6, 0.1)])
     net = CorrectionNet(
         formulation="improved", activation="relu", kind=airframe.kind,
@@ -90,7 +90,7 @@ def test_twin_free_runs_and_gradients_equal_torchs(file, speed, inputs, output, 
     if airframe.kind == "fixed_wing":  # lagged, rate-limited actuators: an augmented state
         airframe = airframe.replace(tau_elevator=0.04, tau_throttle=0.15, slew_throttle=0.5)
     point = trim(airframe, speed)
-    model = _model(airframe, point, 3, inputs, output, linear)
+    model = _model(airframe, point, 7, inputs, output, linear)
     assert (model.skip is not None) == linear
     D = _windows(airframe, point, 4)
     scale, growth = np.array([1.0, 0.5, 0.1, 0.05]), np.linspace(1.0, 3.0, H)
@@ -106,9 +106,11 @@ def test_twin_free_runs_and_gradients_equal_torchs(file, speed, inputs, output, 
     got_value, flat = twin.loss_and_grad(model, D, 0.3)
     grads = twin.unflatten(flat)
     assert got_value == pytest.approx(float(value.detach()), rel=1e-11)
+    # a layer whose units the windows leave dead has a gradient of round-off only: the
+    # tolerance is relative to the largest gradient of any weight
+    scale_all = max(np.abs(param.grad.numpy()).max() for param in model.parameters())
     for param, grad in zip(model.parameters(), grads):
-        np.testing.assert_allclose(grad, param.grad.numpy(), rtol=1e-8,
-                                   atol=1e-10 * np.abs(param.grad.numpy()).max())
+        np.testing.assert_allclose(grad, param.grad.numpy(), rtol=1e-8, atol=1e-10 * scale_all)
     assert any(np.abs(g).max() > 0 for g in grads)
 
     # the stability penalty at two trims held to abscissas they exceed (a complex pair and a

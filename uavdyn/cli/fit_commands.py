@@ -194,7 +194,7 @@ def training_module():
 
 
 SAFE_ONLY = ("--stability-weight", "--stability-margin", "--horizon", "--memory-tau",
-             "--inputs", "--output", "--linear-path")
+             "--inputs", "--output", "--linear-path", "--min-gain")
 LEGACY_ONLY = ("--dt", "--rollout-horizon", "--rollout-weight")
 
 
@@ -337,6 +337,11 @@ def add_train(sub) -> None:
     p.add_argument("--stability-margin", type=number(0.0, 1.0, name="fraction"), default=None,
                    help="improved/data: how much a stable physics mode's decay rate may shrink "
                         "(fraction 0..1, default 0.5); a neutral mode may never grow")
+    p.add_argument("--min-gain", type=number(0.0, 0.5, name="fraction"), default=None,
+                   help="improved/data: the least gain a correction must show on the "
+                        "validation sorties to be kept (geometric mean of the per-sortie "
+                        "ratios at most 1 - this; fraction 0..0.5, default 0.02: a gain "
+                        "smaller than the 2 %% a sortie may lose within noise is refused)")
     p.add_argument("--horizon", type=seconds(name="horizon"), default=None,
                    help="improved/data: rollout window from recorded states in s, no longer "
                         "than the sorties (default 2)")
@@ -348,7 +353,8 @@ def add_train(sub) -> None:
                    help="improved/data: what the network sees in place of the body states: "
                         "state (u, w, q, theta) or physical (a fixed wing's alpha, V, q c/2V, "
                         "alpha-dot c/2V, thrust coefficient; a multirotor's u, w, q, thrust "
-                        "per weight, rotor speed times u and w); default physical "
+                        "per weight, rotor speed times u and w, front-rear rotor-speed "
+                        "difference times u and w); default physical "
                         "(docs/learned_correction.md)")
     p.add_argument("--output", default=None, choices=["acceleration", "coefficient"],
                    help="improved/data: the network's output: residual accelerations or (a "

@@ -123,7 +123,8 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
     from uavdyn.learned.safe.history import write_safe_history_files
 
     given = {k: getattr(args, k) for k in ("epochs", "patience", "max_seconds",
-                                           "stability_weight", "hidden", "stability_margin")
+                                           "stability_weight", "hidden", "stability_margin",
+                                           "min_gain")
              if getattr(args, k, None) is not None}
     if getattr(args, "horizon", None) is not None:
         given["horizon_s"] = args.horizon

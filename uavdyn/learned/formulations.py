@@ -50,7 +50,8 @@ STATE_DIM = 4
 # start (:func:`correction_inputs`).
 INPUT_DESIGNS = ("state", "physical")
 PHYSICAL_INPUTS = {"fixed_wing": ("alpha", "V", "q_hat", "alpha_dot_hat", "C_thrust"),
-                   "multirotor": ("u", "w", "q", "thrust_per_weight", "omega_u", "omega_w")}
+                   "multirotor": ("u", "w", "q", "thrust_per_weight", "omega_u", "omega_w",
+                                  "omega_diff_u", "omega_diff_w")}
 # What its output is: ``acceleration`` [du_dot, dw_dot, dq_dot] (m/s^2, rad/s^2), or
 # ``coefficient`` [dC_X, dC_Z, dC_m] (body-axis force and moment coefficients, a fixed wing
 # only: times qbar S / m and qbar S c / Jy inside the step, so the residual grows with dynamic
@@ -180,9 +181,10 @@ def correction_inputs(layout: CorrectionLayout, z, u, p, ops):
     causal, no filter) and thrust coefficient ``T / (qbar S)``; a multirotor's body velocities,
     pitch rate, thrust per weight and its mean rotor speed (over the slope ``C_R``, about the
     full-throttle speed) times ``u`` and ``w`` (rotor drag, blade flapping and inflow scale
-    with both). Pitch attitude only enters through gravity, which the physics has exactly.
-    The gains turn a ``coefficient`` output into accelerations (1 for an ``acceleration``
-    output)."""
+    with both) and the front-rear difference of rotor speed times ``u`` and ``w`` (the pitch
+    moments of translational lift and of the thrust each pair loses to axial inflow). Pitch
+    attitude only enters through gravity, which the physics has exactly. The gains turn a
+    ``coefficient`` output into accelerations (1 for an ``acceleration`` output)."""
     one = z[0] * 0.0 + 1.0
     if layout.inputs == "state" and layout.output == "acceleration":
         return ops.concat(z, u), (one, one, one)
@@ -200,10 +202,11 @@ def correction_inputs(layout: CorrectionLayout, z, u, p, ops):
         alpha_dot = (z[0] * w_dot - z[1] * u_dot) / V**2
         head = ops.stack(alpha, V, z[2] * c_2v, alpha_dot * c_2v, thrust / qbar_s)
     else:  # rotor drag, flapping and inflow scale with rotor speed times airspeed
-        omega = sum(ops.fmax(P.C_R * (u_eff[0] + sign * P.pitch_mix * u_eff[1]) + P.omega_b, 0)
-                    for sign in (1.0, -1.0)) / (2.0 * P.C_R)
+        front, rear = (ops.fmax(P.C_R * (u_eff[0] + sign * P.pitch_mix * u_eff[1]) + P.omega_b,
+                                0) / (2.0 * P.C_R) for sign in (1.0, -1.0))
+        omega, omega_diff = front + rear, front - rear
         head = ops.stack(z[0], z[1], z[2], thrust / (P.mass * P.gravity), omega * z[0],
-                         omega * z[1])
+                         omega * z[1], omega_diff * z[0], omega_diff * z[1])
     rest = [z[i] for i in range(STATE_DIM, layout.n_state)]
     inp = ops.concat(head, ops.stack(*rest), u) if rest else ops.concat(head, u)
     if layout.output == "acceleration":

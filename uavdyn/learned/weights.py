@@ -50,8 +50,8 @@ from uavdyn.learned.weight_archive import (
 )
 from uavdyn.model.ops import CASADI_OPS, NUMPY_OPS
 
-FORMAT_VERSION = 5
-READABLE_VERSIONS = (1, 2, 3, 4, 5)
+FORMAT_VERSION = 6
+READABLE_VERSIONS = (1, 2, 3, 4, 5, 6)
 MAX_MEMORY_FILTERS = 8
 N_HIDDEN_LAYERS = 3
 MAX_NAME_CHARS = 256
@@ -68,6 +68,9 @@ REQUIRED_KEYS = (
 # format 5: the keys 'inputs' and 'output' name the improved network's input and output
 # designs (absent: 'state' and 'acceleration', as before); 'W_skip' (optional) is the linear
 # path beside the hidden layers
+# format 6: a multirotor's 'physical' inputs add the front-rear difference of rotor speed
+# times u and w (pitch moments of translational lift and axial inflow); a format-5 file of
+# that design was trained on the earlier inputs and is refused with the reason
 ENVELOPE_KEYS = ("env_low", "env_high", "env_fade")
 # 'n_controls' (optional, absent: 2): the step's inputs, 6 for a model with the lateral inputs
 # of turning flight (the controls, then phi, p, r, beta), which the network also sees
@@ -76,7 +79,7 @@ OPTIONAL_KEYS = ("info", "t_range", "n_state", "memory_tau", "out_bound", "guard
 NAME_KEYS = ("formulation", "activation", "kind", "airframe_hash")
 # the extra network inputs of each input design over the step's state and command
 EXTRA_INPUTS = {("state", "fixed_wing"): 0, ("state", "multirotor"): 0,
-                ("physical", "fixed_wing"): 1, ("physical", "multirotor"): 2}
+                ("physical", "fixed_wing"): 1, ("physical", "multirotor"): 4}
 
 # the archive's limits and error are part of this module's names
 __all__ = ["CorrectionNet", "FORMAT_VERSION", "MAX_FILE_BYTES", "MAX_MEMBERS",
@@ -419,6 +422,11 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
     for key in ("inputs", "output"):
         if key in content:
             extra[key] = text_key(path, content, key)
+    if version <= 5 and (extra.get("inputs"), names["kind"]) == ("physical", "multirotor"):
+        raise WeightFileError(f"{path}: a format-{version} multirotor correction with "
+                              "'physical' inputs was trained on the earlier input set (without "
+                              "the front-rear rotor-speed difference terms); retrain it with "
+                              f"`uavdyn train` (this uavdyn writes format {FORMAT_VERSION})")
     n_layers = N_HIDDEN_LAYERS + 1
     t_range = None
     if "t_range" in content:

@@ -152,10 +152,18 @@ def rank(sel: dict, cfg: SafeConfig) -> tuple:
     return (sel["val_ratio_worst"] > cfg.worst_sortie_ratio, sel["val_ratio_geomean"])
 
 
-def beats_physics_in_pitch(sel: dict, cfg: SafeConfig, physics_rmse: float) -> bool:
+def gain_large_enough(sel: dict, cfg: SafeConfig) -> bool:
+    """The validation sorties' gain stands out of their spread (``cfg.gain_significance``)
+    and is at least ``cfg.min_gain`` (geometric mean of the per-sortie ratios)."""
+    return (sel.get("val_gain_t", math.inf) >= cfg.gain_significance
+            and sel["val_ratio_geomean"] <= 1.0 - cfg.min_gain)
+
+
+def beats_physics_in_pitch(sel: dict, cfg: SafeConfig, physics_rmse: float,
+                           gain_checked: bool = True) -> bool:
     """Pooled and on every validation sortie (within the tolerance) at the selection
-    horizon, with a gain that stands out of the sortie-to-sortie spread
-    (``cfg.gain_significance``)."""
+    horizon, by a gain large enough (:func:`gain_large_enough`; ``gain_checked=False``: any
+    gain)."""
     return (sel["val_ratio_worst"] <= cfg.worst_sortie_ratio
             and sel["val_ratio_geomean"] < 1.0 and sel["val_theta_rmse"] < physics_rmse
-            and sel.get("val_gain_t", math.inf) >= cfg.gain_significance)
+            and (not gain_checked or gain_large_enough(sel, cfg)))
