@@ -31,6 +31,8 @@ import numpy as np
 from uavdyn.learned.envelope import DEFAULT_GUARD, GUARDS, LEGACY_GUARD, Envelope
 from uavdyn.learned.formulations import (
     FORMULATIONS,
+    PHYSICAL_INPUTS,
+    STATE_DIM,
     CorrectionLayout,
     Formulation,
     design_problem,
@@ -77,9 +79,11 @@ ENVELOPE_KEYS = ("env_low", "env_high", "env_fade")
 OPTIONAL_KEYS = ("info", "t_range", "n_state", "memory_tau", "out_bound", "guard",
                  "inputs", "output", "W_skip", "n_controls", *ENVELOPE_KEYS)
 NAME_KEYS = ("formulation", "activation", "kind", "airframe_hash")
-# the extra network inputs of each input design over the step's state and command
-EXTRA_INPUTS = {("state", "fixed_wing"): 0, ("state", "multirotor"): 0,
-                ("physical", "fixed_wing"): 1, ("physical", "multirotor"): 4}
+# the extra network inputs of each input design over the step's state and command (the
+# physical inputs replace the body states)
+EXTRA_INPUTS = {**{("state", kind): 0 for kind in PHYSICAL_INPUTS},
+                **{("physical", kind): len(names) - STATE_DIM
+                   for kind, names in PHYSICAL_INPUTS.items()}}
 
 # the archive's limits and error are part of this module's names
 __all__ = ["CorrectionNet", "FORMAT_VERSION", "MAX_FILE_BYTES", "MAX_MEMBERS",
