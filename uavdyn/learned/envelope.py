@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from uavdyn.model.ops import NUMPY_OPS, ramp
+from uavdyn.model.ops import NUMPY_OPS, pairwise_sum, ramp
 
 GUARDS = {"distance-clamp": ("distance", "clamp"), "product-tanh": ("product", "tanh")}
 DEFAULT_GUARD = "distance-clamp"
@@ -42,16 +42,6 @@ def smoothstep(t, ops=NUMPY_OPS):
     between (the clamp written with :func:`uavdyn.model.ops.ramp`, exact at both ends)."""
     c = 1.0 - ramp(1.0 - ramp(t, ops), ops)
     return c * c * (3.0 - 2.0 * c)
-
-
-def pairwise_sum(terms: list):
-    """Sum of ``terms`` as a balanced tree: in a compiled step its additions run side by side
-    instead of in one chain."""
-    terms = list(terms)
-    while len(terms) > 1:
-        terms = [terms[i] + terms[i + 1] if i + 1 < len(terms) else terms[i]
-                 for i in range(0, len(terms), 2)]
-    return terms[0]
 
 
 def outside_distances(inp, terms, ops=NUMPY_OPS) -> list:

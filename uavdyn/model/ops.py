@@ -23,6 +23,16 @@ def ramp(x, ops):
     this runs in every hybrid step (ReLU, the envelope gate)."""
     return 0.5 * (x + ops.fabs(x))
 
+def pairwise_sum(terms: list):
+    """Sum of ``terms`` as a balanced tree: in a compiled step its additions run side by side
+    instead of in one chain."""
+    terms = list(terms)
+    while len(terms) > 1:
+        terms = [terms[i] + terms[i + 1] if i + 1 < len(terms) else terms[i]
+                 for i in range(0, len(terms), 2)]
+    return terms[0]
+
+
 def _ca_col(v):
     return v if isinstance(v, (ca.SX, ca.MX, ca.DM)) else ca.DM(np.asarray(v, float))
 
