@@ -33,7 +33,7 @@ from uavdyn.flightdata import Sortie, load_dataset
 from uavdyn.identify import identify, write_outputs
 from uavdyn.identify.freerun import departure_line
 from uavdyn.identify.prior import PRIOR_SD_DEFAULT
-from uavdyn.identify.report import estimate_line, structure_lines
+from uavdyn.identify.report import HELD_HEADLINE, estimate_line, structure_lines
 from uavdyn.identify.selection import select_structure
 from uavdyn.identify.unknowns import DELAY_PREFIX, control_names
 from uavdyn.integrate import EvalGrid, GridError
@@ -118,6 +118,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
     if kept:
         print(f"  kept the airframe file's value (not determined; the others refitted with "
               f"them fixed; --keep-undetermined writes the raw fit): {', '.join(kept)}")
+    held = [e.name for e in result.estimates if e.held]
+    if held:
+        print(f"  {HELD_HEADLINE} (--keep-undetermined writes the raw fit): {', '.join(held)}")
     if args.prior is not None:
         under = [e.name for e in undetermined if not e.searched and not e.kept]
         print(f"  prior: Gaussian around the file's values, relative s.d. {args.prior:g} "

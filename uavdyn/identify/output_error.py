@@ -34,6 +34,7 @@ What each kind of name means:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from itertools import combinations
@@ -69,7 +70,12 @@ from uavdyn.identify.prior import (
 from uavdyn.identify.problem import COMPILE_FLAGS, _check_excitation
 from uavdyn.identify.result import DEFAULT_SUBSTEPS, Estimate, IdentificationResult
 from uavdyn.identify.search import RECHECK_STEPS, SEARCH_ROUNDS, _recheck_delays, _search
-from uavdyn.identify.uncertainty import estimate_uncertainty, undetermined
+from uavdyn.identify.uncertainty import (
+    constrained,
+    estimate_uncertainty,
+    physical_combination,
+    undetermined,
+)
 from uavdyn.identify.unknowns import (
     DELAY_PREFIX,
     TAU_BOUNDS,
@@ -114,7 +120,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
              substeps: int | None = None, progress: bool = True,
              check_halves: bool = True, preroll: int | None = None, screen: bool = True,
              prior_sd: float | None = None, keep_undetermined: bool = False,
-             free_run: bool = True) -> IdentificationResult:
+             free_run: bool = True, hold: list[dict[str, float]] | None = None
+             ) -> IdentificationResult:
     """Fit the parameters ``names`` of ``airframe`` to ``train`` sorties by output error.
 
     Parameters
@@ -184,6 +191,11 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     free_run : bool
         Fly each train sortie open loop from its first state with the nominal and the
         identified model and record which depart (:mod:`uavdyn.identify.freerun`; default).
+    hold : list of dict, optional
+        Combinations of the parameters held at the file's values, each ``{name: c}`` for
+        ``sum c * (p - p_file) = 0`` (a fit's ``diagnostics["weak_directions"]``, the
+        combinations its data could not determine): the fit is constrained to them, the
+        standard errors are the constrained ones (:mod:`uavdyn.identify.fallback`).
 
     Returns
     -------
@@ -204,8 +216,13 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     advice = refuse_unexcited(continuous, train) if screen else []
     fit = _prepare(airframe, train, continuous, searched, window_s, dt, substeps,
                    max_windows, relative_bound, bounds, estimate_x0, preroll)
+    held = _hold_rows(fit, hold) if hold else None
     outcome = _solve(fit, max_delay, max_iterations, progress)
-    result = _result(fit, outcome, names, max_delay, train, validation, t_start)
+    if held is not None:  # the held rows are not data
+        n_data = outcome.r.size - held.shape[0]
+        outcome = dataclasses.replace(outcome, r=outcome.r[:n_data], J=outcome.J[:n_data])
+    result = _result(fit, outcome, names, max_delay, train, validation, t_start,
+                     held=held)
     if check_halves and continuous and len(train) >= 4:
         compare_halves(identify, result, train, continuous, max(1, fit.windows.count // 2),
                       {"window_s": window_s, "dt": dt, "bounds": bounds,
@@ -235,13 +252,15 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
 
 def _result(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
             train: list[Sortie], validation: list[Sortie], t_start: float,
-            prior: np.ndarray | None = None) -> IdentificationResult:
+            prior: np.ndarray | None = None, held: np.ndarray | None = None
+            ) -> IdentificationResult:
     """The result of a solved fit: estimates, their uncertainty (with a ``prior``, the
-    precision of each scaled unknown's prior: the posterior's; whether the data determine
-    each parameter: the data's at the estimate) and the fit per split."""
+    precision of each scaled unknown's prior: the posterior's; with ``held`` combinations, the
+    constrained one; whether the data determine each parameter: the data's at the estimate)
+    and the fit per split."""
     airframe = fit.airframe
     fitted, estimates, corr, flagged, sigma_w, diagnostics = _estimates(
-        fit, outcome, names, max_delay, prior)
+        fit, outcome, names, max_delay, prior, held)
     summary = {"train": fit_summary(airframe, fitted, train, fit.interval, fit.substeps,
                                      fit.L, fit.stride),
                "validation": fit_summary(airframe, fitted, validation, fit.interval,
@@ -439,7 +458,7 @@ def _residual_weights(fit: _Fit, resid: np.ndarray
 
 
 def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
-               prior: np.ndarray | None = None
+               prior: np.ndarray | None = None, held: np.ndarray | None = None
                ) -> tuple[Airframe, list[Estimate], np.ndarray, list[tuple[str, str, float]],
                           np.ndarray, dict]:
     """The fitted airframe, the estimates in the order of ``names`` (each projected onto its
@@ -462,6 +481,8 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
         cov_cr, cov_post = posterior(cov_cr, prior), posterior(cov_c, prior)
         share = np.where(prior > 0, prior_share(cov_c, cov_post), math.nan)
         cov_c = cov_post
+    if held is not None and continuous:  # the held combinations carry no variance
+        cov_cr, cov_c = constrained(cov_cr, held), constrained(cov_c, held)
     std = np.sqrt(np.maximum(np.diag(cov_cr), 0.0)) * u.scale
     std_c = np.sqrt(np.maximum(np.diag(cov_c), 0.0)) * u.scale
     d = np.sqrt(np.maximum(np.diag(cov_c), 1e-300))
@@ -493,4 +514,32 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
                                              at_bound="upper" if delays[k] == max_delay
                                              else "", std_error_corrected=0.0)
     diagnostics = {} if unc is None else unc.diagnostics(continuous, std, std_c)
+    if unc is not None and len(unc.weak_directions):
+        diagnostics["weak_directions"] = [physical_combination(a, continuous, u.scale)
+                                          for a in unc.weak_directions]
+    if held is not None:
+        diagnostics["held_at_file_values"] = [physical_combination(a, continuous, u.scale)
+                                              for a in held]
     return fitted, [by_name[n] for n in names], corr, flagged, sigma_w, diagnostics
+
+
+HOLD_WEIGHT = 1e4  # held rows' weight over the largest data column norm: a hard constraint
+
+
+def _hold_rows(fit: _Fit, hold: list[dict[str, float]]) -> np.ndarray:
+    """The rows holding ``hold``'s combinations at the file's values, in the scaled unknowns
+    (``theta = 0`` at the file), weighted far above the data; set as the fit's prior rows."""
+    u = fit.unknowns
+    unknown = sorted({n for row in hold for n in row} - set(fit.continuous))
+    if unknown:
+        raise IdentifyError(f"held combination names {', '.join(unknown)}, which this fit "
+                            "does not estimate")
+    rows = np.array([[row.get(n, 0.0) * s for n, s in zip(fit.continuous, u.scale)]
+                     for row in hold], float)
+    rows /= np.maximum(np.linalg.norm(rows, axis=1, keepdims=True), 1e-300)
+    delays = list(fit.airframe.delay_samples())
+    _, J = fit.problem.evaluate(fit.with_dx(u.theta0), fit.data_for(delays))
+    column = np.sqrt(np.max(np.asarray(J[:, :fit.problem.n_theta].power(2).sum(axis=0))))
+    fit.prior = HOLD_WEIGHT * max(column, 1.0) * rows
+    fit.data_cache.clear()
+    return fit.prior

@@ -134,8 +134,8 @@ class _Problem:
     def residual(self, z: np.ndarray, data: dict) -> np.ndarray:
         """The weighted residual: ``(predicted - recorded) * weights`` (sample-major, the body
         states per sample, window after window), then the start-state prior ``dx``, then (where
-        ``data`` has a ``"prior"`` weight per parameter) the parameters' prior
-        ``prior * theta`` (centred on the file's values, ``theta = 0``)."""
+        ``data`` has a ``"prior"``) the parameters' prior ``prior * theta`` (a weight per
+        parameter) or ``prior @ theta`` (rows), centred on the file's values (``theta = 0``)."""
         pred = self._call(self.predict, z, data)["y"]
         r = ((pred - data["y"]) * self._sample_weights(data)).ravel(order="F")
         return np.concatenate([r, z[self.n_theta:], *self._prior_rows(z, data)])
@@ -145,9 +145,15 @@ class _Problem:
         return data["weights"][:, None] * np.repeat(data["window_weights"], self.L)[None, :]
 
     def _prior_rows(self, z: np.ndarray, data: dict) -> list[np.ndarray]:
-        """The parameters' prior residual (:meth:`residual`), if ``data`` has one."""
+        """The parameters' prior residual (:meth:`residual`), if ``data`` has one: a weight per
+        parameter, or a matrix of rows (combinations of the parameters held near the file's
+        values)."""
         prior = data.get("prior")
-        return [] if prior is None else [np.asarray(prior) * z[:self.n_theta]]
+        if prior is None:
+            return []
+        prior = np.asarray(prior, float)
+        theta = z[:self.n_theta]
+        return [prior @ theta if prior.ndim == 2 else prior * theta]
 
     def cost(self, z: np.ndarray, data: dict) -> float:
         r = self.residual(z, data)
@@ -175,8 +181,9 @@ class _Problem:
         else:
             J = parts[0]
         if data.get("prior") is not None:  # the parameters' prior rows, after all others
-            J = sp.vstack([J, sp.hstack([sp.diags(np.asarray(data["prior"], float)),
-                                         sp.csr_matrix((self.n_theta, self.n_dx))])],
+            prior = np.asarray(data["prior"], float)
+            rows = sp.csr_matrix(prior) if prior.ndim == 2 else sp.diags(prior)
+            J = sp.vstack([J, sp.hstack([rows, sp.csr_matrix((rows.shape[0], self.n_dx))])],
                           format="csr")
         return r, J
 

@@ -113,6 +113,9 @@ def provenance(result: IdentificationResult, nominal: Airframe, dataset: str, co
     if kept:
         lines.append(f"  kept the file's value (not determined by these data): "
                      f"{', '.join(kept)}")
+    held = [e.name for e in result.estimates if e.held]
+    if held:
+        lines.append(f"  {HELD_HEADLINE}: {', '.join(held)}")
     free = result.fit.get("free_run")
     if free:
         lines.append(f"  free run of the {len(free['per_sortie'])} train sorties (pitch error "
@@ -120,6 +123,10 @@ def provenance(result: IdentificationResult, nominal: Airframe, dataset: str, co
                      f"{len(free['identified_departed'])}, nominal on "
                      f"{len(free['nominal_departed'])}")
     return lines
+
+
+HELD_HEADLINE = ("fitted with the combination their data cannot determine held at the file's "
+                 "values (the rest from the data)")
 
 
 def estimate_line(e: Estimate) -> str:
@@ -141,7 +148,8 @@ def estimate_line(e: Estimate) -> str:
         text = text[:-1] + f"; {e.pull()})"
     if e.undetermined:
         text += (" NOT DETERMINED by these data" + (", SET UNDER THE PRIOR" if e.pull() else "")
-                 + ": " + "; ".join(flags))
+                 + (" alone, FITTED WITH ITS GROUP HELD" if e.held else "")
+                 + ": " + "; ".join(flags) + (f"; {e.held}" if e.held else ""))
         text += f". Would need: {e.excitation}"
     elif flags:
         text += " FLAGGED: " + "; ".join(flags)
@@ -162,6 +170,8 @@ def identified_airframe(result: IdentificationResult, nominal: Airframe, dataset
             continue
         if e.pull():
             flags += f"; maximum a posteriori, {e.pull()}"
+        if e.held:
+            flags += f"; {e.held}"
         sources[e.name] = (f"identified from {dataset}: {e.value:.6g} +- "
                            f"{e.std_error_corrected:.2g} (corrected s.e.{flags}; nominal "
                            f"{e.nominal:.6g}; was: {nominal.sources.get(e.name, '')})")

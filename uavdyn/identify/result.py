@@ -25,7 +25,9 @@ class Estimate:
     the others were refitted with it fixed). Under a prior (maximum a posteriori),
     ``data_value`` is the data-only estimate, ``prior_share`` the prior's share of the
     information, ``1 - var_posterior / var_data`` (corrected variances: 0 = the data alone,
-    1 = the prior alone), and the standard errors are the posterior's."""
+    1 = the prior alone), and the standard errors are the posterior's. ``held`` says that the
+    value was fitted with the combination of a collinear group the data cannot determine held
+    at the file's values (``data_value``: the unconstrained fit's)."""
 
     name: str
     nominal: float
@@ -39,6 +41,7 @@ class Estimate:
     kept: str = ""
     data_value: float = math.nan
     prior_share: float = math.nan
+    held: str = ""
 
     @property
     def determined(self) -> bool:
@@ -103,6 +106,8 @@ class IdentificationResult:
                            "determined": e.determined, "flags": e.flags(),
                            **({"excitation": e.excitation} if e.excitation else {}),
                            **({"kept_file_value": e.kept} if e.kept else {}),
+                           **({"held": e.held, "unconstrained_value": e.data_value}
+                              if e.held else {}),
                            **({"data_only_value": e.data_value,
                                "prior_share": e.prior_share}
                               if math.isfinite(e.prior_share) else {}),

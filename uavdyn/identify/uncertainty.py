@@ -61,6 +61,9 @@ class Uncertainty:
         ``[k, j]``: the share of parameter ``j``'s variance on dependency ``k``.
     collinear_groups : list of list of int
         The parameters (indices) of each strong near-dependency.
+    weak_directions : ndarray
+        One unit row per group: the combination of the scaled unknowns the data cannot
+        determine (:func:`near_dependencies`).
     """
 
     cramer_rao: np.ndarray
@@ -70,6 +73,7 @@ class Uncertainty:
     condition_indices: np.ndarray
     variance_proportions: np.ndarray
     collinear_groups: list[list[int]]
+    weak_directions: np.ndarray
 
     def diagnostics(self, names: list[str], std: np.ndarray, std_corrected: np.ndarray
                     ) -> dict:
@@ -129,11 +133,11 @@ def estimate_uncertainty(J, r: np.ndarray, n_theta: int, n_windows: int, length:
     if sortie_of_window is not None and len(np.unique(sortie_of_window)) >= 3:
         between = M_inv @ _between_sorties(A, v, sortie_of_window) @ M_inv
         corrected = _larger_variances(corrected, between)
-    conditions, proportions, groups = collinearity(M)
+    conditions, proportions, groups, weak = near_dependencies(M)
     return Uncertainty(cramer_rao=M_inv, corrected=0.5 * (corrected + corrected.T),
                        residual_sigma=sigma, correlation_time_s=_correlation_time(R, interval),
                        condition_indices=conditions, variance_proportions=proportions,
-                       collinear_groups=groups)
+                       collinear_groups=groups, weak_directions=weak)
 
 
 def information(J, scale: np.ndarray, n_theta: int, n_windows: int, length: int,
@@ -243,6 +247,15 @@ def collinearity(M: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[list[int]]
     variance-decomposition proportions ``[k, j]`` and the strong near-dependencies' parameter
     groups (index above :data:`CONDITION_FLAG`, two or more parameters above
     :data:`PROPORTION_FLAG`)."""
+    index, proportions, groups, _ = near_dependencies(M)
+    return index, proportions, groups
+
+
+def near_dependencies(M: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, list[list[int]], np.ndarray]:
+    """:func:`collinearity` and the strong near-dependencies' directions: one row ``a`` per
+    group (unit length), in the unknowns of ``M``, along which the data hold almost no
+    information (``a^T M a`` tiny): the combination ``a . theta`` the data cannot determine."""
     d = 1.0 / np.sqrt(np.maximum(np.diag(M), 1e-300))
     S = M * np.outer(d, d)  # unit-length columns
     lam, V = np.linalg.eigh(S)
@@ -251,13 +264,34 @@ def collinearity(M: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[list[int]]
     phi = V**2 / lam[None, :]  # [j, k]
     proportions = (phi / phi.sum(axis=1, keepdims=True)).T  # [k, j]
     order = np.argsort(index)
-    index, proportions = index[order], proportions[order]
-    groups = []
+    index, proportions, V = index[order], proportions[order], V[:, order]
+    groups, rows = [], []
     for k in range(len(index)):
         members = [int(j) for j in np.flatnonzero(proportions[k] > PROPORTION_FLAG)]
         if index[k] > CONDITION_FLAG and len(members) >= 2:
             groups.append(members)
-    return index, proportions, groups
+            a = V[:, k] / d  # v . (theta / d) = 0 in the unknowns themselves
+            rows.append(a / np.linalg.norm(a))
+    return index, proportions, groups, np.array(rows).reshape(len(rows), len(d))
+
+
+def constrained(cov: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """The covariance ``cov`` of an estimate constrained to ``rows @ theta = 0``:
+    ``C - C A^T (A C A^T)^-1 A C`` (no variance left along the rows)."""
+    CA = cov @ rows.T
+    out = cov - CA @ np.linalg.solve(rows @ CA, CA.T)
+    out = 0.5 * (out + out.T)
+    out[np.diag_indices_from(out)] = np.maximum(np.diag(out), 0.0)
+    return out
+
+
+def physical_combination(row: np.ndarray, names: list[str], scale: np.ndarray
+                         ) -> dict[str, float]:
+    """A combination of the scaled unknowns (``theta = (p - p_file) / scale``) as
+    ``{name: c}`` on the parameters' changes from the file, ``sum c (p - p_file)``; the
+    largest scaled coefficient 1, coefficients below 1e-3 of it left out."""
+    row = np.asarray(row, float) / max(float(np.max(np.abs(row))), 1e-300)
+    return {n: float(a / s) for n, a, s in zip(names, row, scale) if abs(a) >= 1e-3}
 
 
 def zero_spanned(value: float, std_c: float) -> str:
