@@ -150,3 +150,26 @@ def test_a_held_fit_keeps_the_combination_at_the_file_and_fits_the_rest(aerosond
     # along the held combination no variance is left: the two errors are tied
     s_a, s_d = e["C_m_alpha"].std_error_corrected, e["C_m_delta_e"].std_error_corrected
     assert s_a == pytest.approx(2.0 * s_d, rel=1e-3)
+
+
+def test_a_parameter_outside_the_group_spanning_zero_is_reset_in_the_held_refit():
+    calls = []
+
+    def stub(nominal, train, validation, names, **options):
+        calls.append((list(names), options))
+        return _result([_estimate(n, -1.0, -1.1, 0.01) for n in names], [], [])
+
+    first = _result([_estimate("C_m_alpha", -2.7, -2.6, 0.05),
+                     _estimate("C_m_delta_e", -1.0, -0.95, 0.03),
+                     _estimate("C_m_alpha_dot", 0.0, -0.1, 0.8, group=False)],
+                    [["C_m_alpha", "C_m_delta_e"]],
+                    [{"C_m_alpha": 1.0, "C_m_delta_e": -0.5, "C_m_alpha_dot": 1e-3}])
+    out = keep_file_values(stub, first, load_airframe("aerosonde"), [], [],
+                           ["C_m_alpha", "C_m_delta_e", "C_m_alpha_dot"], {})
+    (names, options), = calls  # one refit: the group held, the other reset
+    assert names == ["C_m_alpha", "C_m_delta_e"]
+    assert options["hold"] == [{"C_m_alpha": 1.0, "C_m_delta_e": -0.5}]
+    by = {e.name: e for e in out.estimates}
+    assert by["C_m_alpha_dot"].kept and by["C_m_alpha_dot"].value == 0.0
+    assert by["C_m_alpha"].held and by["C_m_delta_e"].held
+    assert [e.name for e in out.estimates] == ["C_m_alpha", "C_m_delta_e", "C_m_alpha_dot"]

@@ -276,9 +276,12 @@ def add_identify(sub) -> None:
                         "reported")
     p.add_argument("--keep-undetermined", action="store_true",
                    help="write every fitted value, also of parameters the data do not "
-                        "determine (default: they keep the file's value and the others are "
-                        "refitted with them fixed; with --prior they are fitted under it, and "
-                        "only one still on a bound keeps the file's value)")
+                        "determine (default: one whose interval spans zero or that ends on a "
+                        "bound keeps the file's value and the others are refitted with it "
+                        "fixed; a collinear group is refitted with only the combination the "
+                        "data cannot determine held at the file's values; with --prior they "
+                        "are fitted under it, and only one still on a bound keeps the file's "
+                        "value)")
     p.add_argument("--allow-low-excitation", action="store_true",
                    help="fit also parameters whose signal the train data do not move above "
                         "its noise (default: refused before the fit; a signal above its noise "

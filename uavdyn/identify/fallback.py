@@ -13,7 +13,10 @@ throws that information away (the emulated Aerosonde, 24 x 30 s: ``C_m_alpha``,
 around the truth; reset, the file's ``tau_elevator = 0`` made a held-out sortie 41 % worse
 than the file's own model). So the group is refitted with only the near-dependency's direction,
 the combination the data cannot determine, held at the file's values (principal-components
-regression, the biased estimator Klein and Morelli give for collinear data): the file decides
+regression, the biased estimator Klein and Morelli give for collinear data; a member whose
+interval also spans zero, or that sits on a bound, is reset to its file value and its group's
+row dropped, and a parameter outside every group that does so is reset in the same refit,
+the groups held): the file decides
 the common scale that closed-loop data can get wrong (narrow intervals around a common scale
 twice the truth in the trainer recovery of ``analysis/identify_recovery.py``), the data the
 rest. Such an estimate says so in ``held`` with the unconstrained value as ``data_value``; it
@@ -100,18 +103,28 @@ def keep_file_values(identify: Callable[..., IdentificationResult],
     kept = {e.name: e for e in result.estimates if not_determined(e, groups, prior)}
     if not kept:
         return result
-    weak = result.diagnostics.get("weak_directions", [])
-    if not prior and weak and all(only_collinear(e) for e in kept.values()):
-        return hold_weak_combinations(identify, result, nominal, train, validation, names,
-                                      options)
-    if not prior:  # reset what spans zero or sits on a bound; the rule then sees the rest
-        kept = {n: e for n, e in kept.items() if not only_collinear(e)} or kept
+    if not prior:
+        reset = {n: e for n, e in kept.items() if not only_collinear(e)}
+        # a group keeps its held row unless one of its members is reset (that breaks it)
+        weak = [(g, row) for g, row in zip(groups, result.diagnostics.get("weak_directions", []))
+                if not set(g) & set(reset)]
+        if weak:
+            return hold_weak_combinations(identify, result, nominal, train, validation, names,
+                                          options, reset, weak)
+        kept = reset or kept
     rest = [n for n in names if n not in kept]
     if rest:
         refit = identify(nominal, train, validation, rest, keep_undetermined=False,
                          free_run=False, **options)
     else:
         refit = _nothing_fitted(result, nominal, train, validation)
+    return _with_kept(refit, result, kept, names)
+
+
+def _with_kept(refit: IdentificationResult, result: IdentificationResult,
+               kept: dict[str, Estimate], names: list[str]) -> IdentificationResult:
+    """``refit`` with the ``kept`` estimates (of the first fit ``result``) at the file's
+    value, in the order of ``names``."""
     by_name = {e.name: e for e in refit.estimates}
     refit.estimates = [dataclasses.replace(kept[n], value=kept[n].nominal,
                                            data_value=kept[n].value, kept=kept_reason(kept[n]))
@@ -123,19 +136,22 @@ def keep_file_values(identify: Callable[..., IdentificationResult],
 
 def hold_weak_combinations(identify: Callable[..., IdentificationResult],
                            result: IdentificationResult, nominal: Airframe, train: list[Sortie],
-                           validation: list[Sortie], names: list[str], options: dict
+                           validation: list[Sortie], names: list[str], options: dict,
+                           reset: dict[str, Estimate],
+                           weak: list[tuple[list[str], dict[str, float]]]
                            ) -> IdentificationResult:
-    """``result`` refitted with each collinear group's undetermined combination (its
-    ``diagnostics["weak_directions"]``) held at the file's values (module docstring);
-    arguments as :func:`keep_file_values`."""
-    weak = result.diagnostics["weak_directions"]
-    refit = identify(nominal, train, validation, names, keep_undetermined=True, free_run=False,
-                     hold=weak, **{**options, "check_halves": False})
+    """``result`` refitted with the ``reset`` estimates at the file's value and each
+    collinear group's undetermined combination (``weak``: the group and its
+    ``diagnostics["weak_directions"]`` row) held at the file's values (module docstring);
+    the other arguments as :func:`keep_file_values`."""
+    rest = [n for n in names if n not in reset]
+    rows = [{n: c for n, c in row.items() if n in rest} for _, row in weak]
+    refit = identify(nominal, train, validation, rest, keep_undetermined=True, free_run=False,
+                     hold=rows, **{**options, "check_halves": False})
     first = {e.name: e for e in result.estimates}
-    groups = result.diagnostics.get("collinear_groups", [])
     estimates = []
     for e in refit.estimates:
-        group = next((g for g in groups if e.name in g), None)
+        group = next((g for g, _ in weak if e.name in g), None)
         if group is None or e.searched:
             estimates.append(e)
             continue
@@ -148,10 +164,8 @@ def hold_weak_combinations(identify: Callable[..., IdentificationResult],
                   f"these data cannot determine held at the file's values, the rest fitted "
                   f"(unconstrained: {data.value:.6g} +- {data.std_error_corrected:.2g})")))
     refit.estimates = estimates
-    refit.diagnostics["first_fit"] = result.to_dict()["estimates"]
-    refit.diagnostics["collinear_groups"] = groups
-    refit.seconds += result.seconds
-    return refit
+    refit.diagnostics["collinear_groups"] = [g for g, _ in weak]
+    return _with_kept(refit, result, reset, names)
 
 
 def _nothing_fitted(result: IdentificationResult, nominal: Airframe, train: list[Sortie],
