@@ -173,3 +173,24 @@ def test_a_parameter_outside_the_group_spanning_zero_is_reset_in_the_held_refit(
     assert by["C_m_alpha_dot"].kept and by["C_m_alpha_dot"].value == 0.0
     assert by["C_m_alpha"].held and by["C_m_delta_e"].held
     assert [e.name for e in out.estimates] == ["C_m_alpha", "C_m_delta_e", "C_m_alpha_dot"]
+
+
+def test_a_collinear_member_whose_group_is_broken_is_not_written_unheld():
+    calls = []
+
+    def stub(nominal, train, validation, names, **options):
+        calls.append((list(names), options))
+        return _result([_estimate(n, -1.0, -1.1, 0.01, group=False) for n in names], [], [])
+
+    # group 1 holds; group 2 loses its row (C_m_alpha_dot spans zero), leaving C_m_q in it
+    first = _result([_estimate("C_m_alpha", -2.7, -2.6, 0.05),
+                     _estimate("C_m_delta_e", -1.0, -0.95, 0.03),
+                     _estimate("C_m_q", -38.0, -40.0, 1.0),
+                     _estimate("C_m_alpha_dot", 0.0, -3.0, 4.0)],
+                    [["C_m_alpha", "C_m_delta_e"], ["C_m_q", "C_m_alpha_dot"]],
+                    [{"C_m_alpha": 1.0, "C_m_delta_e": -0.5}, {"C_m_q": 1.0}])
+    keep_file_values(stub, first, load_airframe("aerosonde"), [], [],
+                     ["C_m_alpha", "C_m_delta_e", "C_m_q", "C_m_alpha_dot"], {})
+    (names, options), = calls  # reset, and the rule applied again to the refit
+    assert names == ["C_m_alpha", "C_m_delta_e", "C_m_q"]
+    assert "hold" not in options and options["keep_undetermined"] is False

@@ -108,7 +108,9 @@ def keep_file_values(identify: Callable[..., IdentificationResult],
         # a group keeps its held row unless one of its members is reset (that breaks it)
         weak = [(g, row) for g, row in zip(groups, result.diagnostics.get("weak_directions", []))
                 if not set(g) & set(reset)]
-        if weak:
+        held = {n for g, _ in weak for n in g}
+        # every collinear-only estimate must be in a held group, else the rule sees a refit
+        if weak and all(n in held for n in kept if n not in reset):
             return hold_weak_combinations(identify, result, nominal, train, validation, names,
                                           options, reset, weak)
         kept = reset or kept
