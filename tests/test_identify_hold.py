@@ -194,3 +194,27 @@ def test_a_collinear_member_whose_group_is_broken_is_not_written_unheld():
     (names, options), = calls  # reset, and the rule applied again to the refit
     assert names == ["C_m_alpha", "C_m_delta_e", "C_m_q"]
     assert "hold" not in options and options["keep_undetermined"] is False
+
+
+def test_a_parameter_the_held_refit_leaves_spanning_zero_is_reset_and_refitted():
+    calls = []
+
+    def stub(nominal, train, validation, names, **options):
+        calls.append(list(names))
+        spans = len(calls) == 1  # the first held refit leaves C_m_alpha_dot spanning zero
+        return _result([_estimate(n, 0.0 if n == "C_m_alpha_dot" else -1.0,
+                                  -0.1 if n == "C_m_alpha_dot" else -1.1,
+                                  0.8 if (n == "C_m_alpha_dot" and spans) else 0.01,
+                                  group=False) for n in names], [], [])
+
+    first = _result([_estimate("C_m_alpha", -2.7, -2.6, 0.05),
+                     _estimate("C_m_delta_e", -1.0, -0.95, 0.03),
+                     _estimate("C_m_alpha_dot", 0.0, -3.0, 0.5, group=False)],
+                    [["C_m_alpha", "C_m_delta_e"]], [{"C_m_alpha": 1.0, "C_m_delta_e": -0.5}])
+    out = keep_file_values(stub, first, load_airframe("aerosonde"), [], [],
+                           ["C_m_alpha", "C_m_delta_e", "C_m_alpha_dot"], {})
+    assert calls == [["C_m_alpha", "C_m_delta_e", "C_m_alpha_dot"],
+                     ["C_m_alpha", "C_m_delta_e"]]
+    by = {e.name: e for e in out.estimates}
+    assert by["C_m_alpha_dot"].kept and by["C_m_alpha_dot"].value == 0.0
+    assert by["C_m_alpha"].held
