@@ -218,3 +218,23 @@ def test_a_parameter_the_held_refit_leaves_spanning_zero_is_reset_and_refitted()
     by = {e.name: e for e in out.estimates}
     assert by["C_m_alpha_dot"].kept and by["C_m_alpha_dot"].value == 0.0
     assert by["C_m_alpha"].held
+
+
+def test_a_parameter_the_held_refit_finds_collinear_outside_the_held_groups_is_reset():
+    calls = []
+
+    def stub(nominal, train, validation, names, **options):
+        calls.append(list(names))
+        groups = [["C_m_alpha", "C_m_q"]] if len(calls) == 1 else []
+        return _result([_estimate(n, -1.0, -1.1, 0.01, group=bool(groups) and n == "C_m_q")
+                        for n in names], groups, [])
+
+    first = _result([_estimate("C_m_alpha", -2.7, -2.6, 0.05),
+                     _estimate("C_m_delta_e", -1.0, -0.95, 0.03),
+                     _estimate("C_m_q", -38.0, -40.0, 1.0, group=False)],
+                    [["C_m_alpha", "C_m_delta_e"]], [{"C_m_alpha": 1.0, "C_m_delta_e": -0.5}])
+    out = keep_file_values(stub, first, load_airframe("aerosonde"), [], [],
+                           ["C_m_alpha", "C_m_delta_e", "C_m_q"], {})
+    assert calls[-1] == ["C_m_alpha", "C_m_delta_e"]
+    by = {e.name: e for e in out.estimates}
+    assert by["C_m_q"].kept and by["C_m_q"].value == by["C_m_q"].nominal

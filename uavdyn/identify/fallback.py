@@ -148,13 +148,14 @@ def hold_weak_combinations(identify: Callable[..., IdentificationResult],
     the other arguments as :func:`keep_file_values`."""
     members = {n for g, _ in weak for n in g}
     reset = dict(reset)
-    for _ in range(len(names)):  # a parameter the refit leaves spanning zero is reset too
+    for _ in range(len(names)):  # one the refit leaves undetermined is reset too
         rest = [n for n in names if n not in reset]
         rows = [{n: c for n, c in row.items() if n in rest} for _, row in weak]
         refit = identify(nominal, train, validation, rest, keep_undetermined=True,
                          free_run=False, hold=rows, **{**options, "check_halves": False})
-        newly = {e.name: e for e in refit.estimates
-                 if e.name not in members and not only_collinear(e) and not e.searched}
+        again = refit.diagnostics.get("collinear_groups", [])
+        newly = {e.name: e for e in refit.estimates if e.name not in members
+                 and not_determined(e, again) and not e.searched}
         if not newly:
             break
         reset.update(newly)
