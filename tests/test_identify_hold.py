@@ -80,6 +80,18 @@ def _result(estimates, groups, weak):
         diagnostics={"collinear_groups": groups, "weak_directions": weak})
 
 
+def _recording_identify(group: bool):
+    """A stand-in for ``identify`` that records each call's names and options and returns
+    every parameter at -1.1 +- 0.01 (flagged collinear when ``group``)."""
+    calls = []
+
+    def stub(nominal, train, validation, names, **options):
+        calls.append((list(names), options))
+        return _result([_estimate(n, -1.0, -1.1, 0.01, group=group) for n in names], [], [])
+
+    return calls, stub
+
+
 def _estimate(name, nominal, value, std_c, group=True):
     why = ("collinear with the others (these data cannot separate them)",) if group else ()
     return Estimate(name, nominal, value, std_c / 4, std_error_corrected=std_c,
@@ -87,11 +99,7 @@ def _estimate(name, nominal, value, std_c, group=True):
 
 
 def test_a_group_with_narrow_intervals_is_held_not_reset():
-    calls = []
-
-    def stub(nominal, train, validation, names, **options):
-        calls.append((list(names), options))
-        return _result([_estimate(n, -1.0, -1.1, 0.01) for n in names], [], [])
+    calls, stub = _recording_identify(group=True)
 
     weak = [{"C_m_alpha": 1.0, "C_m_delta_e": -0.5}]
     first = _result([_estimate("C_m_alpha", -2.7, -2.6, 0.05),
@@ -111,11 +119,7 @@ def test_a_group_with_narrow_intervals_is_held_not_reset():
 
 
 def test_a_member_spanning_zero_is_reset_first_and_the_rest_refitted_by_the_rule():
-    calls = []
-
-    def stub(nominal, train, validation, names, **options):
-        calls.append((list(names), options))
-        return _result([_estimate(n, -1.0, -1.1, 0.01, group=False) for n in names], [], [])
+    calls, stub = _recording_identify(group=False)
 
     first = _result([_estimate("C_m_alpha", -2.7, -2.6, 0.05),
                      _estimate("C_m_alpha_dot", 0.0, -3.0, 4.0),
@@ -153,11 +157,7 @@ def test_a_held_fit_keeps_the_combination_at_the_file_and_fits_the_rest(aerosond
 
 
 def test_a_parameter_outside_the_group_spanning_zero_is_reset_in_the_held_refit():
-    calls = []
-
-    def stub(nominal, train, validation, names, **options):
-        calls.append((list(names), options))
-        return _result([_estimate(n, -1.0, -1.1, 0.01) for n in names], [], [])
+    calls, stub = _recording_identify(group=True)
 
     first = _result([_estimate("C_m_alpha", -2.7, -2.6, 0.05),
                      _estimate("C_m_delta_e", -1.0, -0.95, 0.03),
@@ -176,11 +176,7 @@ def test_a_parameter_outside_the_group_spanning_zero_is_reset_in_the_held_refit(
 
 
 def test_a_collinear_member_whose_group_is_broken_is_not_written_unheld():
-    calls = []
-
-    def stub(nominal, train, validation, names, **options):
-        calls.append((list(names), options))
-        return _result([_estimate(n, -1.0, -1.1, 0.01, group=False) for n in names], [], [])
+    calls, stub = _recording_identify(group=False)
 
     # group 1 holds; group 2 loses its row (C_m_alpha_dot spans zero), leaving C_m_q in it
     first = _result([_estimate("C_m_alpha", -2.7, -2.6, 0.05),

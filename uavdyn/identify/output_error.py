@@ -88,6 +88,14 @@ from uavdyn.identify.unknowns import (
     project_inside,
     scaled_unknowns,
 )
+from uavdyn.identify.weighting import (
+    REWEIGHT_FLOOR,
+    hold_rows,
+    per_sortie_weights,
+    residual_weights,
+    sortie_weights,
+    window_residuals,
+)
 from uavdyn.identify.windows import (
     N_BODY,
     fit_summary,
@@ -107,9 +115,7 @@ CORRELATION_FLAG = 0.9
 PREROLL_GROWTH = 4.0     # the first pre-roll covers lags up to this many times their start
 HALF_ITERATIONS = 30     # the halves start from the whole fit: a few steps move them
 REWEIGHT_PASSES = 1      # refits with each state weighted by its residual after the fit ...
-REWEIGHT_FLOOR = 1e-3    # ... down to this fraction of the nominal model's residual
 SORTIE_WEIGHTS = True    # ... and each sortie by its own residual level
-SORTIE_WEIGHT_FLOOR = 0.01  # ... down to this fraction of the pooled one
 
 
 def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
@@ -216,7 +222,7 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     advice = refuse_unexcited(continuous, train) if screen else []
     fit = _prepare(airframe, train, continuous, searched, window_s, dt, substeps,
                    max_windows, relative_bound, bounds, estimate_x0, preroll)
-    held = _hold_rows(fit, hold) if hold else None
+    held = hold_rows(fit, hold) if hold else None
     outcome = _solve(fit, max_delay, max_iterations, progress)
     if held is not None:  # the held rows are not data
         n_data = outcome.r.size - held.shape[0]
@@ -371,9 +377,9 @@ def _solve(fit: _Fit, max_delay: int, max_iterations: int, progress: bool) -> _O
         z, delays, iterations, stats = _fit_and_recheck(
             fit, z, delays, lower, upper, max_delay, max_iterations, progress, iterations,
             stats, log)
-        resid = _window_residuals(fit, z, delays)
-        rms, floor, new = _residual_weights(fit, resid)
-        per_sortie = _sortie_weights(fit, resid) if SORTIE_WEIGHTS else None
+        resid = window_residuals(fit, z, delays)
+        rms, floor, new = residual_weights(fit, resid)
+        per_sortie = sortie_weights(fit, resid) if SORTIE_WEIGHTS else None
         moved = (per_sortie is not None and fit.window_weights is None
                  and np.max(np.abs(np.log(per_sortie))) >= 0.1)
         if (pass_ == REWEIGHT_PASSES or np.all(rms <= floor)  # noise-free: fit exact
@@ -384,7 +390,7 @@ def _solve(fit: _Fit, max_delay: int, max_iterations: int, progress: bool) -> _O
             fit.window_weights = per_sortie
         fit.data_cache.clear()
         log.append({"step": "re-weighted", "weights": fit.weights.tolist(),
-                    "sortie_weights": _per_sortie(fit)})
+                    "sortie_weights": per_sortie_weights(fit)})
     r, J = fit.problem.evaluate(z, fit.data_for(delays))
     return _Outcome(z, delays, r, J, cost_initial, iterations, stats, log)
 
@@ -417,44 +423,6 @@ def _fit_and_recheck(fit: _Fit, z: np.ndarray, delays: list[int], lower: np.ndar
             break
         delays, z = moved
     return z, delays, iterations, stats
-
-
-def _window_residuals(fit: _Fit, z: np.ndarray, delays: list[int]) -> np.ndarray:
-    """The body-state residuals ``(W, L, N_BODY)`` after the fit, in the states' units (the
-    state and window weights taken off)."""
-    r = np.asarray(fit.problem.residual(z, fit.data_for(delays))).ravel()
-    W, L = fit.windows.count, fit.L
-    resid = r[:W * L * N_BODY].reshape(W, L, N_BODY) / fit.weights
-    if fit.window_weights is not None:
-        resid = resid / fit.window_weights[:, None, None]
-    return resid
-
-
-def _sortie_weights(fit: _Fit, resid: np.ndarray) -> np.ndarray:
-    """Each window's weight: 1 / its sortie's residual RMS (in units of the pooled RMS, the
-    states on the state weights' scale), so a calm sortie counts as much as its small noise
-    says."""
-    ms = np.mean((resid * fit.weights) ** 2, axis=(1, 2))
-    sortie = np.array([i for i, _ in fit.windows.starts])
-    pooled = math.sqrt(float(np.mean(ms)))
-    rms = {i: math.sqrt(float(np.mean(ms[sortie == i]))) for i in set(sortie.tolist())}
-    return np.array([pooled / max(rms[i], SORTIE_WEIGHT_FLOOR * pooled) for i in sortie])
-
-
-def _per_sortie(fit: _Fit) -> dict[int, float]:
-    """The window weights by training sortie (index in the train list)."""
-    if fit.window_weights is None:
-        return {}
-    return {int(i): float(w) for (i, _), w in zip(fit.windows.starts, fit.window_weights)}
-
-
-def _residual_weights(fit: _Fit, resid: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Each state's residual RMS after the fit (unweighted), its floor, and the weights it
-    gives."""
-    rms = np.sqrt(np.mean(resid.reshape(-1, N_BODY) ** 2, axis=0))
-    floor = REWEIGHT_FLOOR / fit.weights_nominal
-    return rms, floor, 1.0 / np.maximum(rms, floor)
 
 
 def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
@@ -521,25 +489,3 @@ def _estimates(fit: _Fit, outcome: _Outcome, names: list[str], max_delay: int,
         diagnostics["held_at_file_values"] = [physical_combination(a, continuous, u.scale)
                                               for a in held]
     return fitted, [by_name[n] for n in names], corr, flagged, sigma_w, diagnostics
-
-
-HOLD_WEIGHT = 1e4  # held rows' weight over the largest data column norm: a hard constraint
-
-
-def _hold_rows(fit: _Fit, hold: list[dict[str, float]]) -> np.ndarray:
-    """The rows holding ``hold``'s combinations at the file's values, in the scaled unknowns
-    (``theta = 0`` at the file), weighted far above the data; set as the fit's prior rows."""
-    u = fit.unknowns
-    unknown = sorted({n for row in hold for n in row} - set(fit.continuous))
-    if unknown:
-        raise IdentifyError(f"held combination names {', '.join(unknown)}, which this fit "
-                            "does not estimate")
-    rows = np.array([[row.get(n, 0.0) * s for n, s in zip(fit.continuous, u.scale)]
-                     for row in hold], float)
-    rows /= np.maximum(np.linalg.norm(rows, axis=1, keepdims=True), 1e-300)
-    delays = list(fit.airframe.delay_samples())
-    _, J = fit.problem.evaluate(fit.with_dx(u.theta0), fit.data_for(delays))
-    column = np.sqrt(np.max(np.asarray(J[:, :fit.problem.n_theta].power(2).sum(axis=0))))
-    fit.prior = HOLD_WEIGHT * max(column, 1.0) * rows
-    fit.data_cache.clear()
-    return fit.prior
