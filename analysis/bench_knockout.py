@@ -538,6 +538,17 @@ def train_correction(ds, af, cfg) -> tuple[object, dict, float]:
     return (result.net if result.kept else None), info, time.perf_counter() - t0
 
 
+def keep_weights(net, af, folder: Path, stem: str) -> Path:
+    """The kept correction's weight file and the identified airframe it sits on, side by side
+    in ``folder`` (``<stem>.npz``, ``<stem>.toml``)."""
+    from uavdyn.learned import save_weights
+
+    folder.mkdir(parents=True, exist_ok=True)
+    write_atomic(folder / f"{stem}.toml", airframe_toml(af, ["analysis/bench_knockout.py"]))
+    save_weights(net, folder / f"{stem}.npz")
+    return folder / f"{stem}.npz"
+
+
 # ---------------------------------------------------------------------------------------------
 # one airframe
 
@@ -666,6 +677,9 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
             if net is not None:
                 models["corrected"] = hybrid_step(net, af_a, compile=False)
                 afs["corrected"] = af_a
+                if args.weights_dir is not None:  # to look at a case's correction later
+                    entry["weights"] = str(keep_weights(net, af_a, args.weights_dir,
+                                                        label.replace("/", "_")))
             if term != "none":
                 models["b"] = physics_step(af_b)
                 afs["b"] = af_b
@@ -847,6 +861,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="tiny configuration (9 x 10 s sorties, 3 missions, 3 epochs) to test "
                          "the pieces")
     ap.add_argument("--force", action="store_true", help="rerun finished cases")
+    ap.add_argument("--weights-dir", type=Path, default=None,
+                    help="also save each kept correction (<airframe>_<term>.npz) with the "
+                         "identified airframe it was trained on (.toml) here")
     ap.add_argument("--merge", type=Path, nargs="+", default=None, metavar="JSON",
                     help="run nothing: gather the cases of these result files (runs made side "
                          "by side, each case as it was measured, with the run that made it; "

@@ -320,7 +320,7 @@ def add_train(sub) -> None:
                    help="paper/hypersolver/reference: hybrid step in s (default 0.005; the "
                         "safe correction steps once per log sample)")
     p.add_argument("--epochs", type=count(MAX_EPOCHS, "epochs"), default=None,
-                   help="maximum epochs (default 100 for the safe correction, 60 otherwise)")
+                   help="maximum epochs (default 300 for the safe correction, 60 otherwise)")
     p.add_argument("--rollout-horizon", type=count(MAX_EPOCHS, "samples"), default=None,
                    help="paper/hypersolver/reference: rollout-loss window in samples, no longer "
                         "than the sorties (default 25)")
@@ -330,7 +330,7 @@ def add_train(sub) -> None:
     p.add_argument("--lr", type=number(0.0, 1.0, low_open=True, name="lr"), default=3e-3,
                    help="initial Adam learning rate, 0 < lr <= 1 (default 0.003)")
     p.add_argument("--patience", type=count(MAX_EPOCHS, "epochs"), default=None,
-                   help="early stopping: epochs without validation improvement (default 8 for "
+                   help="early stopping: epochs without validation improvement (default 40 for "
                         "the safe correction, 12 otherwise)")
     p.add_argument("--max-seconds", type=seconds(MAX_TRAIN_SECONDS, "budget"), default=None,
                    help="wall-clock budget in s, at most a week (default 3600 for the safe "

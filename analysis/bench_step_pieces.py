@@ -1,0 +1,120 @@
+"""What the hybrid step's extra cost is made of (issue 40: "the hybrid step within 1.5x the
+physics step"), one piece at a time, in the C loop of ``analysis/bench_rollout.py``.
+
+Variants of the same ``improved`` step on the airframe's physics, each adding one piece of the
+safe correction: ``const`` (a constant residual: the cost of adding anything), ``linear`` (the
+network's inputs computed inside the step and one linear map of them), ``+bound`` (the output
+clamp), ``+gate`` (the envelope gate), ``+bound+gate`` (all the guard; no hidden layer), then
+the weight file's own network (``real``). The linear map's weights are random and tiny (1e-3),
+so the state stays at the trim and the timing does not depend on them. Each variant is timed
+``--rounds`` times, interleaved with the others (the load moves all alike); the minimum and the
+median per sample are printed as JSON, with the ratio of each median to the physics'.
+
+Usage: ``python analysis/bench_step_pieces.py --airframe examples/x500.toml --weights W.npz
+--airspeed 0 [--out FILE]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import statistics
+import sys
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_rollout import c_loop_us  # noqa: E402
+
+
+def variants(airframe, net) -> dict[str, ca.Function]:
+    """The step variants, named (see the module docstring)."""
+    from uavdyn.integrate import physics_step
+    from uavdyn.learned.formulations import improved_step
+    from uavdyn.learned.mlp import folded_forward
+    from uavdyn.model import CASADI_OPS, make_rhs, structure_of
+
+    structure = structure_of(airframe)
+    layout = net.layout(structure)
+    rhs = make_rhs(structure)
+
+    def build(lay, network) -> ca.Function:
+        z, u = ca.SX.sym("z", lay.n_state), ca.SX.sym("u", structure.nu)
+        p, dt = ca.SX.sym("p", structure.np), ca.SX.sym("dt")
+        return ca.Function("step", [z, u, p, dt],
+                           [improved_step(lay, rhs, z, u, p, dt, network, CASADI_OPS)])
+
+    rng = np.random.default_rng(0)
+    weights = [rng.normal(size=(3, layout.n_inputs)) * 1e-3]
+    biases = [rng.normal(size=3) * 1e-3]
+
+    def linear(inp):
+        return folded_forward(weights, biases, inp, CASADI_OPS, None)
+
+    def const(inp):
+        return ca.DM([1e-3, 0.0, 0.0]) + 0.0 * inp[0]
+
+    bare = dataclasses.replace(layout, gate=None, bound=None)
+    return {"physics": physics_step(airframe).function,
+            "const": build(bare, const),
+            "linear": build(bare, linear),
+            "linear+bound": build(dataclasses.replace(layout, gate=None), linear),
+            "linear+gate": build(dataclasses.replace(layout, bound=None), linear),
+            "linear+bound+gate": build(layout, linear),
+            "real": build(layout, net.casadi)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--airframe", required=True, help="airframe file the weights sit on")
+    ap.add_argument("--weights", required=True, help="correction weight file")
+    ap.add_argument("--airspeed", type=float, required=True, help="trim airspeed in m/s")
+    ap.add_argument("--samples", type=int, default=100_000)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--out", help="also write the JSON here")
+    args = ap.parse_args()
+
+    from uavdyn.airframes import load_airframe
+    from uavdyn.integrate import physics_step
+    from uavdyn.learned import hybrid_step, load_weights
+    from uavdyn.linear import trim
+
+    airframe = load_airframe(args.airframe)
+    net = load_weights(args.weights, airframe)
+    point = trim(airframe, args.airspeed)
+    p = np.asarray(airframe.p, float)
+    starts = {model.function.size1_in(0): np.asarray(
+        model.initial_state(point.x, point.u, p, 0.01), float).ravel()
+        for model in (physics_step(airframe), hybrid_step(net, airframe, compile=False))}
+    steps = variants(airframe, net)
+    times: dict[str, list[float]] = {name: [] for name in steps}
+    for _ in range(args.rounds):
+        for name, fn in steps.items():
+            times[name].append(c_loop_us(fn, starts[fn.size1_in(0)], point.u, p, 0.01,
+                                         args.samples, 5))
+    physics = statistics.median(times["physics"])
+    results = {}
+    for name, fn in steps.items():
+        expanded = fn if fn.is_a("SXFunction") else fn.expand()
+        med = statistics.median(times[name])
+        results[name] = {"us_per_sample_median": med, "us_per_sample_min": min(times[name]),
+                         "over_physics": med / physics,
+                         "instructions": expanded.n_instructions()}
+    out = {"airframe": args.airframe, "weights": args.weights, "network": net.describe(),
+           "samples": args.samples, "rounds": args.rounds, "results": results,
+           "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
+                       "load_1min_after": os.getloadavg()[0]},
+           "command": "python analysis/bench_step_pieces.py " + " ".join(sys.argv[1:])}
+    text = json.dumps(out, indent=2)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
