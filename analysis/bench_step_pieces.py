@@ -32,8 +32,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_rollout import c_loop_us  # noqa: E402
 
 
-def variants(airframe, net) -> dict[str, ca.Function]:
-    """The step variants, named (see the module docstring)."""
+def variants(airframe, net, shapes: list[tuple[int, ...]]) -> dict[str, ca.Function]:
+    """The step variants, named (see the module docstring); ``shapes``: the hidden widths of
+    the random networks (with a linear path and the whole guard) timed beside them."""
     from uavdyn.integrate import physics_step
     from uavdyn.learned.formulations import improved_step
     from uavdyn.learned.mlp import folded_forward
@@ -59,14 +60,25 @@ def variants(airframe, net) -> dict[str, ca.Function]:
     def const(inp):
         return ca.DM([1e-3, 0.0, 0.0]) + 0.0 * inp[0]
 
+    def random_network(hidden: tuple[int, ...]):
+        sizes = [layout.n_inputs, *hidden, 3]
+        ws = [rng.normal(size=(b, a)) * 1e-3 for a, b in zip(sizes[:-1], sizes[1:])]
+        bs = [rng.normal(size=b) * 1e-3 for b in sizes[1:]]
+        skip = rng.normal(size=(3, layout.n_inputs)) * 1e-3
+        return lambda inp: folded_forward(ws, bs, inp, CASADI_OPS, skip)
+
     bare = dataclasses.replace(layout, gate=None, bound=None)
-    return {"physics": physics_step(airframe).function,
-            "const": build(bare, const),
-            "linear": build(bare, linear),
-            "linear+bound": build(dataclasses.replace(layout, gate=None), linear),
-            "linear+gate": build(dataclasses.replace(layout, bound=None), linear),
-            "linear+bound+gate": build(layout, linear),
-            "real": build(layout, net.casadi)}
+    out = {"physics": physics_step(airframe).function,
+           "const": build(bare, const),
+           "linear": build(bare, linear),
+           "linear+bound": build(dataclasses.replace(layout, gate=None), linear),
+           "linear+gate": build(dataclasses.replace(layout, bound=None), linear),
+           "linear+bound+gate": build(layout, linear)}
+    for hidden in shapes:
+        name = f"random {layout.n_inputs}-{'-'.join(map(str, (*hidden, 3)))} + linear path"
+        out[name] = build(layout, random_network(hidden))
+    out["real"] = build(layout, net.casadi)
+    return out
 
 
 def main() -> None:
@@ -76,8 +88,13 @@ def main() -> None:
     ap.add_argument("--airspeed", type=float, required=True, help="trim airspeed in m/s")
     ap.add_argument("--samples", type=int, default=100_000)
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--shapes", default="4,4,4;8;",
+                    help="hidden widths of random networks to time, ';' between networks, "
+                         "',' between layers, empty: no hidden layer (default '4,4,4;8;')")
     ap.add_argument("--out", help="also write the JSON here")
     args = ap.parse_args()
+    shapes = [tuple(int(w) for w in item.split(",") if w.strip())
+              for item in args.shapes.split(";")]
 
     from uavdyn.airframes import load_airframe
     from uavdyn.integrate import physics_step
@@ -91,7 +108,7 @@ def main() -> None:
     starts = {model.function.size1_in(0): np.asarray(
         model.initial_state(point.x, point.u, p, 0.01), float).ravel()
         for model in (physics_step(airframe), hybrid_step(net, airframe, compile=False))}
-    steps = variants(airframe, net)
+    steps = variants(airframe, net, shapes)
     times: dict[str, list[float]] = {name: [] for name in steps}
     for _ in range(args.rounds):
         for name, fn in steps.items():

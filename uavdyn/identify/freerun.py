@@ -14,6 +14,7 @@ from uavdyn.airframes import Airframe
 from uavdyn.evaluation.metrics import fine_reference
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import DEPARTURE_RAD, DivergenceError, sortie_p
+from uavdyn.linear.stiffness import step_stiffness
 
 
 def departure_time(airframe: Airframe, sortie: Sortie, substeps: int) -> float | None:
@@ -57,6 +58,17 @@ def free_run_check(nominal: Airframe, identified: Airframe, sorties: list[Sortie
             "identified_departed": [r["sortie"] for r in rows if r["identified_s"] is not None]}
 
 
+def stiffness_check(identified: Airframe, sample_dt: float) -> dict | None:
+    """Whether one RK4 step per log sample carries the identified model (what ``train``,
+    ``mpc`` and ``export-c`` step with, whatever sub-steps the fit used); None when it does
+    not trim at its nominal airspeed."""
+    found = step_stiffness(identified, sample_dt)
+    if found is None:
+        return None
+    return {"sample_dt": sample_dt, "too_stiff": found.too_stiff,
+            "max_stable_dt": found.max_stable_dt, "describe": found.describe()}
+
+
 def departure_line(fit: dict, of: int) -> str:
     """The headline's flag when the identified model's free run departs on the train sorties,
     or its prediction over the fit's own windows stops being finite (empty if neither)."""
@@ -75,6 +87,12 @@ def departure_line(fit: dict, of: int) -> str:
         lines.append(f"the identified model diverges within the fit's windows on "
                      f"{len(windows)} of {of} train sorties ({_names(windows)}), where the "
                      "nominal model does not")
+    stiff = fit.get("step_stiffness") or {}
+    if stiff.get("too_stiff"):
+        lines.append(f"the identified model is too stiff for one RK4 step per log sample: "
+                     f"{stiff['describe']}; train, mpc and export-c step once per sample and "
+                     "will diverge (a parameter that absorbs an unmodelled lag, e.g. a large "
+                     "damping, often does this: add the lag to the list)")
     if not lines:
         return ""
     return "WARNING: " + "; ".join(lines) + ". Do not design on it without checking why."

@@ -58,7 +58,7 @@ from uavdyn.identify.fitstate import (
     _time_grid,
     measurement_noise,
 )
-from uavdyn.identify.freerun import free_run_check
+from uavdyn.identify.freerun import free_run_check, stiffness_check
 from uavdyn.identify.prior import (
     check_prior_sd,
     posterior,
@@ -252,6 +252,8 @@ def identify(airframe: Airframe, train: list[Sortie], validation: list[Sortie],
     if free_run:
         result.fit["free_run"] = free_run_check(airframe, result.airframe, train,
                                                 result.substeps)
+        result.fit["step_stiffness"] = stiffness_check(
+            result.airframe, float(np.median(np.diff(train[0].time))))
     result.seconds = time.perf_counter() - t_start
     return result
 

@@ -12,11 +12,12 @@ import torch
 
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import FlightDataError, Sortie, Windows, make_windows
-from uavdyn.integrate import StateLayout, compile_function, rollout
+from uavdyn.integrate import DIVERGENCE_BOUND, StateLayout, compile_function, rollout
 from uavdyn.learned.envelope import Envelope
 from uavdyn.learned.formulations import CorrectionLayout, network_inputs
 from uavdyn.learned.safe.config import SafeConfig, SafeSetup, SafeTrainingError
 from uavdyn.learned.torch_model import DTYPE
+from uavdyn.linear.stiffness import step_stiffness
 from uavdyn.model import sortie_params
 
 
@@ -80,8 +81,26 @@ def training_windows(airframe: Airframe, setup: SafeSetup, sorties: list[Sortie]
     W = windows.count
     pred = np.array(physics_sim.map(W)(z0[:, :layout.n_physics].T, u.reshape(W * H, -1).T,
                                        p.T, setup.sample_dt))
+    _check_physics_flies(pred[:4].reshape(4, W, H), airframe, setup.sample_dt, H)
     return TrainingWindows(windows, z0, u, windows.y, p,
                            pred[:4].reshape(4, W, H).transpose(1, 2, 0), inputs, gains)
+
+
+def _check_physics_flies(pred: np.ndarray, airframe: Airframe, dt: float, horizon: int) -> None:
+    """Refuse, in one line, physics whose own rollouts (``pred``: body states ``(4, W, H)``)
+    diverge within the windows: no loss can be scaled to it (the usual cause: a fitted model
+    too stiff for one RK4 step per sample, :mod:`uavdyn.linear.stiffness`)."""
+    with np.errstate(invalid="ignore"):
+        bad = ~np.all(np.abs(pred) <= DIVERGENCE_BOUND, axis=(0, 2))
+    n_bad = int(np.count_nonzero(bad))
+    if not n_bad:
+        return
+    stiff = step_stiffness(airframe, dt)
+    why = (f"; {stiff.describe()}: fit with the missing lag in the list or check the "
+           "parameters that moved most" if stiff is not None and stiff.too_stiff else "")
+    raise SafeTrainingError(f"the physics of '{airframe.name}' diverges within {n_bad} of "
+                            f"{len(bad)} training windows of {horizon * dt:g} s from recorded "
+                            f"states{why}")
 
 
 @dataclass(frozen=True)
