@@ -91,8 +91,9 @@ def departure_line(fit: dict, of: int) -> str:
     if stiff.get("too_stiff"):
         lines.append(f"the identified model is too stiff for one RK4 step per log sample: "
                      f"{stiff['describe']}; train, mpc and export-c step once per sample and "
-                     "will diverge (a parameter that absorbs an unmodelled lag, e.g. a large "
-                     "damping, often does this: add the lag to the list)")
+                     "will diverge (a parameter absorbing a term the list lacks, such as a lag "
+                     "or a speed-stability moment, often does this: add the term, or check the "
+                     "parameters that moved most)")
     if not lines:
         return ""
     return "WARNING: " + "; ".join(lines) + ". Do not design on it without checking why."

@@ -96,7 +96,7 @@ def _check_physics_flies(pred: np.ndarray, airframe: Airframe, dt: float, horizo
     if not n_bad:
         return
     stiff = step_stiffness(airframe, dt)
-    why = (f"; {stiff.describe()}: fit with the missing lag in the list or check the "
+    why = (f"; {stiff.describe()}: identify with the term it lacks or check the "
            "parameters that moved most" if stiff is not None and stiff.too_stiff else "")
     raise SafeTrainingError(f"the physics of '{airframe.name}' diverges within {n_bad} of "
                             f"{len(bad)} training windows of {horizon * dt:g} s from recorded "
