@@ -28,8 +28,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_rollout import c_loop_us  # noqa: E402
+from uavdyn.evaluation.c_loop import c_loop_us
 
 
 def variants(airframe, net, shapes: list[tuple[int, ...]]) -> dict[str, ca.Function]:

@@ -581,3 +581,21 @@ def test_a_refusal_for_a_gain_within_the_spread_says_so():
     text = refusal_reason([row], SafeConfig(), 0.0593, row, StabilityReport(0.01, 0.5), 1.0)
     assert "1.03 standard errors of the sortie-to-sortie spread, below 2" in text
     assert "the physics is kept" in text
+
+
+def test_output_penalty_is_the_mean_square_output_in_output_scales_and_zero_at_the_start():
+    """The ridge penalty in function space (``SafeConfig.output_weight``): zero for the
+    untrained network (training starts at the physics), the mean square of the linear path's
+    output over the rows in units of ``out_scale`` once it is set."""
+    from uavdyn.learned.safe.epochs import output_penalty
+
+    n_in, out_scale = 6, np.array([2.0, 0.5, 4.0])  # the body state and two commands
+    model = TorchCorrection("fixed_wing", "improved", 4, "relu", np.zeros(n_in), np.ones(n_in),
+                            out_scale, DT, linear=True)
+    rows = torch.as_tensor(np.random.default_rng(3).normal(size=(40, n_in)))
+    assert output_penalty(model, rows).item() == 0.0
+    skip = np.random.default_rng(4).normal(size=(3, n_in))
+    with torch.no_grad():
+        model.skip.copy_(torch.as_tensor(skip))
+    expected = np.mean((rows.numpy() @ skip.T) ** 2)  # the output is out_scale * (skip @ x)
+    assert output_penalty(model, rows).item() == pytest.approx(expected, rel=1e-12)

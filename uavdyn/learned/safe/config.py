@@ -72,6 +72,8 @@ class SafeConfig:
                                      # the learning rate was still high (F450 inflow at epoch
                                      # 64, X500 inflow 0.84 of the term against 0.94 with 40)
     pooled_weight: float = 0.0       # share of the loss on the pooled error (rest: per window)
+    output_weight: float = 0.0       # weight of the output penalty (mean square output over
+                                     # training samples, in output scales; epochs.py)
     stability_weight: float = 10.0
     stability_margin: float = DEFAULT_MARGIN
     envelope_quantile: float = 0.001

@@ -47,6 +47,7 @@ class TrainingData:
     loss: WindowLoss
     reference: ValidationReference
     twin: CompiledTwin | None = None  # the compiled rollouts and gradients (None: torch's)
+    inputs: torch.Tensor | None = None  # the network's inputs at every training sample
 
     @property
     def predict(self) -> Predictor | None:
@@ -90,6 +91,17 @@ def fixed_losses(model: TorchCorrection, data: TrainingData) -> dict:
             "val_loss_fixed": data.window_loss(model, data.val.take(data.fixed[1]))}
 
 
+OUTPUT_ROWS = 256  # training samples the output penalty looks at per optimiser step
+
+
+def output_penalty(model: TorchCorrection, rows: torch.Tensor) -> torch.Tensor:
+    """Mean square of the network's output over input ``rows`` in units of its output scale
+    (the RMS one-step residual of the training data): the price of saying anything, so where
+    the data cannot tell a correction from noise it stays near zero (a ridge penalty in
+    function space)."""
+    return torch.mean((model(rows) / model.out_scale) ** 2)
+
+
 def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: TrainingData,
                 stab: StabilityTargets, cfg: SafeConfig, rng: np.random.Generator
                 ) -> tuple[float, float]:
@@ -113,6 +125,11 @@ def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: Traini
             grads = data.twin.unflatten(grad + cfg.stability_weight * pen_grad)
             for param, g in zip(model.parameters(), grads):
                 param.grad = torch.as_tensor(g, dtype=param.dtype)
+        if cfg.output_weight > 0 and data.inputs is not None:  # adds to the gradients
+            rows = data.inputs[torch.as_tensor(rng.choice(len(data.inputs),
+                                                          min(OUTPUT_ROWS, len(data.inputs)),
+                                                          replace=False))]
+            (cfg.output_weight * output_penalty(model, rows)).backward()
         opt.step()
         sum_l, sum_s = sum_l + loss, sum_s + pen
     return sum_l / cfg.batches_per_epoch, sum_s / cfg.batches_per_epoch

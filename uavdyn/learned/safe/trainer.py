@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import torch
 
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
@@ -94,7 +95,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     data = TrainingData(window_tensors(tr, scales), window_tensors(va, scales),
                         fixed_windows(cfg, len(tr.z0), len(va.z0)),
                         WindowLoss.of(scales, cfg, dt),
-                        validation_reference(va, val_sorties, setup.horizon_sel), twin)
+                        validation_reference(va, val_sorties, setup.horizon_sel), twin,
+                        torch.as_tensor(tr.inputs, dtype=model.in_mean.dtype))
     run = run_epochs(model, data, stab, cfg, rng, start, airframe.name)
     ref, horizon_s = data.reference, setup.selection_horizon_s
     checks = Checks(model, layout, model.out_scale.clone(), airframe, setup, stab.trims,
