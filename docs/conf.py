@@ -35,13 +35,16 @@ root_doc = "index"
 # benchmarks/bench_hybrid.md is a bare table (it is also pasted into the README); the page
 # benchmarks/hybrid_correction.md gives it a title and includes it; benchmarks/knockout.md
 # does the same for the bare tables benchmarks/bench_knockout.md and
-# benchmarks/bench_knockout_60_sorties.md and benchmarks/bench_knockout_before_sortie_weights.md.
+# benchmarks/bench_knockout_60_sorties.md, benchmarks/bench_knockout_before_sortie_weights.md,
+# benchmarks/bench_knockout_output_penalty.md and benchmarks/knockout_patience/patience20.md.
 exclude_patterns = [
     "_build",
     "benchmarks/bench_hybrid.md",
     "benchmarks/bench_knockout.md",
     "benchmarks/bench_knockout_60_sorties.md",
     "benchmarks/bench_knockout_before_sortie_weights.md",
+    "benchmarks/bench_knockout_output_penalty.md",
+    "benchmarks/knockout_patience/patience20.md",
     "**/*.json",
     "mpc/*",
     "montecarlo/*",
