@@ -86,3 +86,18 @@ def test_export_c_writes_a_bundle(tmp_path, capsys):
     header = (out / "uav_step.h").read_text()
     assert "#define UAV_STEP_ROLLOUT_STEPS 50" in header and "float" in header
     assert main(["export-c", "--rollout", "-1"]) == 2
+
+
+def test_export_c_warns_when_the_step_is_too_stiff_for_its_dt(tmp_path, capsys):
+    # pitch damping 12 on the X500: q_dot = -553 q, stable under one RK4 step below 5.0 ms
+    data = to_toml_dict(load_airframe("examples/x500.toml"))
+    data["params"]["pitch_damping"]["value"] = 12.0
+    path = tmp_path / "stiff.json"
+    path.write_text(json.dumps(data))
+    assert main(["export-c", "--airframe", str(path), "--dt", "0.01",
+                 "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    assert "warning: the exported step diverges" in err and "--dt 0.00" in err
+    assert main(["export-c", "--airframe", str(path), "--dt", "0.004",
+                 "--out", str(tmp_path / "b")]) == 0
+    assert "diverges" not in capsys.readouterr().err

@@ -6,6 +6,7 @@ import argparse
 import json
 import math
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +43,7 @@ from uavdyn.linear import (
     point_params,
     trim,
 )
+from uavdyn.linear.stiffness import step_stiffness
 from uavdyn.model import build_model
 from uavdyn.outputs import atomic_file, check_output_files, single_outputs
 
@@ -211,6 +213,11 @@ def cmd_export_c(args: argparse.Namespace) -> int:
     else:
         model = physics_step(airframe)
     point = trim(airframe, args.airspeed, math.radians(args.gamma_deg))
+    stiff = step_stiffness(airframe, args.dt or MODEL_DT, point)
+    if stiff.too_stiff:  # the bundle would be written, and would diverge when run
+        warnings.warn(f"the exported step diverges: {stiff.describe()}; give --dt "
+                      f"{stiff.max_stable_dt:.3g} or less, or check the airframe's parameters",
+                      stacklevel=1)
     spec = model_bundle_spec(args.name, model, point, args.dt or MODEL_DT, real=args.real,
                              rollout_steps=args.rollout)
     out = export_bundle(model, spec, args.out, force=args.force)
