@@ -1,7 +1,7 @@
 """Whether one explicit RK4 step per log sample can carry a model: a mode the continuous model
 damps (``Re lambda < 0``) grows in the RK4 step when ``lambda dt`` leaves RK4's stability
-region (``|R(z)| > 1`` with ``R(z) = 1 + z + z^2/2 + z^3/6 + z^4/24``; on the negative real
-axis beyond ``z = -2.785``). A fit may produce such a model (a damping derivative that absorbs
+region (``|R(z)| > 1``, ``R(z) = 1 + z + z^2/2 + z^3/6 + z^4/24`` for RK4; on the negative
+real axis beyond ``z = -2.785``). A fit may produce such a model (a damping derivative that absorbs
 an unmodelled lag, fitted with sub-steps); the commands that step once per sample (``train``,
 ``mpc``, ``export-c``) then diverge, so the fit and the trainer say so, with the step it needs.
 Actuator lags are integrated exactly (:mod:`uavdyn.integrate.augmented`): only the body's
@@ -15,13 +15,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from uavdyn.airframes import Airframe
+from uavdyn.integrate.tableau import RK4, explicit_rk_step
 from uavdyn.linear.modes import linearise
 from uavdyn.linear.trim import TrimError, TrimPoint, trim
 
 
 def rk4_amplification(z: complex) -> float:
-    """``|R(z)|``, the RK4 step's amplification of the mode ``z = lambda dt``."""
-    return abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24)
+    """``|R(z)|``, the RK4 step's amplification of the mode ``z = lambda dt``: the project's own
+    step (:func:`uavdyn.integrate.explicit_rk_step`) applied to ``y' = z y`` over a unit step."""
+    return abs(explicit_rk_step(RK4, lambda y: z * y, 1.0 + 0j, 1.0))
 
 
 def largest_stable_step(eigenvalue: complex) -> float:
