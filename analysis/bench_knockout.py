@@ -529,6 +529,7 @@ def train_correction(ds, af, cfg) -> tuple[object, dict, float]:
     stab = result.stability
     info = {"kept": bool(result.kept), "reason": result.reason, "best_epoch": result.best_epoch,
             "epochs_run": len(result.history) - 1, "stopped": result.stopped,
+            "screened": result.screened,
             "train_seconds": result.seconds,
             "config_resolved": dataclasses.asdict(result.config),
             "validation": result.validation,

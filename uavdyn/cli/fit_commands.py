@@ -42,6 +42,7 @@ from uavdyn.outputs import check_output_files, single_outputs
 
 MAX_HIDDEN = 1024        # width of the correction's hidden layers (memory and time)
 MAX_EPOCHS = 100_000
+MAX_RESTARTS = 20
 MAX_TRAIN_SECONDS = 7 * 86400.0  # a wall-clock budget that still ends the run
 
 
@@ -197,7 +198,7 @@ def training_module():
 
 
 SAFE_ONLY = ("--stability-weight", "--stability-margin", "--horizon", "--memory-tau",
-             "--inputs", "--output", "--linear-path", "--min-gain")
+             "--inputs", "--output", "--linear-path", "--min-gain", "--restarts")
 LEGACY_ONLY = ("--dt", "--rollout-horizon", "--rollout-weight")
 
 
@@ -348,6 +349,12 @@ def add_train(sub) -> None:
                         "validation sorties to be kept (geometric mean of the per-sortie "
                         "ratios at most 1 - this; fraction 0..0.5, default 0.02: a gain "
                         "smaller than the 2 %% a sortie may lose within noise is refused)")
+    p.add_argument("--restarts", type=count(MAX_RESTARTS, "starts"), default=None,
+                   help="improved/data: networks started from different seeds, each trained "
+                        "for 40 epochs, the one with the least training loss trained on "
+                        f"(1 to {MAX_RESTARTS}; default 1: measured in "
+                        "docs/learned_correction.md, more starts kept more corrections that "
+                        "lose calm test sorties)")
     p.add_argument("--horizon", type=seconds(name="horizon"), default=None,
                    help="improved/data: rollout window from recorded states in s, no longer "
                         "than the sorties (default 2)")

@@ -124,7 +124,7 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
 
     given = {k: getattr(args, k) for k in ("epochs", "patience", "max_seconds",
                                            "stability_weight", "hidden", "stability_margin",
-                                           "min_gain")
+                                           "min_gain", "restarts")
              if getattr(args, k, None) is not None}
     if getattr(args, "horizon", None) is not None:
         given["horizon_s"] = args.horizon
@@ -162,5 +162,6 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
             "network": net.describe(), "data_source": source, "n_train": len(tr),
             "n_val": len(va), "n_test": len(te), "best_epoch": result.best_epoch,
             "epochs_run": len(result.history) - 1, "stopped": result.stopped,
+            "screened": result.screened,
             "seconds": round(result.seconds, 1), "validation": result.validation,
             "stability": result.stability.describe() if result.stability else None}

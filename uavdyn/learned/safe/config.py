@@ -71,6 +71,11 @@ class SafeConfig:
                                      # ratio; on the knockout benchmark 20 ended runs while
                                      # the learning rate was still high (F450 inflow at epoch
                                      # 64, X500 inflow 0.84 of the term against 0.94 with 40)
+    start_lowpass_hz: float = 0.0    # windows start from the records low-passed at this
+                                     # cutoff (zero phase; 0: raw), the targets stay raw
+    restarts: int = 1                # networks started from different seeds, each trained
+                                     # restart_epochs, the best by validation rank carried on
+    restart_epochs: int = 40
     pooled_weight: float = 0.0       # share of the loss on the pooled error (rest: per window)
     output_weight: float = 0.0       # weight of the output penalty (mean square output over
                                      # training samples, in output scales; epochs.py)
@@ -127,6 +132,7 @@ class SafeResult:
     validation: dict = field(default_factory=dict)
     stability: StabilityReport | None = None
     stopped: str = ""  # why the epochs ended (patience, epoch or wall-clock budget)
+    screened: list[dict] = field(default_factory=list)  # the starts screened (restarts > 1)
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ time is scaled down before the next scale."""
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import torch
@@ -49,6 +49,7 @@ class RunFacts:
     trims_skipped: list[str]
     memory_tau: tuple[float, ...]
     start: float  # the run's time.perf_counter()
+    screened: list[dict] = field(default_factory=list)  # the starts screened (restarts > 1)
 
     def info(self, alpha: float, channels: np.ndarray, final: dict, tried: list, epoch: int
              ) -> dict:
@@ -64,7 +65,7 @@ class RunFacts:
                 "selection_horizon_s": self.selection_horizon_s, "epochs_run": self.epochs_run,
                 "n_train_sorties": self.n_train_sorties, "n_val_sorties": self.n_val_sorties,
                 "trims": list(self.trims), "trims_skipped": self.trims_skipped,
-                "memory_tau": list(self.memory_tau),
+                "memory_tau": list(self.memory_tau), "screened": list(self.screened),
                 "train_seconds": time.perf_counter() - self.start}
 
 

@@ -19,7 +19,7 @@ from uavdyn.learned.safe.data import (
     training_windows,
     window_tensors,
 )
-from uavdyn.learned.safe.epochs import StabilityTargets, TrainingData, run_epochs
+from uavdyn.learned.safe.epochs import StabilityTargets, TrainingData, screened_start
 from uavdyn.learned.safe.freerun import FreeRunGuard
 from uavdyn.learned.safe.scoring import WindowLoss, fixed_windows, validation_reference
 from uavdyn.learned.safe.selection import Checks, RunFacts, fallback, search
@@ -84,10 +84,14 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     va = training_windows(airframe, setup, val_sorties, physics_sim)
     scaling = network_scaling(tr, cfg, dt)
     layout = scaling.layout(setup)
-    model = TorchCorrection(airframe.kind, "improved", cfg.hidden, cfg.activation,
-                            scaling.in_mean, scaling.in_scale, scaling.out_scale, dt,
-                            seed=cfg.seed, structure=setup.structure, layout=layout,
-                            envelope=scaling.envelope, linear=cfg.linear)
+
+    def network(seed: int) -> TorchCorrection:
+        return TorchCorrection(airframe.kind, "improved", cfg.hidden, cfg.activation,
+                               scaling.in_mean, scaling.in_scale, scaling.out_scale, dt,
+                               seed=seed, structure=setup.structure, layout=layout,
+                               envelope=scaling.envelope, linear=cfg.linear)
+
+    model = network(cfg.seed)
     scales = loss_scales(tr)
     stab, skipped = _stability_targets(airframe, setup, scaling.envelope)
     twin = (CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
@@ -97,7 +101,9 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                         WindowLoss.of(scales, cfg, dt),
                         validation_reference(va, val_sorties, setup.horizon_sel), twin,
                         torch.as_tensor(tr.inputs, dtype=model.in_mean.dtype))
-    run = run_epochs(model, data, stab, cfg, rng, start, airframe.name)
+    loop = screened_start(model, network, data, stab, cfg, rng, start, airframe.name)
+    loop.advance(cfg.epochs)
+    model, run = loop.model, loop.result()
     ref, horizon_s = data.reference, setup.selection_horizon_s
     checks = Checks(model, layout, model.out_scale.clone(), airframe, setup, stab.trims,
                     skipped, data.val, ref,
@@ -106,7 +112,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                     RunFacts(cfg, airframe.name, ref.physics_rmse, horizon_s,
                              len(run.history) - 1, len(train_sorties), len(val_sorties),
                              [t.describe() for t in stab.trims], skipped, setup.memory_tau,
-                             start), data.predict)
+                             start, run.screened), data.predict)
     found = search(checks, run)
     chosen, tried = found.chosen, found.tried
     if chosen is None:
@@ -122,8 +128,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         reason = kept_reason(final, ref.physics_rmse, alpha, channels, chosen.row, report,
                              horizon_s)
         return SafeResult(chosen.net, True, reason, run.history, cfg, epoch, seconds,
-                          validation, report, run.stopped)
+                          validation, report, run.stopped, run.screened)
     reason = refusal_reason(tried, cfg, ref.physics_rmse, run.best.selection, report,
                             horizon_s)
     return SafeResult(None, False, reason, run.history, cfg, epoch, seconds, validation,
-                      report, run.stopped)
+                      report, run.stopped, run.screened)
