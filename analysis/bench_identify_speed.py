@@ -13,12 +13,13 @@ Usage: ``python analysis/bench_identify_speed.py [--airframe FILE] [--sorties 11
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import tempfile
 import time
 from pathlib import Path
+
+from uavdyn.evaluation.emit import emit_json
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -82,10 +83,7 @@ def main() -> None:
                     "load_1min_before": load, "load_1min_after": os.getloadavg()[0]},
         "command": "python analysis/bench_identify_speed.py",
     }
-    text = json.dumps(out, indent=2)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
+    emit_json(out, args.out)
 
 
 if __name__ == "__main__":

@@ -18,17 +18,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import os
-import platform
 import statistics
 import sys
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
 from uavdyn.evaluation.c_loop import c_loop_us
+from uavdyn.evaluation.emit import emit_json, machine_facts
 
 
 def variants(airframe, net, shapes: list[tuple[int, ...]]) -> dict[str, ca.Function]:
@@ -123,13 +120,9 @@ def main() -> None:
                          "instructions": expanded.n_instructions()}
     out = {"airframe": args.airframe, "weights": args.weights, "network": net.describe(),
            "samples": args.samples, "rounds": args.rounds, "results": results,
-           "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                       "load_1min_after": os.getloadavg()[0]},
+           "machine": machine_facts(),
            "command": "python analysis/bench_step_pieces.py " + " ".join(sys.argv[1:])}
-    text = json.dumps(out, indent=2)
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text + "\n")
+    emit_json(out, args.out)
 
 
 if __name__ == "__main__":

@@ -45,6 +45,7 @@ exclude_patterns = [
     "benchmarks/bench_knockout_before_sortie_weights.md",
     "benchmarks/bench_knockout_output_penalty.md",
     "benchmarks/knockout_patience/patience20.md",
+    "benchmarks/knockout_restarts/*.md",
     "**/*.json",
     "mpc/*",
     "montecarlo/*",
