@@ -73,6 +73,8 @@ class SafeConfig:
                                      # 64, X500 inflow 0.84 of the term against 0.94 with 40)
     start_lowpass_hz: float = 0.0    # windows start from the records low-passed at this
                                      # cutoff (zero phase; 0: raw), the targets stay raw
+    validation_start_lowpass_hz: float = 0.0  # the same for the validation windows only
+                                     # (what selects and keeps a correction)
     restarts: int = 1                # networks started from different seeds, each trained
                                      # restart_epochs, the best by validation rank carried on
     restart_epochs: int = 40

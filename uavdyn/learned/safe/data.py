@@ -63,8 +63,10 @@ def start_states(sortie: Sortie, cutoff_hz: float) -> np.ndarray:
 
 
 def training_windows(airframe: Airframe, setup: SafeSetup, sorties: list[Sortie],
-                     physics_sim) -> TrainingWindows:
-    """Windows of ``setup.horizon`` samples every ``setup.stride`` samples of ``sorties``.
+                     physics_sim, start_lowpass_hz: float | None = None) -> TrainingWindows:
+    """Windows of ``setup.horizon`` samples every ``setup.stride`` samples of ``sorties``,
+    starting from :func:`start_states` at ``start_lowpass_hz`` (default: the configuration's
+    ``start_lowpass_hz``).
 
     Raises
     ------
@@ -81,7 +83,8 @@ def training_windows(airframe: Airframe, setup: SafeSetup, sorties: list[Sortie]
     params, z = [], []
     for s in sorties:
         params.append(sortie_params(airframe, s.altitude_m))
-        z.append(states.states(start_states(s, setup.config.start_lowpass_hz), s.controls,
+        cutoff = setup.config.start_lowpass_hz if start_lowpass_hz is None else start_lowpass_hz
+        z.append(states.states(start_states(s, cutoff), s.controls,
                                params[-1], setup.sample_dt))
     features = [network_inputs(layout, zi, s.controls, pi)
                 for zi, s, pi in zip(z, sorties, params)]

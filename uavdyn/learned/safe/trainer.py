@@ -81,7 +81,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     cfg, dt = setup.config, setup.dt
     physics_sim = physics_rollout(setup)
     tr = training_windows(airframe, setup, train_sorties, physics_sim)
-    va = training_windows(airframe, setup, val_sorties, physics_sim)
+    va = training_windows(airframe, setup, val_sorties, physics_sim,
+                          cfg.validation_start_lowpass_hz or cfg.start_lowpass_hz)
     scaling = network_scaling(tr, cfg, dt)
     layout = scaling.layout(setup)
 
