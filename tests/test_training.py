@@ -82,6 +82,33 @@ def test_cli_train_writes_weights_history_and_plot(tmp_path, emulated):
     assert (tmp_path / "w_history.json").exists() and (tmp_path / "w_history.png").exists()
 
 
+def test_cli_train_restarts_screens_the_starts_and_refuses_bad_counts(tmp_path, emulated,
+                                                                      capsys):
+    """``--restarts 2``: both starts are screened and one is carried on (the summary and the
+    history say which, with their training losses); 0 starts, or starts for a legacy
+    formulation, are refused in one line naming the option."""
+    import json
+
+    from uavdyn.cli import main
+
+    out = tmp_path / "w.npz"
+    code = main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
+                 "--epochs", "2", "--hidden", "4", "--horizon", "0.3", "--quiet",
+                 "--restarts", "2", "--min-gain", "0", "--out", str(out)])
+    printed = capsys.readouterr().out
+    assert code == 0
+    screened = json.loads(printed)["screened"]
+    assert len(screened) == 2 and sum(s["chosen"] for s in screened) == 1
+    history = json.loads((tmp_path / "w_history.json").read_text())
+    assert history["screened"] == screened
+    for bad in (["--restarts", "0"], ["--restarts", "2", "--formulation", "paper"]):
+        assert main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
+                     "--out", str(tmp_path / "x.npz"), *bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "--restarts" in err
+    assert not (tmp_path / "x.npz").exists()
+
+
 def test_cli_train_needs_a_dataset(tmp_path, capsys):
     """No stand-in data: without --dataset, one line naming the option and how to make one;
     nothing is written."""
