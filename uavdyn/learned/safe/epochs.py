@@ -140,7 +140,7 @@ def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: Traini
 class EpochLoop:
     """The epochs of one network, resumable: :meth:`advance` trains up to an epoch number
     (patience and ``cfg.max_seconds`` end the run earlier), so several starts can be screened
-    for a few epochs each and the best one carried on (:func:`run_epochs`, ``restarts``)."""
+    for a few epochs each and one carried on (:func:`screened_start`, ``restarts``)."""
 
     def __init__(self, model: TorchCorrection, data: TrainingData, stab: StabilityTargets,
                  cfg: SafeConfig, rng: np.random.Generator, start: float, name: str) -> None:
@@ -238,13 +238,3 @@ def screened_start(model: TorchCorrection, network: Callable[[int], TorchCorrect
         {"seed": restart_seed(cfg.seed, i), "train_loss_fixed": losses[i],
          "best_epoch": lp.best.epoch, "chosen": i == chosen} for i, lp in enumerate(loops)]
     return loops[chosen]
-
-
-def run_epochs(model: TorchCorrection, data: TrainingData, stab: StabilityTargets,
-               cfg: SafeConfig, rng: np.random.Generator, start: float, name: str
-               ) -> EpochRun:
-    """Train ``model`` in place for at most ``cfg.epochs`` epochs (patience and
-    ``cfg.max_seconds`` end a run earlier); ``start`` is the run's ``time.perf_counter()``."""
-    loop = EpochLoop(model, data, stab, cfg, rng, start, name)
-    loop.advance(cfg.epochs)
-    return loop.result()
