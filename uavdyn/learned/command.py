@@ -162,6 +162,6 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
             "network": net.describe(), "data_source": source, "n_train": len(tr),
             "n_val": len(va), "n_test": len(te), "best_epoch": result.best_epoch,
             "epochs_run": len(result.history) - 1, "stopped": result.stopped,
-            "screened": result.screened,
+            "screened": result.screened, "start_fits": result.start_fits,
             "seconds": round(result.seconds, 1), "validation": result.validation,
             "stability": result.stability.describe() if result.stability else None}

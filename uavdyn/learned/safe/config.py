@@ -75,6 +75,10 @@ class SafeConfig:
                                      # cutoff (zero phase; 0: raw), the targets stay raw
     validation_start_lowpass_hz: float = 0.0  # the same for the validation windows only
                                      # (what selects and keeps a correction)
+    validation_start_fit_s: float = 0.0  # validation windows start where each model scored
+                                     # (the physics, each candidate) fits its own trajectory
+                                     # to the window's first records over this long (0: the
+                                     # records; uavdyn.learned.safe.starts)
     restarts: int = 1                # networks started from different seeds, each trained
                                      # restart_epochs, the best by validation rank carried on
     restart_epochs: int = 40
@@ -135,6 +139,7 @@ class SafeResult:
     stability: StabilityReport | None = None
     stopped: str = ""  # why the epochs ended (patience, epoch or wall-clock budget)
     screened: list[dict] = field(default_factory=list)  # the starts screened (restarts > 1)
+    start_fits: dict = field(default_factory=dict)  # how window starts were fitted, per split
 
 
 @dataclass(frozen=True)

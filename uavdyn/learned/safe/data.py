@@ -16,6 +16,12 @@ from uavdyn.integrate import DIVERGENCE_BOUND, StateLayout, compile_function, ro
 from uavdyn.learned.envelope import Envelope
 from uavdyn.learned.formulations import CorrectionLayout, network_inputs
 from uavdyn.learned.safe.config import SafeConfig, SafeSetup, SafeTrainingError
+from uavdyn.learned.safe.starts import (
+    fit_starts,
+    start_fit_function,
+    start_fit_summary,
+    with_starts,
+)
 from uavdyn.learned.torch_model import DTYPE
 from uavdyn.linear.stiffness import step_stiffness
 from uavdyn.model import sortie_params
@@ -39,6 +45,7 @@ class TrainingWindows:
     inputs: np.ndarray   # (N, n_in) the network's inputs at every recorded sample
     gains: np.ndarray    # (W, 3) what turns the network's outputs into accelerations at
                          # each window's start (1 for an acceleration output)
+    start_fit: dict | None = None  # how the physics fitted the starts (start_fit_span)
 
     @property
     def sortie(self) -> np.ndarray:
@@ -92,13 +99,38 @@ def training_windows(airframe: Airframe, setup: SafeSetup, sorties: list[Sortie]
     gains = np.array([features[i][1][k] for i, k in windows.starts])
     z0 = np.array([z[i][k] for i, k in windows.starts])
     p = np.array([params[i] for i, _ in windows.starts])
-    u = windows.u
-    W = windows.count
-    pred = np.array(physics_sim.map(W)(z0[:, :layout.n_physics].T, u.reshape(W * H, -1).T,
-                                       p.T, setup.sample_dt))
-    _check_physics_flies(pred[:4].reshape(4, W, H), airframe, setup.sample_dt, H)
-    return TrainingWindows(windows, z0, u, windows.y, p,
-                           pred[:4].reshape(4, W, H).transpose(1, 2, 0), inputs, gains)
+    pred = _physics_prediction(physics_sim, z0[:, :layout.n_physics], windows.u, p,
+                               setup.sample_dt)
+    _check_physics_flies(pred.transpose(2, 0, 1), airframe, setup.sample_dt, H)
+    return TrainingWindows(windows, z0, windows.u, windows.y, p, pred, inputs, gains)
+
+
+def _physics_prediction(physics_sim, z0: np.ndarray, u: np.ndarray, p: np.ndarray,
+                        dt: float) -> np.ndarray:
+    """Body states ``(W, H, 4)`` of the physics' run through each window."""
+    W, H = u.shape[:2]
+    pred = np.array(physics_sim.map(W)(z0.T, u.reshape(W * H, -1).T, p.T, dt))
+    return pred[:4].reshape(4, W, H).transpose(1, 2, 0)
+
+
+def start_fit_span(setup: SafeSetup) -> int:
+    """Records fitted per validation window start (:mod:`uavdyn.learned.safe.starts`; 0: the
+    records are the starts)."""
+    n = int(round(setup.config.validation_start_fit_s / setup.sample_dt)) + 1
+    return min(n, setup.horizon) if n >= 2 else 0
+
+
+def physics_fitted(w: TrainingWindows, setup: SafeSetup, physics_sim, noise: np.ndarray
+                   ) -> TrainingWindows:
+    """``w`` started where the physics fits each window's first records best
+    (:func:`start_fit_span`; ``noise``: ``(W, 4)`` the records' white noise), with the
+    physics' runs from there."""
+    span, n = start_fit_span(setup), setup.layout.n_physics
+    fit = start_fit_function(setup.physics.function, span)
+    fits = fit_starts(fit, w.z0[:, :n], w.u, w.y, w.p.T, setup.sample_dt, noise, span)
+    z0 = with_starts(w.z0, fits)
+    pred = _physics_prediction(physics_sim, z0[:, :n], w.u, w.p, setup.sample_dt)
+    return replace(w, z0=z0, physics=pred, start_fit=start_fit_summary(fits, w.z0, noise))
 
 
 def _check_physics_flies(pred: np.ndarray, airframe: Airframe, dt: float, horizon: int) -> None:

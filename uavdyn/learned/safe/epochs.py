@@ -49,9 +49,13 @@ class TrainingData:
     reference: ValidationReference
     twin: CompiledTwin | None = None  # the compiled rollouts and gradients (None: torch's)
     inputs: torch.Tensor | None = None  # the network's inputs at every training sample
+    validation_predictor: Predictor | None = None  # scores the validation windows (None:
+                                                    # the twin's or torch's free runs)
 
     @property
     def predict(self) -> Predictor | None:
+        if self.validation_predictor is not None:
+            return self.validation_predictor
         return self.twin.predict if self.twin is not None else None
 
     def window_loss(self, model: TorchCorrection, D: WindowTensors) -> float:

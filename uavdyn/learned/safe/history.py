@@ -32,7 +32,7 @@ def write_safe_history_files(result: SafeResult, json_path: Path, png_path: Path
     doc = {"kind": "safe correction training", "kept": result.kept, "reason": result.reason,
            "config": asdict(result.config), "best_epoch": result.best_epoch,
            "epochs_run": len(result.history) - 1, "stopped": result.stopped,
-           "screened": result.screened,
+           "screened": result.screened, "start_fits": result.start_fits,
            "seconds": result.seconds, "validation": result.validation,
            "stability": result.stability.to_dict() if result.stability else None,
            "network": result.net.describe() if result.net is not None else None,

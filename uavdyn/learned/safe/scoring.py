@@ -13,7 +13,12 @@ import numpy as np
 import torch
 
 from uavdyn.flightdata import Sortie
-from uavdyn.learned.rules import pooled_state_errors, sortie_ratio, summarise_ratios
+from uavdyn.learned.rules import (
+    noise_resolution,
+    pooled_state_errors,
+    sortie_ratio,
+    summarise_ratios,
+)
 from uavdyn.learned.rules import state_noise as sortie_state_noise
 from uavdyn.learned.safe.config import THETA, SafeConfig
 from uavdyn.learned.safe.data import LossScales, TrainingWindows, WindowTensors, as_tensor
@@ -95,6 +100,13 @@ class ValidationReference:
         """Per sortie pitch noise (rad)."""
         return [float(n) for n in self.state_noise[:, THETA]]
 
+    @property
+    def resolution(self) -> list[float]:
+        """Per sortie, the smallest pitch error above the noise its scored samples resolve
+        (:func:`uavdyn.learned.rules.noise_resolution`)."""
+        counts = np.bincount(self.sortie, minlength=len(self.state_noise)) * self.horizon
+        return [noise_resolution(n, c) for n, c in zip(self.noise, counts)]
+
     def state_errors(self, pred: np.ndarray) -> np.ndarray:
         """Pooled errors of each body state of ``pred`` (W, horizon, 4), noise taken off."""
         return pooled_state_errors(pred, self.y[:, :self.horizon, :4],
@@ -133,7 +145,7 @@ def score(model: TorchCorrection, V: WindowTensors, ref: ValidationReference, dt
     with np.errstate(over="ignore", invalid="ignore"):
         state_ratios = ref.state_errors(pred) / ref.physics_states
         ratios = [sortie_ratio(ref.physics_sortie[i], _sortie_rmse(err, ref.sortie, i),
-                               noise[i]) for i in range(len(noise))]
+                               noise[i], ref.resolution[i]) for i in range(len(noise))]
     summary = summarise_ratios(ratios)
     worst_state = float(np.max(state_ratios))
     return {"val_theta_rmse": float(np.sqrt(np.mean(err))),

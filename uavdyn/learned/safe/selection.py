@@ -50,6 +50,7 @@ class RunFacts:
     memory_tau: tuple[float, ...]
     start: float  # the run's time.perf_counter()
     screened: list[dict] = field(default_factory=list)  # the starts screened (restarts > 1)
+    start_fits: dict = field(default_factory=dict)  # how window starts were fitted, per split
 
     def info(self, alpha: float, channels: np.ndarray, final: dict, tried: list, epoch: int
              ) -> dict:
@@ -66,6 +67,7 @@ class RunFacts:
                 "n_train_sorties": self.n_train_sorties, "n_val_sorties": self.n_val_sorties,
                 "trims": list(self.trims), "trims_skipped": self.trims_skipped,
                 "memory_tau": list(self.memory_tau), "screened": list(self.screened),
+                "start_fits": dict(self.start_fits),
                 "train_seconds": time.perf_counter() - self.start}
 
 

@@ -11,11 +11,14 @@ import torch
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import StateLayout, find_compiler
+from uavdyn.learned.rules import state_noise
 from uavdyn.learned.safe.config import SafeConfig, SafeResult, SafeSetup, safe_setup
 from uavdyn.learned.safe.data import (
     loss_scales,
     network_scaling,
+    physics_fitted,
     physics_rollout,
+    start_fit_span,
     training_windows,
     window_tensors,
 )
@@ -23,7 +26,7 @@ from uavdyn.learned.safe.epochs import StabilityTargets, TrainingData, screened_
 from uavdyn.learned.safe.freerun import FreeRunGuard
 from uavdyn.learned.safe.scoring import WindowLoss, fixed_windows, validation_reference
 from uavdyn.learned.safe.selection import Checks, RunFacts, fallback, search
-from uavdyn.learned.safe.twin import CompiledTwin
+from uavdyn.learned.safe.twin import CompiledTwin, FittedStartPredictor
 from uavdyn.learned.safe.verdict import kept_reason, refusal_reason, validation_summary
 from uavdyn.learned.stability import (
     body_abscissa,
@@ -83,6 +86,11 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     tr = training_windows(airframe, setup, train_sorties, physics_sim)
     va = training_windows(airframe, setup, val_sorties, physics_sim,
                           cfg.validation_start_lowpass_hz or cfg.start_lowpass_hz)
+    span = start_fit_span(setup)
+    val_noise = np.array([state_noise(s) for s in val_sorties])[va.sortie]
+    if span:
+        va = physics_fitted(va, setup, physics_sim, val_noise)
+    fits = {"validation": va.start_fit} if span else {}
     scaling = network_scaling(tr, cfg, dt)
     layout = scaling.layout(setup)
 
@@ -97,11 +105,16 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     stab, skipped = _stability_targets(airframe, setup, scaling.envelope)
     twin = (CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
             if cfg.compiled and find_compiler() is not None else None)
+    fitted = None
+    if span:  # each candidate scored from the starts it fits itself (with a twin of its own
+        # where training runs in torch)
+        fitter = twin or CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
+        fitted = FittedStartPredictor(fitter, val_noise, span)
     data = TrainingData(window_tensors(tr, scales), window_tensors(va, scales),
                         fixed_windows(cfg, len(tr.z0), len(va.z0)),
                         WindowLoss.of(scales, cfg, dt),
                         validation_reference(va, val_sorties, setup.horizon_sel), twin,
-                        torch.as_tensor(tr.inputs, dtype=model.in_mean.dtype))
+                        torch.as_tensor(tr.inputs, dtype=model.in_mean.dtype), fitted)
     loop = screened_start(model, network, data, stab, cfg, rng, start, airframe.name)
     loop.advance(cfg.epochs)
     model, run = loop.model, loop.result()
@@ -113,7 +126,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                     RunFacts(cfg, airframe.name, ref.physics_rmse, horizon_s,
                              len(run.history) - 1, len(train_sorties), len(val_sorties),
                              [t.describe() for t in stab.trims], skipped, setup.memory_tau,
-                             start, run.screened), data.predict)
+                             start, run.screened,
+                             fits), data.predict)
     found = search(checks, run)
     chosen, tried = found.chosen, found.tried
     if chosen is None:
@@ -129,8 +143,10 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         reason = kept_reason(final, ref.physics_rmse, alpha, channels, chosen.row, report,
                              horizon_s)
         return SafeResult(chosen.net, True, reason, run.history, cfg, epoch, seconds,
-                          validation, report, run.stopped, run.screened)
+                          validation, report, run.stopped, run.screened,
+                          fits)
     reason = refusal_reason(tried, cfg, ref.physics_rmse, run.best.selection, report,
                             horizon_s)
     return SafeResult(None, False, reason, run.history, cfg, epoch, seconds, validation,
-                      report, run.stopped, run.screened)
+                      report, run.stopped, run.screened,
+                      fits)

@@ -27,6 +27,7 @@ from uavdyn.integrate.compiler import QUICK_FLAGS
 from uavdyn.learned.envelope import GUARDS, gate_of_distances, outside_distances
 from uavdyn.learned.mlp import mlp_forward
 from uavdyn.learned.safe.data import WindowTensors
+from uavdyn.learned.safe.starts import StartFits, fit_starts, start_fit_function, with_starts
 from uavdyn.learned.stability import TrimSample
 from uavdyn.learned.torch_model import TorchCorrection
 from uavdyn.model import CASADI_OPS, make_rhs
@@ -125,6 +126,7 @@ class CompiledTwin:
         z_next = model.form.step(make_rhs(structure), z, u,
                                  pe[:n_physics], h, net, CASADI_OPS, None, layout)
         step = ca.Function("twin_step", [z, u, pe, h], [z_next])
+        self._step, self._fits = step, {}
         theta = slice(n_physics, n_physics + self.shapes.n_theta)
         sim = rollout(step, horizon, name="twin_rollout")
         z0, U = ca.MX.sym("z0", nz), ca.MX.sym("u", nu, horizon)
@@ -204,6 +206,17 @@ class CompiledTwin:
         c = ((1.0 - pooled_weight) * D.weight.detach().numpy() + pooled_weight) / W
         return float(np.sum(c * e)), g @ c
 
+    def fit_starts(self, model: TorchCorrection, D: WindowTensors, noise: np.ndarray,
+                   span: int) -> StartFits:
+        """The starts of the windows ``D`` where the hybrid step (its current weights) fits
+        each window's first ``span`` records best (:func:`uavdyn.learned.safe.starts.fit_starts`;
+        ``noise``: ``(W, 4)`` the records' white noise)."""
+        if span not in self._fits:
+            self._fits[span] = start_fit_function(self._step, span)
+        return fit_starts(self._fits[span], D.z0.detach().numpy(), D.u.detach().numpy(),
+                          D.y.detach().numpy(), self._extended(model, D.p), self.dt, noise,
+                          span)
+
     def penalty_and_grad(self, model: TorchCorrection, trims: list[TrimSample],
                          targets: list[float], dt: float) -> tuple[float, np.ndarray]:
         """:func:`uavdyn.learned.stability.stability_penalty` and its gradient over the
@@ -225,3 +238,22 @@ class CompiledTwin:
             d_lam = (np.outer(y.conj(), x).ravel(order="F") @ dJ) / (y.conj() @ x)
             grad += np.real(d_lam / lam[i]) / dt
         return total, grad
+
+
+@dataclass(frozen=True)
+class FittedStartPredictor:
+    """Free runs through the validation windows from the starts each scored network fits
+    itself (``SafeConfig.validation_start_fit_s``): the hybrid's counterpart of
+    :func:`uavdyn.learned.safe.data.physics_fitted`, so neither is scored from a start the
+    other fitted."""
+
+    twin: CompiledTwin
+    noise: np.ndarray  # (W, 4) white noise of the records of each validation window
+    span: int
+
+    def __call__(self, model: TorchCorrection, V: WindowTensors) -> np.ndarray:
+        if V.count != len(self.noise):
+            raise ValueError(f"{V.count} windows but the noise of {len(self.noise)}")
+        fits = self.twin.fit_starts(model, V, self.noise, self.span)
+        z0 = torch.as_tensor(with_starts(V.z0.detach().numpy(), fits), dtype=V.z0.dtype)
+        return self.twin.predict(model, replace(V, z0=z0))

@@ -1,0 +1,133 @@
+"""Window starts estimated by the model being scored, not taken from one noisy sample.
+
+A window started from a noisy record carries that one sample's noise through its whole
+horizon (2 mrad in pitch and 5 mrad/s in pitch rate give about 3 mrad at 1 s, ten times a
+calm sortie's model error), and a network scored on such windows earns a gain by damping the
+start's noise out, which makes the true dynamics worse (issue 40, ``analysis/start_noise.py``).
+Output-error identification estimates its windows' start states; the same is done here for
+the validation windows that select and keep a correction: each model scored (the physics for
+the reference, each candidate hybrid for itself) gets the body state at each window's start
+that makes its own trajectory fit the window's first ``span`` records best, weighted by each
+channel's white-noise level (Gauss-Newton on the 4 body states; actuator and memory states
+come from the commands and are kept). Neither model is favoured: a start fitted by one model
+is biased by that model's own error, never by the other's. Where the model does not explain
+the span to within the noise (a gust, a manoeuvre it gets wrong) the record is kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from uavdyn.integrate import compile_function, rollout
+from uavdyn.integrate.compiler import QUICK_FLAGS
+
+N_BODY = 4
+GAUSS_NEWTON_STEPS = 4
+NOISE_FLOOR = 1e-9  # relative to the channel's largest magnitude: noise-free records
+
+
+@dataclass(frozen=True)
+class StartFits:
+    """Fitted body states at the window starts and how well the model explains each span."""
+
+    body: np.ndarray      # (W, 4) the start that fits best (the record where not consistent)
+    chi2: np.ndarray      # (W,) weighted squared residual per degree of freedom
+    span: int             # records fitted per window, its start included
+
+    @property
+    def consistent(self) -> np.ndarray:
+        """Whether the model explains each span to within the noise (W,): its residual per
+        degree of freedom below 1 plus 3 standard deviations of that statistic for white
+        noise. Elsewhere the record is the start (:attr:`body`)."""
+        dof = max(N_BODY * (self.span - 1), 1)
+        return self.chi2 < 1.0 + 3.0 * np.sqrt(2.0 / dof)
+
+
+def start_fit_function(step: ca.Function, span: int) -> ca.Function:
+    """Compiled ``(body, rest, u[nu x span-1], p, dt, y[4 x span], w[4]) -> (r, J)``: the
+    weighted residual of ``step``'s trajectory from ``[body; rest]`` against the records
+    ``y`` (the start's own record first) and its Jacobian in ``body``."""
+    nz, nu, n_p = (step.size1_in(i) for i in range(3))
+    body, rest = ca.MX.sym("body", N_BODY), ca.MX.sym("rest", nz - N_BODY)
+    u, p, dt = ca.MX.sym("u", nu, span - 1), ca.MX.sym("p", n_p), ca.MX.sym("dt")
+    y, w = ca.MX.sym("y", N_BODY, span), ca.MX.sym("w", N_BODY)
+    states = rollout(step, span - 1)(ca.vertcat(body, rest), u, p, dt)
+    traj = ca.horzcat(body, states[:N_BODY, :])
+    r = ca.vec((traj - y) * ca.repmat(w, 1, span))
+    fit = ca.Function("start_fit", [body, rest, u, p, dt, y, w], [r, ca.jacobian(r, body)],
+                      ["body", "rest", "u", "p", "dt", "y", "w"], ["r", "J"])
+    return compile_function(fit, QUICK_FLAGS)
+
+
+def fit_starts(fit: ca.Function, z0: np.ndarray, u: np.ndarray, y: np.ndarray,
+               p: np.ndarray, dt: float, noise: np.ndarray, span: int) -> StartFits:
+    """The body state at each window's start that fits the window's first ``span`` records
+    best through the step of ``fit`` (:func:`start_fit_function` of the same ``span``).
+
+    Parameters
+    ----------
+    fit : casadi.Function
+        :func:`start_fit_function` of the model's step.
+    z0 : ndarray, shape (W, nz)
+        The step's state at each start from the records (body states first).
+    u : ndarray, shape (W, >= span - 1, nu)
+        Each window's commands (row k held over sample k).
+    y : ndarray, shape (W, >= span - 1, >= 4)
+        Each window's records after each sample.
+    p : ndarray, shape (n_p, W)
+        Each window's parameters (the step's ``p`` input).
+    dt : float
+        The sample step.
+    noise : ndarray, shape (W, 4)
+        White-noise standard deviation of the body states' records (the fit's weights).
+    span : int
+        Records fitted per window, the start's own included (>= 2).
+
+    Returns
+    -------
+    StartFits
+    """
+    W, nz = z0.shape
+    records = np.concatenate([z0[:, None, :N_BODY], y[:, :span - 1, :N_BODY]], axis=1)
+    floor = NOISE_FLOOR * (1.0 + np.max(np.abs(records), axis=(0, 1)))
+    weight = 1.0 / np.maximum(np.asarray(noise, float), floor)                 # (W, 4)
+    mapped = fit.map(W)
+    args = (z0[:, N_BODY:].T, u[:, :span - 1].reshape(W * (span - 1), -1).T,
+            np.asarray(p, float), float(dt), records.reshape(W * span, N_BODY).T, weight.T)
+    body = z0[:, :N_BODY].copy()
+    for _ in range(GAUSS_NEWTON_STEPS):
+        r, J = mapped(body.T, *args)
+        r = np.asarray(r).T                                                   # (W, 4 span)
+        J = np.asarray(J).reshape(-1, W, N_BODY).transpose(1, 0, 2)           # (W, 4 span, 4)
+        JtJ = np.einsum("wrc,wrd->wcd", J, J)  # >= diag(weight^2): the start's own record
+        with np.errstate(invalid="ignore", over="ignore"):
+            body = body - np.linalg.solve(JtJ, np.einsum("wrc,wr->wc", J, r)[..., None])[..., 0]
+    r = np.asarray(mapped(body.T, *args)[0])
+    with np.errstate(invalid="ignore", over="ignore"):
+        chi2 = np.sum(r**2, axis=0) / max(N_BODY * (span - 1), 1)
+    chi2 = np.where(np.isfinite(chi2), chi2, np.inf)  # a diverged fit: never consistent
+    fits = StartFits(body, chi2, span)
+    return StartFits(np.where(fits.consistent[:, None], body, z0[:, :N_BODY]), chi2, span)
+
+
+def with_starts(z0: np.ndarray, fits: StartFits) -> np.ndarray:
+    """``z0`` with its body states replaced by the fitted ones."""
+    out = np.array(z0, float, copy=True)
+    out[:, :N_BODY] = fits.body
+    return out
+
+
+def start_fit_summary(fits: StartFits, z0: np.ndarray, noise: np.ndarray) -> dict:
+    """The share of starts fitted and their RMS shift from the records in noise standard
+    deviations, for the run's history."""
+    ok = fits.consistent
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shift = np.where(noise[ok] > 0, (fits.body[ok] - z0[ok, :N_BODY]) / noise[ok], 0.0)
+    rms = np.sqrt(np.mean(shift**2, axis=0)) if len(shift) else np.zeros(N_BODY)
+    return {"span_samples": int(fits.span),
+            "share_fitted": round(float(np.mean(ok)) if len(ok) else 0.0, 4),
+            "rms_shift_in_noise_std": dict(zip(("u", "w", "q", "theta"),
+                                               (round(float(v), 3) for v in rms)))}
