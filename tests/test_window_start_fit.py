@@ -1,4 +1,4 @@
-"""Window starts fitted by the model being scored (``SafeConfig.validation_start_fit_s``,
+"""Window starts fitted by the model being scored (``SafeConfig.start_fit_s``,
 :mod:`uavdyn.learned.safe.starts`), checked against records the physics itself flew (its own
 trajectory is the exact answer), the same records with white noise of known size, a gust the
 physics cannot know, and the hybrid twin with an untrained network (it is the physics)."""

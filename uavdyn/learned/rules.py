@@ -59,7 +59,7 @@ def noise_resolution(noise_std: float, n_samples: int) -> float:
     scatters by ``noise_std**2 sqrt(2 / n)``, so an excess below twice that, ``noise_std
     (8 / n)**0.25``, cannot be told from none (0.23 noise_std for 30 s at 100 Hz). Errors
     this close to the noise appear when windows start from fitted states
-    (``SafeConfig.validation_start_fit_s``): without a floor a calm sortie's ratio is a ratio
+    (``SafeConfig.start_fit_s``): without a floor a calm sortie's ratio is a ratio
     of two noise estimates."""
     return noise_std * (8.0 / max(int(n_samples), 1)) ** 0.25 if noise_std > 0 else 0.0
 

@@ -116,7 +116,7 @@ def _physics_prediction(physics_sim, z0: np.ndarray, u: np.ndarray, p: np.ndarra
 def start_fit_span(setup: SafeSetup) -> int:
     """Records fitted per validation window start (:mod:`uavdyn.learned.safe.starts`; 0: the
     records are the starts)."""
-    n = int(round(setup.config.validation_start_fit_s / setup.sample_dt)) + 1
+    n = int(round(setup.config.start_fit_s / setup.sample_dt)) + 1
     return min(n, setup.horizon) if n >= 2 else 0
 
 

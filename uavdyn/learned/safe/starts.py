@@ -25,7 +25,7 @@ from uavdyn.integrate import compile_function, rollout
 from uavdyn.integrate.compiler import QUICK_FLAGS
 
 N_BODY = 4
-GAUSS_NEWTON_STEPS = 4
+GAUSS_NEWTON_STEPS = 2
 NOISE_FLOOR = 1e-9  # relative to the channel's largest magnitude: noise-free records
 
 
@@ -104,10 +104,13 @@ def fit_starts(fit: ca.Function, z0: np.ndarray, u: np.ndarray, y: np.ndarray,
         J = np.asarray(J).reshape(-1, W, N_BODY).transpose(1, 0, 2)           # (W, 4 span, 4)
         JtJ = np.einsum("wrc,wrd->wcd", J, J)  # >= diag(weight^2): the start's own record
         with np.errstate(invalid="ignore", over="ignore"):
-            body = body - np.linalg.solve(JtJ, np.einsum("wrc,wr->wc", J, r)[..., None])[..., 0]
-    r = np.asarray(mapped(body.T, *args)[0])
+            step = -np.linalg.solve(JtJ, np.einsum("wrc,wr->wc", J, r)[..., None])[..., 0]
+        body = body + step
+    # the residual at the last step's end, linearised (the spans are short: the trajectory
+    # is near-linear in its start, and two steps leave it converged far below the noise)
     with np.errstate(invalid="ignore", over="ignore"):
-        chi2 = np.sum(r**2, axis=0) / max(N_BODY * (span - 1), 1)
+        r_end = r + np.einsum("wrc,wc->wr", J, step)
+        chi2 = np.sum(r_end**2, axis=1) / max(N_BODY * (span - 1), 1)
     chi2 = np.where(np.isfinite(chi2), chi2, np.inf)  # a diverged fit: never consistent
     fits = StartFits(body, chi2, span)
     return StartFits(np.where(fits.consistent[:, None], body, z0[:, :N_BODY]), chi2, span)

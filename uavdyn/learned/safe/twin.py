@@ -243,7 +243,7 @@ class CompiledTwin:
 @dataclass(frozen=True)
 class FittedStartPredictor:
     """Free runs through the validation windows from the starts each scored network fits
-    itself (``SafeConfig.validation_start_fit_s``): the hybrid's counterpart of
+    itself (``SafeConfig.start_fit_s``): the hybrid's counterpart of
     :func:`uavdyn.learned.safe.data.physics_fitted`, so neither is scored from a start the
     other fitted."""
 
@@ -252,8 +252,15 @@ class FittedStartPredictor:
     span: int
 
     def __call__(self, model: TorchCorrection, V: WindowTensors) -> np.ndarray:
-        if V.count != len(self.noise):
-            raise ValueError(f"{V.count} windows but the noise of {len(self.noise)}")
-        fits = self.twin.fit_starts(model, V, self.noise, self.span)
-        z0 = torch.as_tensor(with_starts(V.z0.detach().numpy(), fits), dtype=V.z0.dtype)
-        return self.twin.predict(model, replace(V, z0=z0))
+        return self.twin.predict(model, replace(V, z0=self.starts(model, V)))
+
+    def starts(self, model: TorchCorrection, V: WindowTensors,
+               idx: torch.Tensor | None = None) -> torch.Tensor:
+        """The start states of the windows ``V`` (of ``V.take(idx)``) fitted by ``model``
+        from their records."""
+        noise = self.noise if idx is None else self.noise[np.asarray(idx)]
+        V = V if idx is None else V.take(idx)
+        if V.count != len(noise):
+            raise ValueError(f"{V.count} windows but the noise of {len(noise)}")
+        fits = self.twin.fit_starts(model, V, noise, self.span)
+        return torch.as_tensor(with_starts(V.z0.detach().numpy(), fits), dtype=V.z0.dtype)
