@@ -9,7 +9,9 @@ and the hybrid step (corrected) three ways:
   knockout table scores);
 * ``records_vs_truth``: started from the recorded (noisy) state, scored against the truth;
 * ``records``: started from the record, scored against the records (what training and
-  validation see).
+  validation see);
+* ``fitted``: started from the state each model fits to the window's first records over
+  ``--fit-s`` (``SafeConfig.start_fit_s``), scored against the records.
 
 A correction that damps the start's noise out scores better in the last two and worse in the
 first. Prints JSON (pitch RMSE in mrad per sortie and model); ``--out`` also writes it.
@@ -46,6 +48,27 @@ def window_rmse(model, sortie, starts: np.ndarray, target: np.ndarray, p: np.nda
     return 1e3 * math.sqrt(float(np.mean(sq)))
 
 
+def fitted_starts(model, sortie, p: np.ndarray, dt: float, span: int) -> np.ndarray:
+    """The records with each window's start replaced by the state ``model`` fits to the
+    window's first ``span`` records (``SafeConfig.start_fit_s``; the record where the model
+    does not explain them within the noise)."""
+    from uavdyn.learned.rules import state_noise
+    from uavdyn.learned.safe.starts import fit_starts, start_fit_function
+
+    horizon, stride = round(HORIZON_S / dt), round(STRIDE_S / dt)
+    ks = np.arange(0, len(sortie.time) - horizon, stride)
+    z0 = np.array([np.asarray(model.initial_state(sortie.states[k, :4], sortie.controls[k],
+                                                  p, dt), float).ravel() for k in ks])
+    u = np.array([sortie.controls[k:k + span - 1] for k in ks])
+    y = np.array([sortie.states[k + 1:k + span, :4] for k in ks])
+    fits = fit_starts(start_fit_function(model.function, span), z0, u, y,
+                      np.repeat(p[:, None], len(ks), axis=1), dt,
+                      np.tile(state_noise(sortie), (len(ks), 1)), span)
+    out = np.array(sortie.states, float, copy=True)
+    out[ks, :4] = fits.body
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--knockout", required=True, help="knockout JSON with the case")
@@ -53,6 +76,8 @@ def main() -> None:
     ap.add_argument("--weights", required=True, help="the case's saved correction (.npz)")
     ap.add_argument("--airframe", required=True, help="the identified airframe it sits on")
     ap.add_argument("--split", default="validation", choices=("train", "validation", "test"))
+    ap.add_argument("--fit-s", type=float, default=0.2,
+                    help="span of the fitted starts (s; default 0.2)")
     ap.add_argument("--out", help="also write the JSON here")
     args = ap.parse_args()
 
@@ -74,6 +99,7 @@ def main() -> None:
     models = {"a": physics_step(airframe), "corrected": hybrid_step(net, airframe,
                                                                     compile=False)}
     p = np.asarray(airframe.p, float)
+    span = round(args.fit_s / float(np.median(np.diff(ds.sorties[0].time)))) + 1
     rows = []
     for s in ds.sorties:
         if s.meta.get("split") != args.split or s.true_states is None:
@@ -84,10 +110,13 @@ def main() -> None:
             row[label] = {
                 "truth": window_rmse(model, s, s.true_states, s.true_states, p, dt),
                 "records_vs_truth": window_rmse(model, s, s.states, s.true_states, p, dt),
-                "records": window_rmse(model, s, s.states, s.states, p, dt)}
+                "records": window_rmse(model, s, s.states, s.states, p, dt),
+                "fitted": window_rmse(model, s, fitted_starts(model, s, p, dt, span),
+                                      s.states, p, dt)}
         rows.append(row)
     out = {"knockout": args.knockout, "case": args.case, "weights": args.weights,
            "split": args.split, "horizon_s": HORIZON_S, "stride_s": STRIDE_S,
+           "fit_span_s": args.fit_s,
            "unit": "mrad", "sorties": rows,
            "machine": machine_facts(),
            "command": "python analysis/start_noise.py " + " ".join(sys.argv[1:])}

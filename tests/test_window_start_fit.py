@@ -5,6 +5,8 @@ physics cannot know, and the hybrid twin with an untrained network (it is the ph
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -154,3 +156,31 @@ def test_noise_resolution_bounds_the_excess_error_of_a_perfect_prediction():
     ratio = sortie_ratio(np.hypot(e_p, sigma), np.hypot(e_c, sigma), sigma, floor)
     assert ratio == pytest.approx(0.5)
     assert sortie_ratio(sigma, np.hypot(2 * floor, sigma), sigma, floor) == pytest.approx(2.0)
+
+
+def test_training_scores_the_physics_from_fitted_starts_with_less_start_noise(tmp_path):
+    """``train_safe`` with ``start_fit_s`` (the default) against 0: the physics' validation
+    error it compares with is lower than from the raw records (the
+    start's noise fitted out: emulated flights plus white noise), the run records how many
+    starts the physics fitted, and the kept-or-not rules still run to a verdict."""
+    from emulated_data import emulated_dataset
+
+    from uavdyn.flightdata import load_dataset
+    from uavdyn.learned.safe import SafeConfig, train_safe
+
+    airframe = load_airframe("aerosonde")
+    clean = load_dataset(emulated_dataset(tmp_path / "data", airframe, 5, 8.0)).sorties
+    rng = np.random.default_rng(2)
+    sorties = [dataclasses.replace(s, states=s.true_states + rng.normal(
+        size=s.true_states.shape) * NOISE) for s in clean]
+    base = dict(epochs=2, batches_per_epoch=2, batch_windows=6, horizon_s=1.0,
+                progress=False, memory_tau=(0.1,), patience=100)
+    raw = train_safe(sorties[:3], sorties[3:], airframe, SafeConfig(**base, start_fit_s=0))
+    fit = train_safe(sorties[:3], sorties[3:], airframe, SafeConfig(**base))
+    assert raw.start_fits == {}
+    summary = fit.start_fits["validation"]
+    assert summary["span_samples"] == 21 and summary["share_fitted"] > 0.5
+    physics_raw = raw.history[0]["physics_val_theta_rmse"]
+    physics_fit = fit.history[0]["physics_val_theta_rmse"]
+    assert physics_fit < 0.9 * physics_raw, (physics_fit, physics_raw)
+    assert fit.reason and len(fit.history) == 3

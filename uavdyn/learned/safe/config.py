@@ -75,12 +75,11 @@ class SafeConfig:
                                      # cutoff (zero phase; 0: raw), the targets stay raw
     validation_start_lowpass_hz: float = 0.0  # the same for the validation windows only
                                      # (what selects and keeps a correction)
-    start_fit_s: float = 0.0         # validation windows start where each model scored (the
+    start_fit_s: float = 0.2         # validation windows start where each model scored (the
                                      # physics, each candidate) fits its own trajectory to
                                      # the window's first records over this long (0: the
-                                     # records; uavdyn.learned.safe.starts)
-    start_fit_training: bool = False  # ... and the training windows, refitted by the network
-                                     # in training before every epoch
+                                     # records, whose noise a network could earn a gain by
+                                     # damping; uavdyn.learned.safe.starts)
     restarts: int = 1                # networks started from different seeds, each trained
                                      # restart_epochs, the best by validation rank carried on
     restart_epochs: int = 40

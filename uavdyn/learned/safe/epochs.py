@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -51,8 +51,6 @@ class TrainingData:
     inputs: torch.Tensor | None = None  # the network's inputs at every training sample
     validation_predictor: Predictor | None = None  # scores the validation windows (None:
                                                     # the twin's or torch's free runs)
-    train_starts: Callable | None = None  # (model, idx) -> the starts of training windows
-                                          # idx fitted by the network (None: the records)
 
     @property
     def predict(self) -> Predictor | None:
@@ -119,8 +117,6 @@ def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: Traini
     for _ in range(cfg.batches_per_epoch):
         idx = torch.as_tensor(rng.choice(n_w, min(cfg.batch_windows, n_w), replace=False))
         batch = data.train.take(idx)
-        if data.train_starts is not None:
-            batch = replace(batch, z0=data.train_starts(model, idx))
         opt.zero_grad()
         if data.twin is None:
             loss_t = data.loss(model, batch)

@@ -110,19 +110,11 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         # where training runs in torch)
         fitter = twin or CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
         fitted = FittedStartPredictor(fitter, val_noise, span)
-    train = window_tensors(tr, scales)
-    refit = None
-    if span and cfg.start_fit_training:  # each batch from the starts the network fits
-        train_fit = FittedStartPredictor(fitted.twin, np.array(
-            [state_noise(s) for s in train_sorties])[tr.sortie], span)
-
-        def refit(net: TorchCorrection, idx: torch.Tensor) -> torch.Tensor:
-            return train_fit.starts(net, train, idx)
-    data = TrainingData(train, window_tensors(va, scales),
+    data = TrainingData(window_tensors(tr, scales), window_tensors(va, scales),
                         fixed_windows(cfg, len(tr.z0), len(va.z0)),
                         WindowLoss.of(scales, cfg, dt),
                         validation_reference(va, val_sorties, setup.horizon_sel), twin,
-                        torch.as_tensor(tr.inputs, dtype=model.in_mean.dtype), fitted, refit)
+                        torch.as_tensor(tr.inputs, dtype=model.in_mean.dtype), fitted)
     loop = screened_start(model, network, data, stab, cfg, rng, start, airframe.name)
     loop.advance(cfg.epochs)
     model, run = loop.model, loop.result()

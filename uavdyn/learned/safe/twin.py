@@ -254,13 +254,9 @@ class FittedStartPredictor:
     def __call__(self, model: TorchCorrection, V: WindowTensors) -> np.ndarray:
         return self.twin.predict(model, replace(V, z0=self.starts(model, V)))
 
-    def starts(self, model: TorchCorrection, V: WindowTensors,
-               idx: torch.Tensor | None = None) -> torch.Tensor:
-        """The start states of the windows ``V`` (of ``V.take(idx)``) fitted by ``model``
-        from their records."""
-        noise = self.noise if idx is None else self.noise[np.asarray(idx)]
-        V = V if idx is None else V.take(idx)
-        if V.count != len(noise):
-            raise ValueError(f"{V.count} windows but the noise of {len(noise)}")
-        fits = self.twin.fit_starts(model, V, noise, self.span)
+    def starts(self, model: TorchCorrection, V: WindowTensors) -> torch.Tensor:
+        """The start states of the windows ``V`` fitted by ``model`` from their records."""
+        if V.count != len(self.noise):
+            raise ValueError(f"{V.count} windows but the noise of {len(self.noise)}")
+        fits = self.twin.fit_starts(model, V, self.noise, self.span)
         return torch.as_tensor(with_starts(V.z0.detach().numpy(), fits), dtype=V.z0.dtype)
