@@ -52,8 +52,8 @@ def fitted_starts(model, sortie, p: np.ndarray, dt: float, span: int) -> np.ndar
     """The records with each window's start replaced by the state ``model`` fits to the
     window's first ``span`` records (``SafeConfig.start_fit_s``; the record where the model
     does not explain them within the noise)."""
+    from uavdyn.integrate.start_fit import fit_starts, start_fit_function
     from uavdyn.learned.rules import state_noise
-    from uavdyn.learned.safe.starts import fit_starts, start_fit_function
 
     horizon, stride = round(HORIZON_S / dt), round(STRIDE_S / dt)
     ks = np.arange(0, len(sortie.time) - horizon, stride)

@@ -1,5 +1,5 @@
 """Window starts fitted by the model being scored (``SafeConfig.start_fit_s``,
-:mod:`uavdyn.learned.safe.starts`), checked against records the physics itself flew (its own
+:mod:`uavdyn.integrate.start_fit`), checked against records the physics itself flew (its own
 trajectory is the exact answer), the same records with white noise of known size, a gust the
 physics cannot know, and the hybrid twin with an untrained network (it is the physics)."""
 
@@ -12,7 +12,7 @@ import pytest
 
 from uavdyn.airframes import load_airframe
 from uavdyn.integrate import StateLayout, physics_step, rollout
-from uavdyn.learned.safe.starts import fit_starts, start_fit_function
+from uavdyn.integrate.start_fit import fit_starts, start_fit_function
 from uavdyn.linear import trim
 from uavdyn.model import structure_of
 

@@ -416,8 +416,8 @@ def estimate_start(step: DiscreteModel | ca.Function, z0, controls, observed, p,
     run (a lightly damped phugoid keeps it for the run's length), and so does every model
     started there: comparing two models' free runs, the start's noise adds an error common to
     both that pulls their ratio towards 1. Fitted through the model to ``n + 1`` samples, the
-    start is about ``sqrt(n)`` times less noisy. Output-error least squares (Gauss-Newton, exact
-    CasADi Jacobian) on the first ``len(scale)`` entries of ``z0`` (the body states); the others
+    start is about ``sqrt(n)`` times less noisy. Output-error least squares on the body states
+    (:func:`uavdyn.integrate.start_fit.fit_starts`, one window); the other entries of ``z0``
     (actuator, delay or memory states) are kept.
 
     Parameters
@@ -425,45 +425,44 @@ def estimate_start(step: DiscreteModel | ca.Function, z0, controls, observed, p,
     step : casadi.Function
         ``(z, u, p, dt) -> z_next`` (no time input).
     z0 : array_like, shape (nz,)
-        Start from the first recorded sample; its leading ``len(scale)`` entries are fitted.
+        Start from the first recorded sample; its 4 body states are fitted.
     controls : array_like, shape (n, nu)
         Commands held over the first ``n`` intervals.
-    observed : array_like, shape (n + 1, >= len(scale))
+    observed : array_like, shape (n + 1, >= 4)
         Recorded states at the first ``n + 1`` samples (row 0 is the start's own sample).
     p : array_like
         Parameter vector.
     dt : float
         Step size (one step per sample interval).
-    scale : array_like, shape (m,)
-        Expected noise of each fitted state (the residual weights ``1 / scale``), positive.
+    scale : array_like, shape (4,)
+        Expected noise of each body state (the residual weights ``1 / scale``), positive.
     iterations : int
         Gauss-Newton iterations at most.
 
     Returns
     -------
     ndarray, shape (nz,)
-        ``z0`` with its first ``m`` entries replaced by the fitted start.
+        ``z0`` with its body states replaced by the fitted start (kept where the fit is not
+        finite).
     """
+    from uavdyn.integrate.start_fit import N_BODY, fit_starts, start_fit_function
+
     z0 = np.asarray(z0, float).ravel()
     controls = np.atleast_2d(np.asarray(controls, float))
     scale = np.asarray(scale, float).ravel()
-    m, n = len(scale), len(controls)
-    target = np.asarray(observed, float)[:n + 1, :m].T
-    xs = ca.MX.sym("x", m)
-    z = ca.vertcat(xs, ca.DM(z0[m:])) if len(z0) > m else xs
-    traj = ca.horzcat(xs, rollout(step, n)(z, ca.DM(controls.T), ca.DM(p), dt)[:m, :])
-    residual = ca.vec((traj - ca.DM(target)) / ca.repmat(ca.DM(scale), 1, n + 1))
-    fit = ca.Function("start_fit", [xs], [residual, ca.jacobian(residual, xs)])
-    x = z0[:m].copy()
-    for _ in range(iterations):
-        r, jac = (np.array(v) for v in fit(x))
-        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
-            break
-        dx = np.linalg.lstsq(jac, -r.ravel(), rcond=None)[0]
-        x = x + dx
-        if np.max(np.abs(dx) / scale) < 1e-8:
-            break
-    return np.concatenate([x, z0[m:]]) if np.all(np.isfinite(x)) else z0.copy()
+    if len(scale) != N_BODY:
+        raise ValueError(f"scale must give the noise of the {N_BODY} body states, got "
+                         f"{len(scale)}")
+    n = len(controls)
+    observed = np.asarray(observed, float)[:n + 1, :N_BODY]
+    fit = start_fit_function(model_function(step), n + 1, compiled=False)
+    record = np.concatenate([observed[0], z0[N_BODY:]])  # the start's own sample
+    fits = fit_starts(fit, record[None, :], controls[None, :, :], observed[None, 1:, :],
+                      np.asarray(p, float).reshape(-1, 1), dt, scale[None, :], n + 1,
+                      iterations=iterations, gate=False)
+    if not np.isfinite(fits.chi2[0]):
+        return z0.copy()
+    return np.concatenate([fits.body[0], z0[N_BODY:]])
 
 
 def simulate(step: DiscreteModel | ca.Function, x0, controls, p, dt: float,

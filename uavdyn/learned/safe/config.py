@@ -79,7 +79,7 @@ class SafeConfig:
                                      # physics, each candidate) fits its own trajectory to
                                      # the window's first records over this long (0: the
                                      # records, whose noise a network could earn a gain by
-                                     # damping; uavdyn.learned.safe.starts)
+                                     # damping; uavdyn.integrate.start_fit)
     restarts: int = 1                # networks started from different seeds, each trained
                                      # restart_epochs, the best by validation rank carried on
     restart_epochs: int = 40

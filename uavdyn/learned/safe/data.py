@@ -13,15 +13,15 @@ import torch
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import FlightDataError, Sortie, Windows, lowpass, make_windows
 from uavdyn.integrate import DIVERGENCE_BOUND, StateLayout, compile_function, rollout
-from uavdyn.learned.envelope import Envelope
-from uavdyn.learned.formulations import CorrectionLayout, network_inputs
-from uavdyn.learned.safe.config import SafeConfig, SafeSetup, SafeTrainingError
-from uavdyn.learned.safe.starts import (
+from uavdyn.integrate.start_fit import (
     fit_starts,
     start_fit_function,
     start_fit_summary,
     with_starts,
 )
+from uavdyn.learned.envelope import Envelope
+from uavdyn.learned.formulations import CorrectionLayout, network_inputs
+from uavdyn.learned.safe.config import SafeConfig, SafeSetup, SafeTrainingError
 from uavdyn.learned.torch_model import DTYPE
 from uavdyn.linear.stiffness import step_stiffness
 from uavdyn.model import sortie_params
@@ -114,7 +114,7 @@ def _physics_prediction(physics_sim, z0: np.ndarray, u: np.ndarray, p: np.ndarra
 
 
 def start_fit_span(setup: SafeSetup) -> int:
-    """Records fitted per validation window start (:mod:`uavdyn.learned.safe.starts`; 0: the
+    """Records fitted per validation window start (:mod:`uavdyn.integrate.start_fit`; 0: the
     records are the starts)."""
     n = int(round(setup.config.start_fit_s / setup.sample_dt)) + 1
     return min(n, setup.horizon) if n >= 2 else 0

@@ -24,10 +24,10 @@ import torch
 
 from uavdyn.integrate import compile_function, rollout
 from uavdyn.integrate.compiler import QUICK_FLAGS
+from uavdyn.integrate.start_fit import StartFits, fit_starts, start_fit_function, with_starts
 from uavdyn.learned.envelope import GUARDS, gate_of_distances, outside_distances
 from uavdyn.learned.mlp import mlp_forward
 from uavdyn.learned.safe.data import WindowTensors
-from uavdyn.learned.safe.starts import StartFits, fit_starts, start_fit_function, with_starts
 from uavdyn.learned.stability import TrimSample
 from uavdyn.learned.torch_model import TorchCorrection
 from uavdyn.model import CASADI_OPS, make_rhs
@@ -209,7 +209,7 @@ class CompiledTwin:
     def fit_starts(self, model: TorchCorrection, D: WindowTensors, noise: np.ndarray,
                    span: int) -> StartFits:
         """The starts of the windows ``D`` where the hybrid step (its current weights) fits
-        each window's first ``span`` records best (:func:`uavdyn.learned.safe.starts.fit_starts`;
+        each window's first ``span`` records best (:func:`uavdyn.integrate.start_fit.fit_starts`;
         ``noise``: ``(W, 4)`` the records' white noise)."""
         if span not in self._fits:
             self._fits[span] = start_fit_function(self._step, span)

@@ -1,17 +1,18 @@
-"""Window starts estimated by the model being scored, not taken from one noisy sample.
+"""Starts fitted by a model to the records that follow them, many windows at once.
 
-A window started from a noisy record carries that one sample's noise through its whole
-horizon (2 mrad in pitch and 5 mrad/s in pitch rate give about 3 mrad at 1 s, ten times a
-calm sortie's model error), and a network scored on such windows earns a gain by damping the
-start's noise out, which makes the true dynamics worse (issue 40, ``analysis/start_noise.py``).
-Output-error identification estimates its windows' start states; the same is done here for
-the validation windows that select and keep a correction: each model scored (the physics for
-the reference, each candidate hybrid for itself) gets the body state at each window's start
-that makes its own trajectory fit the window's first ``span`` records best, weighted by each
-channel's white-noise level (Gauss-Newton on the 4 body states; actuator and memory states
-come from the commands and are kept). Neither model is favoured: a start fitted by one model
-is biased by that model's own error, never by the other's. Where the model does not explain
-the span to within the noise (a gust, a manoeuvre it gets wrong) the record is kept.
+A run started from one recorded sample carries that sample's noise through its whole horizon
+(2 mrad in pitch and 5 mrad/s in pitch rate give about 3 mrad at 1 s, ten times a calm
+sortie's model error); comparing two models from such starts, the noise adds an error common
+to both, and a learned correction can even earn a gain by damping it out, which makes the
+true dynamics worse (issue 40, ``analysis/start_noise.py``). Here each window's start is the
+body state that makes the model's own trajectory fit the window's first ``span`` records
+best, each channel weighted by its white noise (output-error least squares, Gauss-Newton with
+the exact CasADi Jacobian; actuator, delay and memory states come from the commands and are
+kept), as output-error identification does for its windows. A start fitted by one model is
+biased by that model's own error only, so each model scored gets its own
+(:func:`estimate_start` for one free run; the safe trainer's validation windows for the
+physics and each candidate correction). Where the model does not explain the span to within
+the noise (a gust, a manoeuvre it gets wrong) the record is kept.
 """
 
 from __future__ import annotations
@@ -21,8 +22,9 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from uavdyn.integrate import compile_function, rollout
+from uavdyn.integrate.codegen import compile_function
 from uavdyn.integrate.compiler import QUICK_FLAGS
+from uavdyn.integrate.rollout import rollout
 
 N_BODY = 4
 GAUSS_NEWTON_STEPS = 2
@@ -46,10 +48,11 @@ class StartFits:
         return self.chi2 < 1.0 + 3.0 * np.sqrt(2.0 / dof)
 
 
-def start_fit_function(step: ca.Function, span: int) -> ca.Function:
-    """Compiled ``(body, rest, u[nu x span-1], p, dt, y[4 x span], w[4]) -> (r, J)``: the
-    weighted residual of ``step``'s trajectory from ``[body; rest]`` against the records
-    ``y`` (the start's own record first) and its Jacobian in ``body``."""
+def start_fit_function(step: ca.Function, span: int, compiled: bool = True) -> ca.Function:
+    """``(body, rest, u[nu x span-1], p, dt, y[4 x span], w[4]) -> (r, J)``: the weighted
+    residual of ``step``'s trajectory from ``[body; rest]`` against the records ``y`` (the
+    start's own record first) and its Jacobian in ``body``; compiled to C (or the VM with one
+    warning where no compiler exists), or left to the VM with ``compiled=False``."""
     nz, nu, n_p = (step.size1_in(i) for i in range(3))
     body, rest = ca.MX.sym("body", N_BODY), ca.MX.sym("rest", nz - N_BODY)
     u, p, dt = ca.MX.sym("u", nu, span - 1), ca.MX.sym("p", n_p), ca.MX.sym("dt")
@@ -59,11 +62,12 @@ def start_fit_function(step: ca.Function, span: int) -> ca.Function:
     r = ca.vec((traj - y) * ca.repmat(w, 1, span))
     fit = ca.Function("start_fit", [body, rest, u, p, dt, y, w], [r, ca.jacobian(r, body)],
                       ["body", "rest", "u", "p", "dt", "y", "w"], ["r", "J"])
-    return compile_function(fit, QUICK_FLAGS)
+    return compile_function(fit, QUICK_FLAGS) if compiled else fit
 
 
 def fit_starts(fit: ca.Function, z0: np.ndarray, u: np.ndarray, y: np.ndarray,
-               p: np.ndarray, dt: float, noise: np.ndarray, span: int) -> StartFits:
+               p: np.ndarray, dt: float, noise: np.ndarray, span: int,
+               iterations: int = GAUSS_NEWTON_STEPS, gate: bool = True) -> StartFits:
     """The body state at each window's start that fits the window's first ``span`` records
     best through the step of ``fit`` (:func:`start_fit_function` of the same ``span``).
 
@@ -85,6 +89,11 @@ def fit_starts(fit: ca.Function, z0: np.ndarray, u: np.ndarray, y: np.ndarray,
         White-noise standard deviation of the body states' records (the fit's weights).
     span : int
         Records fitted per window, the start's own included (>= 2).
+    iterations : int
+        Gauss-Newton steps at most (fewer once every step is below 1e-8 noise deviations).
+    gate : bool
+        Keep the record where the model does not explain the span
+        (:attr:`StartFits.consistent`); without, only a fit that is not finite is refused.
 
     Returns
     -------
@@ -98,7 +107,7 @@ def fit_starts(fit: ca.Function, z0: np.ndarray, u: np.ndarray, y: np.ndarray,
     args = (z0[:, N_BODY:].T, u[:, :span - 1].reshape(W * (span - 1), -1).T,
             np.asarray(p, float), float(dt), records.reshape(W * span, N_BODY).T, weight.T)
     body = z0[:, :N_BODY].copy()
-    for _ in range(GAUSS_NEWTON_STEPS):
+    for _ in range(max(int(iterations), 1)):
         r, J = mapped(body.T, *args)
         r = np.asarray(r).T                                                   # (W, 4 span)
         J = np.asarray(J).reshape(-1, W, N_BODY).transpose(1, 0, 2)           # (W, 4 span, 4)
@@ -106,6 +115,8 @@ def fit_starts(fit: ca.Function, z0: np.ndarray, u: np.ndarray, y: np.ndarray,
         with np.errstate(invalid="ignore", over="ignore"):
             step = -np.linalg.solve(JtJ, np.einsum("wrc,wr->wc", J, r)[..., None])[..., 0]
         body = body + step
+        if np.all(np.abs(step) <= 1e-8 * np.abs(1.0 / weight)):
+            break
     # the residual at the last step's end, linearised (the spans are short: the trajectory
     # is near-linear in its start, and two steps leave it converged far below the noise)
     with np.errstate(invalid="ignore", over="ignore"):
@@ -113,7 +124,8 @@ def fit_starts(fit: ca.Function, z0: np.ndarray, u: np.ndarray, y: np.ndarray,
         chi2 = np.sum(r_end**2, axis=1) / max(N_BODY * (span - 1), 1)
     chi2 = np.where(np.isfinite(chi2), chi2, np.inf)  # a diverged fit: never consistent
     fits = StartFits(body, chi2, span)
-    return StartFits(np.where(fits.consistent[:, None], body, z0[:, :N_BODY]), chi2, span)
+    keep = fits.consistent if gate else np.isfinite(chi2) & np.all(np.isfinite(body), axis=1)
+    return StartFits(np.where(keep[:, None], body, z0[:, :N_BODY]), chi2, span)
 
 
 def with_starts(z0: np.ndarray, fits: StartFits) -> np.ndarray:
