@@ -46,6 +46,7 @@ exclude_patterns = [
     "benchmarks/bench_knockout_output_penalty.md",
     "benchmarks/knockout_patience/patience20.md",
     "benchmarks/knockout_restarts/*.md",
+    "benchmarks/knockout_start_fit/*.md",
     "**/*.json",
     "mpc/*",
     "montecarlo/*",

@@ -44,7 +44,6 @@ from uavdyn.integrate.rollout import (
     check_finite,
     check_use,
     compiled_rollout,
-    estimate_start,
     fitting_steps,
     free_run,
     predict_windows,
@@ -57,6 +56,7 @@ from uavdyn.integrate.rollout import (
     takes_time,
     window_rollouts,
 )
+from uavdyn.integrate.start_fit import estimate_start
 from uavdyn.integrate.steps import (
     STEP_INPUTS,
     reference_step,

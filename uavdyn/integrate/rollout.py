@@ -376,7 +376,7 @@ def sortie_free_run(model: DiscreteModel, sortie, p, dt: float, body0=None,
         Step size (s).
     body0 : array_like, optional
         The body state to start from (default the first record, e.g. a fitted start:
-        :func:`estimate_start`).
+        :func:`uavdyn.integrate.start_fit.estimate_start`).
     check : bool
         Raise :class:`DivergenceError` on a non-finite, exploding or departed state (else
         return it).
@@ -406,63 +406,6 @@ def sortie_free_run(model: DiscreteModel, sortie, p, dt: float, body0=None,
     traj = free_run(model, z0, sortie.controls[:-1], p, dt, g.substeps, t0=0.0,
                     compile=not model.function.is_a("External"), check=check)
     return traj[:, :sortie.states.shape[1]]
-
-
-def estimate_start(step: DiscreteModel | ca.Function, z0, controls, observed, p, dt: float, scale,
-                   iterations: int = 8) -> np.ndarray:
-    """The start of a free run that best explains the first recorded samples.
-
-    A free run started from one recorded sample carries that sample's noise through the whole
-    run (a lightly damped phugoid keeps it for the run's length), and so does every model
-    started there: comparing two models' free runs, the start's noise adds an error common to
-    both that pulls their ratio towards 1. Fitted through the model to ``n + 1`` samples, the
-    start is about ``sqrt(n)`` times less noisy. Output-error least squares on the body states
-    (:func:`uavdyn.integrate.start_fit.fit_starts`, one window); the other entries of ``z0``
-    (actuator, delay or memory states) are kept.
-
-    Parameters
-    ----------
-    step : casadi.Function
-        ``(z, u, p, dt) -> z_next`` (no time input).
-    z0 : array_like, shape (nz,)
-        Start from the first recorded sample; its 4 body states are fitted.
-    controls : array_like, shape (n, nu)
-        Commands held over the first ``n`` intervals.
-    observed : array_like, shape (n + 1, >= 4)
-        Recorded states at the first ``n + 1`` samples (row 0 is the start's own sample).
-    p : array_like
-        Parameter vector.
-    dt : float
-        Step size (one step per sample interval).
-    scale : array_like, shape (4,)
-        Expected noise of each body state (the residual weights ``1 / scale``), positive.
-    iterations : int
-        Gauss-Newton iterations at most.
-
-    Returns
-    -------
-    ndarray, shape (nz,)
-        ``z0`` with its body states replaced by the fitted start (kept where the fit is not
-        finite).
-    """
-    from uavdyn.integrate.start_fit import N_BODY, fit_starts, start_fit_function
-
-    z0 = np.asarray(z0, float).ravel()
-    controls = np.atleast_2d(np.asarray(controls, float))
-    scale = np.asarray(scale, float).ravel()
-    if len(scale) != N_BODY:
-        raise ValueError(f"scale must give the noise of the {N_BODY} body states, got "
-                         f"{len(scale)}")
-    n = len(controls)
-    observed = np.asarray(observed, float)[:n + 1, :N_BODY]
-    fit = start_fit_function(model_function(step), n + 1, compiled=False)
-    record = np.concatenate([observed[0], z0[N_BODY:]])  # the start's own sample
-    fits = fit_starts(fit, record[None, :], controls[None, :, :], observed[None, 1:, :],
-                      np.asarray(p, float).reshape(-1, 1), dt, scale[None, :], n + 1,
-                      iterations=iterations, gate=False)
-    if not np.isfinite(fits.chi2[0]):
-        return z0.copy()
-    return np.concatenate([fits.body[0], z0[N_BODY:]])
 
 
 def simulate(step: DiscreteModel | ca.Function, x0, controls, p, dt: float,
