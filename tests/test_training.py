@@ -109,6 +109,34 @@ def test_cli_train_restarts_screens_the_starts_and_refuses_bad_counts(tmp_path, 
     assert not (tmp_path / "x.npz").exists()
 
 
+def test_cli_train_start_fit_is_recorded_and_refused_out_of_range(tmp_path, emulated, capsys):
+    """``--start-fit``: by default (0.2 s) the summary and the history record how many
+    validation starts the physics fitted over 21 samples; ``--start-fit 0`` fits none (the
+    records are the starts) and records nothing; a span beyond 2 s, a negative one, or one
+    for a legacy formulation is refused in one line naming the option."""
+    import json
+
+    from uavdyn.cli import main
+
+    base = ["train", "--airframe", "aerosonde", "--dataset", str(emulated), "--epochs", "2",
+            "--hidden", "4", "--horizon", "0.3", "--quiet", "--min-gain", "0"]
+    assert main([*base, "--out", str(tmp_path / "fit.npz")]) == 0
+    fits = json.loads(capsys.readouterr().out)["start_fits"]
+    assert fits["validation"]["span_samples"] == 21
+    assert 0.0 <= fits["validation"]["share_fitted"] <= 1.0
+    history = json.loads((tmp_path / "fit_history.json").read_text())
+    assert history["start_fits"] == fits and history["config"]["start_fit_s"] == 0.2
+    assert main([*base, "--start-fit", "0", "--out", str(tmp_path / "raw.npz")]) == 0
+    assert json.loads(capsys.readouterr().out)["start_fits"] == {}
+    for bad in (["--start-fit", "3"], ["--start-fit", "-0.1"],
+                ["--start-fit", "0.2", "--formulation", "paper"]):
+        assert main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
+                     "--out", str(tmp_path / "x.npz"), *bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "--start-fit" in err
+    assert not (tmp_path / "x.npz").exists()
+
+
 def test_cli_train_needs_a_dataset(tmp_path, capsys):
     """No stand-in data: without --dataset, one line naming the option and how to make one;
     nothing is written."""

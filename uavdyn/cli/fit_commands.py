@@ -198,7 +198,7 @@ def training_module():
 
 
 SAFE_ONLY = ("--stability-weight", "--stability-margin", "--horizon", "--memory-tau",
-             "--inputs", "--output", "--linear-path", "--min-gain", "--restarts")
+             "--inputs", "--output", "--linear-path", "--min-gain", "--restarts", "--start-fit")
 LEGACY_ONLY = ("--dt", "--rollout-horizon", "--rollout-weight")
 
 
@@ -355,6 +355,11 @@ def add_train(sub) -> None:
                         f"(1 to {MAX_RESTARTS}; default 1: measured in "
                         "docs/learned_correction.md, more starts kept more corrections that "
                         "lose calm test sorties)")
+    p.add_argument("--start-fit", type=number(0.0, 2.0, name="seconds"), default=None,
+                   help="improved/data: each validation window starts from the state each "
+                        "scored model fits to its first this-many seconds of records (0..2 s; "
+                        "default 0.2; 0: from the recorded state, whose noise a correction can "
+                        "earn a gain by damping)")
     p.add_argument("--horizon", type=seconds(name="horizon"), default=None,
                    help="improved/data: rollout window from recorded states in s, no longer "
                         "than the sorties (default 2)")
