@@ -141,11 +141,11 @@ def score(model: TorchCorrection, V: WindowTensors, ref: ValidationReference, dt
         with torch.no_grad():
             pred = torch_rollout(model, V.z0, V.u[:, :H], V.p.T, dt).numpy()
     err = (pred[:, :, THETA] - ref.y[:, :H, THETA]) ** 2
-    noise = ref.noise
+    noise, resolution = ref.noise, ref.resolution
     with np.errstate(over="ignore", invalid="ignore"):
         state_ratios = ref.state_errors(pred) / ref.physics_states
         ratios = [sortie_ratio(ref.physics_sortie[i], _sortie_rmse(err, ref.sortie, i),
-                               noise[i], ref.resolution[i]) for i in range(len(noise))]
+                               noise[i], resolution[i]) for i in range(len(noise))]
     summary = summarise_ratios(ratios)
     worst_state = float(np.max(state_ratios))
     return {"val_theta_rmse": float(np.sqrt(np.mean(err))),
