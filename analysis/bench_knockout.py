@@ -706,6 +706,9 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
                 else 0)
             stats["stability_checked"] = bool(corr.get("stability")) and net is not None
             entry["score"] = stats
+            if args.score_splits:
+                entry["score_on"] = split_scores(ds, args.score_splits, afs, models, nominal,
+                                                 net is not None, args.noise_share)
             entry["per_sortie"] = [
                 {"sortie": s.name, "condition": s.meta.get("condition"), "mission": s.mission,
                  **{f"rmse_1s_{m}": errors[m][i].rmse for m in errors},
@@ -723,6 +726,23 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
         entry["load_average_after"] = list(os.getloadavg())
         doc["cases"][label] = json_safe(entry)
         save(doc, out)
+
+
+def split_scores(ds, splits: list[str], afs: dict, models: dict, nominal, corrected: bool,
+                 noise_share: float) -> dict:
+    """The recovered share on other splits than the test's (``--score-splits``): on the
+    training sorties it says how much of the term the correction learnt at all, on the
+    validation sorties what the selection saw; the test's share is what it carries over."""
+    out = {}
+    for split in splits:
+        errors = test_errors(afs, models, ds.split(split), nominal)["errors"]
+        if not corrected:
+            errors["corrected"] = list(errors["a"])
+        stats = share_statistics(errors, noise_share=noise_share)
+        out[split] = {k: stats.get(k) for k in ("sorties", "err", "removed_share",
+                                                "recovered_share", "recovered_share_interval",
+                                                "n_sorties_worse")}
+    return out
 
 
 def _past_stall(ds, nominal) -> dict:
@@ -865,6 +885,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--weights-dir", type=Path, default=None,
                     help="also save each kept correction (<airframe>_<term>.npz) with the "
                          "identified airframe it was trained on (.toml) here")
+    ap.add_argument("--score-splits", nargs="+", default=[], choices=("train", "validation"),
+                    help="also score these splits (the share learnt on the training sorties, "
+                         "the share the selection saw on the validation sorties)")
     ap.add_argument("--merge", type=Path, nargs="+", default=None, metavar="JSON",
                     help="run nothing: gather the cases of these result files (runs made side "
                          "by side, each case as it was measured, with the run that made it; "

@@ -693,3 +693,29 @@ def test_low_passed_starts_change_where_windows_start_not_what_they_are_scored_a
     err_raw = np.sqrt(np.mean((raw.z0[:, :4] - truth) ** 2, axis=0))
     err_smooth = np.sqrt(np.mean((smooth.z0[:, :4] - truth) ** 2, axis=0))
     assert err_smooth[2] < err_raw[2] and err_smooth[3] < err_raw[3]  # q and theta
+
+
+def test_weight_average_is_the_exponential_average_of_the_steps_written_out():
+    """``SafeConfig.average_decay``: after each optimiser step the kept network's weights are
+    ``keep * mean + (1 - keep) * weights`` with ``keep = min(decay, (1 + n) / (10 + n))``
+    at step ``n``, checked against the recursion written out on a random walk of weights;
+    the trained network itself is untouched."""
+    from uavdyn.learned.safe.epochs import WeightAverage
+
+    model = TorchCorrection("fixed_wing", "improved", 4, "relu", np.zeros(6), np.ones(6),
+                            np.ones(3), DT, linear=True, seed=2)
+    start = [p.detach().clone().numpy() for p in model.parameters()]
+    average, decay = WeightAverage(model, 0.9), 0.9
+    expected = [s.copy() for s in start]
+    rng = np.random.default_rng(5)
+    for n in range(1, 40):
+        with torch.no_grad():
+            for p in model.parameters():
+                p.add_(torch.as_tensor(rng.normal(size=tuple(p.shape))))
+        average.update(model)
+        keep = min(decay, (1.0 + n) / (10.0 + n))
+        expected = [keep * e + (1.0 - keep) * p.detach().numpy()
+                    for e, p in zip(expected, model.parameters())]
+    for mean, e, p in zip(average.model.parameters(), expected, model.parameters()):
+        np.testing.assert_allclose(mean.detach().numpy(), e, rtol=1e-12, atol=1e-12)
+        assert not np.allclose(mean.detach().numpy(), p.detach().numpy())

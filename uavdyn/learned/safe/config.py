@@ -80,6 +80,9 @@ class SafeConfig:
                                      # the window's first records over this long (0: the
                                      # records, whose noise a network could earn a gain by
                                      # damping; uavdyn.integrate.start_fit)
+    average_decay: float = 0.0       # > 0: the epochs score and keep an exponential moving
+                                     # average of the weights over the optimiser steps, with
+                                     # this decay per step (epochs.WeightAverage)
     restarts: int = 1                # networks started from different seeds, each trained
                                      # restart_epochs, the best by validation rank carried on
     restart_epochs: int = 40

@@ -5,6 +5,7 @@ candidates of the final checks) and patience on the selection rank."""
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Callable
@@ -108,10 +109,31 @@ def output_penalty(model: TorchCorrection, rows: torch.Tensor) -> torch.Tensor:
     return torch.mean((model(rows) / model.out_scale) ** 2)
 
 
+class WeightAverage:
+    """An exponential moving average of a network's weights over the optimiser steps (Polyak
+    averaging): the network the epochs score and keep when ``cfg.average_decay`` > 0. The
+    weights Adam visits scatter around a minimum by the step size; their average sits nearer
+    its centre, so which epoch validation happens to pick matters less (averaging weights
+    along the trajectory approximates an ensemble at the cost of one network: Izmailov et al.
+    2018). The decay ramps up as ``(1 + n) / (10 + n)`` over the first steps, so the start's
+    random weights do not linger."""
+
+    def __init__(self, model: TorchCorrection, decay: float) -> None:
+        self.model, self.decay, self.steps = copy.deepcopy(model), decay, 0
+
+    def update(self, trained: TorchCorrection) -> None:
+        self.steps += 1
+        keep = min(self.decay, (1.0 + self.steps) / (10.0 + self.steps))
+        with torch.no_grad():
+            for mean, param in zip(self.model.parameters(), trained.parameters()):
+                mean.lerp_(param.detach(), 1.0 - keep)
+
+
 def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: TrainingData,
-                stab: StabilityTargets, cfg: SafeConfig, rng: np.random.Generator
-                ) -> tuple[float, float]:
-    """One epoch of ``cfg.batches_per_epoch`` Adam steps; the mean loss and penalty."""
+                stab: StabilityTargets, cfg: SafeConfig, rng: np.random.Generator,
+                average: WeightAverage | None = None) -> tuple[float, float]:
+    """One epoch of ``cfg.batches_per_epoch`` Adam steps (each folded into ``average``); the
+    mean loss and penalty."""
     sum_l = sum_s = 0.0
     n_w = data.train.count
     for _ in range(cfg.batches_per_epoch):
@@ -137,6 +159,8 @@ def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: Traini
                                                           replace=False))]
             (cfg.output_weight * output_penalty(model, rows)).backward()
         opt.step()
+        if average is not None:
+            average.update(model)
         sum_l, sum_s = sum_l + loss, sum_s + pen
     return sum_l / cfg.batches_per_epoch, sum_s / cfg.batches_per_epoch
 
@@ -150,6 +174,7 @@ class EpochLoop:
                  cfg: SafeConfig, rng: np.random.Generator, start: float, name: str) -> None:
         self.model, self.data, self.stab, self.cfg, self.rng = model, data, stab, cfg, rng
         self.start, self.name = start, name
+        self.average = WeightAverage(model, cfg.average_decay) if cfg.average_decay else None
         self.opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
         gamma = (cfg.lr_final / cfg.lr) ** (1.0 / max(1, cfg.epochs))
         self.sched = torch.optim.lr_scheduler.ExponentialLR(self.opt, gamma)
@@ -175,12 +200,13 @@ class EpochLoop:
         for epoch in bar:
             if self.stopped:
                 break
-            loss, penalty = train_epoch(model, self.opt, data, self.stab, cfg, self.rng)
+            loss, penalty = train_epoch(model, self.opt, data, self.stab, cfg, self.rng,
+                                        self.average)
             self.sched.step()
-            sel = score(model, data.val, ref, data.loss.dt, data.predict)
+            sel = score(self.scored, data.val, ref, data.loss.dt, data.predict)
             elapsed = time.perf_counter() - self.start
             self.history.append({"epoch": epoch, "train_loss": loss,
-                                 **fixed_losses(model, data), "stability_penalty": penalty,
+                                 **fixed_losses(self.scored, data), "stability_penalty": penalty,
                                  **sel, "physics_val_theta_rmse": physics_val,
                                  "lr": self.sched.get_last_lr()[0], "seconds": elapsed})
             bar.set_postfix(loss=f"{loss:.3g}", val=f"{sel['val_theta_rmse']:.3g}",
@@ -198,10 +224,15 @@ class EpochLoop:
         if not self.stopped and self.epoch >= cfg.epochs:
             self.stopped = f"epoch budget: {cfg.epochs} epochs"
 
+    @property
+    def scored(self) -> TorchCorrection:
+        """The network the epochs score and keep: the trained one, or its weight average."""
+        return self.model if self.average is None else self.average.model
+
     def _keep(self, epoch: int, sel: dict) -> None:
         if not math.isfinite(sel["val_theta_rmse"]):
             return
-        self.snapshots.append(Snapshot(rank(sel, self.cfg), epoch, _state(self.model), sel))
+        self.snapshots.append(Snapshot(rank(sel, self.cfg), epoch, _state(self.scored), sel))
         if self.snapshots[-1].rank < self.best.rank:
             self.best, self.progress = self.snapshots[-1], epoch
         if sel["val_ratio_geomean"] < self.best_mean:
