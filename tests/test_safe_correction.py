@@ -719,3 +719,34 @@ def test_weight_average_is_the_exponential_average_of_the_steps_written_out():
     for mean, e, p in zip(average.model.parameters(), expected, model.parameters()):
         np.testing.assert_allclose(mean.detach().numpy(), e, rtol=1e-12, atol=1e-12)
         assert not np.allclose(mean.detach().numpy(), p.detach().numpy())
+
+
+@pytest.mark.parametrize("name", ["aerosonde", "f450"])
+def test_the_exact_check_runs_out_to_where_the_gate_reaches_zero(name):
+    """``gate_trims``: the box's own trims (where the training penalty holds the network) and
+    more in each margin the fade opens, strictly between the box's speeds and the speed where
+    the gate is 0, each point once."""
+    from uavdyn.learned.stability import envelope_speeds, gate_trims, reach_speeds, trims_between
+
+    airframe = load_airframe(name)
+    net = _pitch_feedback_net(airframe, 0.0)
+    point = trim(airframe) if airframe.kind == "fixed_wing" else trim(airframe, 8.0, 0.0)
+    speed = float(np.hypot(point.x[0], point.x[1]))
+    n_in = len(net.envelope.low)
+    low, high = np.full(n_in, -1e3), np.full(n_in, 1e3)
+    low[:2] = [point.x[0] - 0.15 * speed, point.x[1] - 1.0]
+    high[:2] = [point.x[0] + 0.05 * speed, point.x[1] + 1.0]
+    envelope = Envelope(low, high, np.maximum(high - low, 1e-3))
+    layout = StateLayout(structure_of(airframe), MEMORY)
+    lo, hi = envelope_speeds(envelope)
+    reach_lo, reach_hi = reach_speeds(envelope)
+    assert reach_lo < lo < hi < reach_hi
+    box, _ = trims_between(airframe, lo, hi, layout)
+    trims, _ = gate_trims(airframe, envelope, layout)
+    keys = [(t.airspeed, t.gamma) for t in trims]
+    assert len(keys) == len(set(keys))
+    assert set((t.airspeed, t.gamma) for t in box) <= set(keys)
+    beyond = [t.airspeed for t in trims if t.airspeed > hi]
+    assert beyond and all(v < reach_hi for v in beyond)
+    below = [t.airspeed for t in trims if t.airspeed < lo and t.airspeed > 0]
+    assert below and all(v > reach_lo for v in below)

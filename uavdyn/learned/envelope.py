@@ -93,7 +93,7 @@ class Envelope:
 
     @classmethod
     def from_samples(cls, inputs: np.ndarray, quantile: float = 0.001,
-                     fade_fraction: float = 0.25, min_width: np.ndarray | None = None
+                     fade_fraction: float = 1.0, min_width: np.ndarray | None = None
                      ) -> Envelope:
         """The envelope of training inputs ``(N, n_in)``: the ``quantile``/``1 - quantile``
         range of each input, fading over ``fade_fraction`` of its width (at least

@@ -78,6 +78,39 @@ def envelope_speeds(envelope: Envelope) -> tuple[float, float]:
     return math.hypot(u_min, w_min), math.hypot(max(map(abs, u)), max(map(abs, w)))
 
 
+def reach_speeds(envelope: Envelope) -> tuple[float, float]:
+    """The airspeed range over which the gate lets the network act at all: the box widened
+    by its fade on every side (:func:`envelope_speeds` of that box)."""
+    return envelope_speeds(Envelope(envelope.low - envelope.fade,
+                                    envelope.high + envelope.fade, envelope.fade))
+
+
+def gate_trims(airframe: Airframe, envelope: Envelope, layout: StateLayout,
+               n_speeds: int = 4) -> tuple[list[TrimSample], list[str]]:
+    """The trims the exact stability check runs at: ``n_speeds`` over the box's airspeeds
+    (where the training penalty holds the network, :func:`envelope_speeds`) and more over the
+    middle half of each margin out to where the gate reaches zero (:func:`reach_speeds`;
+    beyond, the step is the physics), so the check covers trimmed flight wherever the
+    correction acts. A point found twice (a multirotor's hover) is kept once. Returns the
+    points and the speeds that could not be trimmed."""
+    lo, hi = envelope_speeds(envelope)
+    reach_lo, reach_hi = reach_speeds(envelope)
+    trims, skipped = trims_between(airframe, lo, hi, layout, n_speeds)
+    for a, b in ((max(reach_lo, 0.0), lo), (hi, reach_hi)):
+        if b > a:
+            quarter = 0.25 * (b - a)
+            more, why = trims_between(airframe, a + quarter, b - quarter, layout, 3)
+            trims += more
+            skipped += why
+    seen, out = set(), []
+    for t in trims:
+        key = (round(t.airspeed, 6), round(t.gamma, 9))
+        if key not in seen:
+            seen.add(key)
+            out.append(t)
+    return out, skipped
+
+
 def trims_between(airframe: Airframe, lo: float, hi: float, layout: StateLayout,
                   n_speeds: int = 4) -> tuple[list[TrimSample], list[str]]:
     """Trim points at ``n_speeds`` airspeeds spread over the part of ``[lo, hi]`` where the
@@ -261,7 +294,8 @@ def stability_penalty(model, trims: list[TrimSample], targets, dt: float):
 def envelope_check(net, airframe: Airframe, dt: float | None = None,
                    margin: float = DEFAULT_MARGIN, n_speeds: int = 4,
                    model: DiscreteModel | None = None) -> StabilityReport:
-    """The stability rule of a trained correction at trims over its own training envelope.
+    """The stability rule of a trained correction at trims over its own training envelope and
+    out to where its gate reaches zero (:func:`gate_trims`).
 
     Parameters
     ----------
@@ -288,7 +322,6 @@ def envelope_check(net, airframe: Airframe, dt: float | None = None,
         raise ValueError("these weights store no training envelope (weight formats 3-4, "
                          "'improved' formulation, have one): no envelope sweep")
     model = model if model is not None else hybrid_step(net, airframe, compile=False)
-    lo, hi = envelope_speeds(net.envelope)
-    trims, skipped = trims_between(airframe, lo, hi, model.layout, n_speeds)
+    trims, skipped = gate_trims(airframe, net.envelope, model.layout, n_speeds)
     return check_map_stability(model, physics_step(model.structure), trims, dt or net.dt,
                                margin, skipped)

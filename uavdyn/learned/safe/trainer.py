@@ -31,6 +31,7 @@ from uavdyn.learned.safe.verdict import kept_reason, refusal_reason, validation_
 from uavdyn.learned.stability import (
     body_abscissa,
     envelope_speeds,
+    gate_trims,
     training_target,
     trims_between,
 )
@@ -102,7 +103,10 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
 
     model = network(cfg.seed)
     scales = loss_scales(tr)
-    stab, skipped = _stability_targets(airframe, setup, scaling.envelope)
+    stab, _ = _stability_targets(airframe, setup, scaling.envelope)
+    # the exact check also runs where the gate fades out, beyond the penalty's trims
+    check_trims, skipped = gate_trims(airframe, scaling.envelope,
+                                      StateLayout(setup.structure, setup.memory_tau))
     twin = (CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
             if cfg.compiled and find_compiler() is not None else None)
     fitted = None
@@ -119,13 +123,13 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     loop.advance(cfg.epochs)
     model, run = loop.model, loop.result()
     ref, horizon_s = data.reference, setup.selection_horizon_s
-    checks = Checks(model, layout, model.out_scale.clone(), airframe, setup, stab.trims,
+    checks = Checks(model, layout, model.out_scale.clone(), airframe, setup, check_trims,
                     skipped, data.val, ref,
                     FreeRunGuard(setup.physics, val_sorties, airframe, setup.sample_dt,
                                  ref.state_noise, cfg.free_run_ratio),
                     RunFacts(cfg, airframe.name, ref.physics_rmse, horizon_s,
                              len(run.history) - 1, len(train_sorties), len(val_sorties),
-                             [t.describe() for t in stab.trims], skipped, setup.memory_tau,
+                             [t.describe() for t in check_trims], skipped, setup.memory_tau,
                              start, run.screened,
                              fits), data.predict)
     found = search(checks, run)
