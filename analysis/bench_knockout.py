@@ -802,15 +802,17 @@ def _fmt(value, digits: int = 3) -> str:
 
 def markdown_table(doc: dict) -> str:
     """The cases as one Markdown table (written by ``--markdown``; the docs quote it)."""
+    splits = any(c.get("score_on") for c in doc.get("cases", {}).values())
     lines = ["| airframe | term knocked out | test sorties | err a (rad) | corrected | "
              "err b | recovered share [95 %] | removed share [95 %] | sorties worse > 2 % | "
-             "modes made unstable | correction |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "modes made unstable | correction |"
+             + (" recovered on train / validation sorties |" if splits else ""),
+             "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if splits else "")]
     for _, case in sorted(doc.get("cases", {}).items()):
         if case.get("status") != "done":
             lines.append(f"| {case.get('airframe_name', case.get('airframe'))} | "
                          f"{case.get('term')} | - | - | - | - | {case.get('why', 'not run')} "
-                         "| - | - | - | - |")
+                         "| - | - | - | - |" + (" - |" if splits else ""))
             continue
         sc, corr = case["score"], case.get("correction", {})
         err = sc["err"]
@@ -832,8 +834,18 @@ def markdown_table(doc: dict) -> str:
             f"| {case.get('airframe_name')} | {case['term']} | {sc['pooled_over']} | "
             f"{_fmt(err.get('a'))} | {_fmt(err.get('corrected'))} | {_fmt(err.get('b'))} | "
             f"{rec_text} | {rem_text} | {sc.get('n_sorties_worse')} | "
-            f"{sc.get('modes_made_unstable', '-')} | {kept} |")
+            f"{sc.get('modes_made_unstable', '-')} | {kept} |"
+            + (f" {_split_shares(case)} |" if splits else ""))
     return "\n".join(lines) + "\n"
+
+
+def _split_shares(case: dict) -> str:
+    """The recovered share on the training and validation sorties (``--score-splits``)."""
+    on = case.get("score_on") or {}
+    shares = [on.get(split, {}).get("recovered_share") for split in ("train", "validation")]
+    if not on or "recovered_share" not in case["score"]:
+        return "-"
+    return " / ".join("n.m." if v is None else f"{v:.2f}" for v in shares)
 
 
 def save(doc: dict, out: Path) -> None:

@@ -47,6 +47,7 @@ exclude_patterns = [
     "benchmarks/knockout_patience/patience20.md",
     "benchmarks/knockout_restarts/*.md",
     "benchmarks/knockout_start_fit/*.md",
+    "benchmarks/knockout_fade/*.md",
     "**/*.json",
     "mpc/*",
     "montecarlo/*",
