@@ -149,3 +149,21 @@ def test_balance_conditions_gives_both_splits_both_conditions(bench):
     val = [s.meta["condition"] for s in sorties if split_of(s) == "validation"]
     assert sorted(test) == ["calm", "calm", "turbulent", "turbulent"]
     assert sorted(val) == ["calm", "calm", "turbulent", "turbulent"]
+
+
+def test_markdown_names_the_split_shares_only_when_scored(bench):
+    """``--score-splits``: the table gains a column with the recovered share on the training
+    and validation sorties ("n.m." where not measurable); without it the table is as before."""
+    a, b, c = [0.02, 0.03], [0.01, 0.015], [0.012, 0.018]
+    score = bench.share_statistics({"a": errors_of(a), "corrected": errors_of(c),
+                                    "b": errors_of(b)}, resamples=50)
+    case = {"status": "done", "airframe_name": "f450", "term": "inflow", "score": score,
+            "correction": {"kept": True}}
+    plain = bench.markdown_table({"cases": {"f450/inflow": case}})
+    assert "train / validation" not in plain and plain.splitlines()[2].count("|") == 12
+    split = {**case, "score_on": {"train": {"recovered_share": 1.04},
+                                  "validation": {"recovered_share": None}}}
+    table = bench.markdown_table({"cases": {"f450/inflow": split}})
+    header, _, row = table.splitlines()
+    assert header.endswith("recovered on train / validation sorties |")
+    assert row.endswith("| 1.04 / n.m. |") and row.count("|") == 13
