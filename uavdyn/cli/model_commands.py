@@ -129,8 +129,9 @@ def _hybrid_modes(args: argparse.Namespace) -> int:
     if comp.made_unstable:
         print(f"\nWARNING: the correction made map eigenvalue(s) {comp.made_unstable} unstable")
     if sweep is not None:
-        print(f"\nStability rule over the training envelope (largest growth rate of the body "
-              f"block, margin {sweep.margin:g}):\n\n{sweep.table()}\n")
+        print(f"\nStability rule over the training envelope and out to where the gate reaches 0 "
+              f"(largest growth rate of the body block, margin {sweep.margin:g}):\n\n"
+              f"{sweep.table()}\n")
         print(sweep.describe() if sweep.ok else f"WARNING: {sweep.describe()}")
     return 0
 
