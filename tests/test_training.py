@@ -137,6 +137,41 @@ def test_cli_train_start_fit_is_recorded_and_refused_out_of_range(tmp_path, emul
     assert not (tmp_path / "x.npz").exists()
 
 
+def test_cli_train_envelope_fade_reaches_the_weight_file_and_is_refused_out_of_range(
+        tmp_path, emulated, capsys):
+    """``--envelope-fade``: the run's configuration records it, and a kept correction's gate
+    fades over that share of each input's training range (where the range is not a
+    floor-width constant); out of range, or for a legacy formulation, one line naming the
+    option."""
+    import json
+
+    import numpy as np
+
+    from uavdyn.airframes import load_airframe
+    from uavdyn.cli import main
+    from uavdyn.learned import load_weights
+
+    out = tmp_path / "fade.npz"
+    assert main(["train", "--airframe", "aerosonde", "--dataset", str(emulated), "--epochs",
+                 "2", "--hidden", "4", "--horizon", "0.3", "--quiet", "--min-gain", "0",
+                 "--envelope-fade", "0.5", "--out", str(out)]) == 0
+    capsys.readouterr()
+    history = json.loads((tmp_path / "fade_history.json").read_text())
+    assert history["config"]["envelope_fade"] == 0.5
+    env = load_weights(out, load_airframe("aerosonde")).envelope
+    width = env.high - env.low
+    wide = width > 1e-3
+    assert wide.sum() >= 4
+    np.testing.assert_allclose(env.fade[wide] / width[wide], 0.5, rtol=1e-12)
+    for bad in (["--envelope-fade", "0"], ["--envelope-fade", "5"],
+                ["--envelope-fade", "1", "--formulation", "paper"]):
+        assert main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
+                     "--out", str(tmp_path / "x.npz"), *bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "--envelope-fade" in err
+    assert not (tmp_path / "x.npz").exists()
+
+
 def test_cli_train_needs_a_dataset(tmp_path, capsys):
     """No stand-in data: without --dataset, one line naming the option and how to make one;
     nothing is written."""

@@ -198,7 +198,8 @@ def training_module():
 
 
 SAFE_ONLY = ("--stability-weight", "--stability-margin", "--horizon", "--memory-tau",
-             "--inputs", "--output", "--linear-path", "--min-gain", "--restarts", "--start-fit")
+             "--inputs", "--output", "--linear-path", "--min-gain", "--restarts", "--start-fit",
+             "--envelope-fade")
 LEGACY_ONLY = ("--dt", "--rollout-horizon", "--rollout-weight")
 
 
@@ -360,6 +361,12 @@ def add_train(sub) -> None:
                         "scored model fits to its first this-many seconds of records (0..2 s; "
                         "default 0.2; 0: from the recorded state, whose noise a correction can "
                         "earn a gain by damping)")
+    p.add_argument("--envelope-fade", type=number(0.05, 4.0, name="range widths"),
+                   default=None,
+                   help="improved/data: how far beyond the training data the correction may "
+                        "act: its gate falls from 1 to 0 over this many widths of each "
+                        "input's training range (0.05..4; default 1; the stability check "
+                        "runs out to where it reaches 0)")
     p.add_argument("--horizon", type=seconds(name="horizon"), default=None,
                    help="improved/data: rollout window from recorded states in s, no longer "
                         "than the sorties (default 2)")

@@ -130,6 +130,8 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
         given["horizon_s"] = args.horizon
     if getattr(args, "start_fit", None) is not None:
         given["start_fit_s"] = args.start_fit
+    if getattr(args, "envelope_fade", None) is not None:
+        given["envelope_fade"] = args.envelope_fade
     given.update({k: getattr(args, k) for k in ("inputs", "output")
                   if getattr(args, k, None) is not None})
     if "output" in given:  # the design rule, said in terms of the option
