@@ -750,3 +750,34 @@ def test_the_exact_check_runs_out_to_where_the_gate_reaches_zero(name):
     assert beyond and all(v < reach_hi for v in beyond)
     below = [t.airspeed for t in trims if t.airspeed < lo and t.airspeed > 0]
     assert below and all(v > reach_lo for v in below)
+
+
+def test_validation_stretches_cut_long_sorties_into_minutes_and_keep_short_ones_whole():
+    """``scoring.stretches``: a 30 s sortie is one unit under its own name; a 6-minute log
+    is six units of 60 s and a 90 s one two of 45 s, each window in the unit its start time
+    falls in (so the per-sortie rules and the gain's t statistic see every minute of a long
+    campaign log)."""
+    from types import SimpleNamespace
+
+    from uavdyn.flightdata import Sortie
+    from uavdyn.learned.safe.scoring import STRETCH_S, stretches
+
+    def sortie(name, seconds):
+        t = np.arange(int(seconds / DT) + 1) * DT
+        return Sortie(name, "fixed_wing", t, np.zeros((len(t), 4)), np.zeros((len(t), 2)),
+                      "survey")
+
+    sorties = [sortie("short", 30.0), sortie("log", 360.0), sortie("mid", 90.0)]
+    starts = [(i, k) for i, s in enumerate(sorties) for k in range(0, len(s.time) - 200, 50)]
+    va = SimpleNamespace(windows=SimpleNamespace(starts=np.array(starts)))
+    units = stretches(va, sorties)
+    assert STRETCH_S == 60.0
+    assert list(units.sortie) == [0] + [1] * 6 + [2] * 2
+    assert units.names[0] == "short" and units.names[1] == "log [0-60 s]"
+    assert units.names[6] == "log [300-360 s]" and units.names[8] == "mid [45-90 s]"
+    for (i, k), unit in zip(starts, units.index):
+        s = sorties[i]
+        n = max(1, round(s.duration / STRETCH_S))
+        expected = min(int(s.time[k] // (s.duration / n)), n - 1)
+        assert units.sortie[unit] == i
+        assert unit - list(units.sortie).index(i) == expected

@@ -74,6 +74,39 @@ def fixed_windows(cfg: SafeConfig, n_train: int, n_val: int) -> tuple[torch.Tens
                  for n in (n_train, n_val))
 
 
+STRETCH_S = 60.0  # validation sorties longer than this are scored in stretches about this long
+
+
+@dataclass(frozen=True)
+class Stretches:
+    """The units the per-sortie rules score: every validation sortie cut into
+    ``round(duration / STRETCH_S)`` (at least 1) equal stretches by its windows' start times.
+    An emulated 30 s sortie is one stretch; a 6-minute log of a campaign is six, so the rule
+    that no sortie may get worse looks at each minute of it, and the gain's significance (a
+    paired t over the units) has more than one unit to measure a spread on."""
+
+    index: np.ndarray         # (W,) the stretch of each window
+    sortie: np.ndarray        # (n_units,) the sortie of each stretch
+    names: tuple[str, ...]    # the sortie's name, with the stretch's span where cut
+
+
+def stretches(va: TrainingWindows, val_sorties: list[Sortie]) -> Stretches:
+    """:class:`Stretches` of the validation windows ``va``."""
+    starts = np.asarray(va.windows.starts, int).reshape(-1, 2)
+    index = np.zeros(len(starts), int)
+    owner, names = [], []
+    for i, s in enumerate(val_sorties):
+        n = max(1, int(round(s.duration / STRETCH_S)))
+        length = s.duration / n
+        mine = starts[:, 0] == i
+        t0 = s.time[starts[mine, 1]] - s.time[0]
+        index[mine] = len(owner) + np.minimum((t0 // length).astype(int), n - 1)
+        owner += [i] * n
+        names += [s.name] if n == 1 else [f"{s.name} [{k * length:.0f}-{(k + 1) * length:.0f} s]"
+                                          for k in range(n)]
+    return Stretches(index, np.array(owner, int), tuple(names))
+
+
 def _sortie_rmse(err: np.ndarray, sortie: np.ndarray, i: int) -> float | None:
     """Sortie ``i``'s pitch RMSE over its windows (None: no window)."""
     mine = err[sortie == i]
@@ -88,12 +121,13 @@ class ValidationReference:
     measured."""
 
     y: np.ndarray                       # (W, H, 4) recorded body states
-    sortie: np.ndarray                  # (W,) sortie index of each window
+    sortie: np.ndarray                  # (W,) the stretch (Stretches) of each window
     horizon: int                        # samples of the selection horizon
-    state_noise: np.ndarray             # (n_val, 4) per sortie
-    physics_sortie: list[float | None]  # per sortie pitch RMSE of the physics
+    state_noise: np.ndarray             # (n_units, 4) per stretch: its sortie's noise
+    physics_sortie: list[float | None]  # per stretch pitch RMSE of the physics
     physics_states: np.ndarray          # (4,) pooled errors of the physics (inf where 0)
     physics_rmse: float                 # pooled pitch RMSE of the physics
+    names: tuple[str, ...] = ()         # per stretch: its sortie's name (and span where cut)
 
     @property
     def noise(self) -> list[float]:
@@ -115,16 +149,18 @@ class ValidationReference:
 
 def validation_reference(va: TrainingWindows, val_sorties: list[Sortie], horizon: int
                          ) -> ValidationReference:
-    """The :class:`ValidationReference` of the validation windows ``va``."""
-    state_noise = np.array([sortie_state_noise(s) for s in val_sorties])     # (n_val, 4)
+    """The :class:`ValidationReference` of the validation windows ``va``, scored per
+    :func:`stretches`."""
+    units = stretches(va, val_sorties)
+    state_noise = np.array([sortie_state_noise(s) for s in val_sorties])[units.sortie]
     err_val = (va.physics[:, :horizon, THETA] - va.y[:, :horizon, THETA]) ** 2
     phys_states = pooled_state_errors(va.physics[:, :horizon], va.y[:, :horizon, :4],
-                                      state_noise[va.sortie])
+                                      state_noise[units.index])
     return ValidationReference(
-        va.y, va.sortie, horizon, state_noise,
-        [_sortie_rmse(err_val, va.sortie, i) for i in range(len(val_sorties))],
+        va.y, units.index, horizon, state_noise,
+        [_sortie_rmse(err_val, units.index, i) for i in range(len(units.names))],
         np.where(phys_states > 0, phys_states, np.inf),
-        float(np.sqrt(np.mean(err_val))))
+        float(np.sqrt(np.mean(err_val))), units.names)
 
 
 def score(model: TorchCorrection, V: WindowTensors, ref: ValidationReference, dt: float,

@@ -88,7 +88,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     va = training_windows(airframe, setup, val_sorties, physics_sim,
                           cfg.validation_start_lowpass_hz or cfg.start_lowpass_hz)
     span = start_fit_span(setup)
-    val_noise = np.array([state_noise(s) for s in val_sorties])[va.sortie]
+    sortie_noise = np.array([state_noise(s) for s in val_sorties])  # (n_val, 4)
+    val_noise = sortie_noise[va.sortie]
     if span:
         va = physics_fitted(va, setup, physics_sim, val_noise)
     fits = {"validation": va.start_fit} if span else {}
@@ -126,7 +127,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     checks = Checks(model, layout, model.out_scale.clone(), airframe, setup, check_trims,
                     skipped, data.val, ref,
                     FreeRunGuard(setup.physics, val_sorties, airframe, setup.sample_dt,
-                                 ref.state_noise, cfg.free_run_ratio),
+                                 sortie_noise, cfg.free_run_ratio),
                     RunFacts(cfg, airframe.name, ref.physics_rmse, horizon_s,
                              len(run.history) - 1, len(train_sorties), len(val_sorties),
                              [t.describe() for t in check_trims], skipped, setup.memory_tau,
@@ -141,7 +142,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     else:
         report, alpha, channels, final, epoch = (chosen.report, chosen.scale, chosen.channels,
                                                  chosen.selection, chosen.epoch)
-    validation = validation_summary(final, ref, val_sorties, alpha, channels, tried, horizon_s)
+    validation = validation_summary(final, ref, alpha, channels, tried, horizon_s)
     seconds = time.perf_counter() - start
     if chosen is not None:
         reason = kept_reason(final, ref.physics_rmse, alpha, channels, chosen.row, report,

@@ -8,16 +8,14 @@ import math
 
 import numpy as np
 
-from uavdyn.flightdata import Sortie
 from uavdyn.learned.rules import FREE_RUN_NOISE_FLOOR
 from uavdyn.learned.safe.config import SafeConfig
 from uavdyn.learned.safe.scoring import ValidationReference, beats_physics_in_pitch
 from uavdyn.learned.stability import StabilityReport
 
 
-def validation_summary(final: dict, ref: ValidationReference, val_sorties: list[Sortie],
-                       alpha: float, channels: np.ndarray, tried: list, horizon_s: float
-                       ) -> dict:
+def validation_summary(final: dict, ref: ValidationReference, alpha: float,
+                       channels: np.ndarray, tried: list, horizon_s: float) -> dict:
     """The validation figures of the network reported (``final``: its :func:`score`)."""
     physics_val = ref.physics_rmse
     return {"selection_horizon_s": horizon_s, "physics_theta_rmse": physics_val,
@@ -27,11 +25,10 @@ def validation_summary(final: dict, ref: ValidationReference, val_sorties: list[
             "sortie_ratio_worst": final["val_ratio_worst"],
             "state_ratios": dict(zip(("u", "w", "q", "theta"),
                                      final.get("val_state_ratios", []))),
-            "sortie_ratios": dict(zip([s.name for s in val_sorties],
-                                      final["val_sortie_ratios"])),
-            "pitch_noise_std": dict(zip([s.name for s in val_sorties], ref.noise)),
-            "state_noise_std": {s.name: [float(v) for v in n]
-                                for s, n in zip(val_sorties, ref.state_noise)},
+            "sortie_ratios": dict(zip(ref.names, final["val_sortie_ratios"])),
+            "pitch_noise_std": dict(zip(ref.names, ref.noise)),
+            "state_noise_std": {name: [float(v) for v in n]
+                                for name, n in zip(ref.names, ref.state_noise)},
             "output_scale": alpha, "channel_scales": [float(c) for c in channels],
             "shrink_tried": tried}
 
