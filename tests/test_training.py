@@ -82,6 +82,19 @@ def test_cli_train_writes_weights_history_and_plot(tmp_path, emulated):
     assert (tmp_path / "w_history.json").exists() and (tmp_path / "w_history.png").exists()
 
 
+def _assert_refused_in_one_line(tmp_path, emulated, capsys, option: str, cases) -> None:
+    """Each argument list in ``cases`` makes ``uavdyn train`` exit 2 with one line naming
+    ``option``, and no weight file is written."""
+    from uavdyn.cli import main
+
+    for bad in cases:
+        assert main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
+                     "--out", str(tmp_path / "x.npz"), *bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and option in err
+    assert not (tmp_path / "x.npz").exists()
+
+
 def test_cli_train_restarts_screens_the_starts_and_refuses_bad_counts(tmp_path, emulated,
                                                                       capsys):
     """``--restarts 2``: both starts are screened and one is carried on (the summary and the
@@ -101,12 +114,9 @@ def test_cli_train_restarts_screens_the_starts_and_refuses_bad_counts(tmp_path, 
     assert len(screened) == 2 and sum(s["chosen"] for s in screened) == 1
     history = json.loads((tmp_path / "w_history.json").read_text())
     assert history["screened"] == screened
-    for bad in (["--restarts", "0"], ["--restarts", "2", "--formulation", "paper"]):
-        assert main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
-                     "--out", str(tmp_path / "x.npz"), *bad]) == 2
-        err = capsys.readouterr().err.strip()
-        assert len(err.splitlines()) == 1 and "--restarts" in err
-    assert not (tmp_path / "x.npz").exists()
+    _assert_refused_in_one_line(tmp_path, emulated, capsys, "--restarts",
+                                (["--restarts", "0"],
+                                 ["--restarts", "2", "--formulation", "paper"]))
 
 
 def test_cli_train_start_fit_is_recorded_and_refused_out_of_range(tmp_path, emulated, capsys):
@@ -128,13 +138,9 @@ def test_cli_train_start_fit_is_recorded_and_refused_out_of_range(tmp_path, emul
     assert history["start_fits"] == fits and history["config"]["start_fit_s"] == 0.2
     assert main([*base, "--start-fit", "0", "--out", str(tmp_path / "raw.npz")]) == 0
     assert json.loads(capsys.readouterr().out)["start_fits"] == {}
-    for bad in (["--start-fit", "3"], ["--start-fit", "-0.1"],
-                ["--start-fit", "0.2", "--formulation", "paper"]):
-        assert main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
-                     "--out", str(tmp_path / "x.npz"), *bad]) == 2
-        err = capsys.readouterr().err.strip()
-        assert len(err.splitlines()) == 1 and "--start-fit" in err
-    assert not (tmp_path / "x.npz").exists()
+    _assert_refused_in_one_line(tmp_path, emulated, capsys, "--start-fit",
+                                (["--start-fit", "3"], ["--start-fit", "-0.1"],
+                                 ["--start-fit", "0.2", "--formulation", "paper"]))
 
 
 def test_cli_train_envelope_fade_reaches_the_weight_file_and_is_refused_out_of_range(
@@ -163,13 +169,9 @@ def test_cli_train_envelope_fade_reaches_the_weight_file_and_is_refused_out_of_r
     wide = width > 1e-3
     assert wide.sum() >= 4
     np.testing.assert_allclose(env.fade[wide] / width[wide], 0.5, rtol=1e-12)
-    for bad in (["--envelope-fade", "0"], ["--envelope-fade", "5"],
-                ["--envelope-fade", "1", "--formulation", "paper"]):
-        assert main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
-                     "--out", str(tmp_path / "x.npz"), *bad]) == 2
-        err = capsys.readouterr().err.strip()
-        assert len(err.splitlines()) == 1 and "--envelope-fade" in err
-    assert not (tmp_path / "x.npz").exists()
+    _assert_refused_in_one_line(tmp_path, emulated, capsys, "--envelope-fade",
+                                (["--envelope-fade", "0"], ["--envelope-fade", "5"],
+                                 ["--envelope-fade", "1", "--formulation", "paper"]))
 
 
 def test_cli_train_needs_a_dataset(tmp_path, capsys):
