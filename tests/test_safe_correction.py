@@ -742,7 +742,9 @@ def test_the_exact_check_runs_out_to_where_the_gate_reaches_zero(name):
     reach_lo, reach_hi = reach_speeds(envelope)
     assert reach_lo < lo < hi < reach_hi
     box, _ = trims_between(airframe, lo, hi, layout)
-    trims, _ = gate_trims(airframe, envelope, layout)
+    gates = gate_trims(airframe, envelope, layout)
+    assert [(t.airspeed, t.gamma) for t in gates.box] == [(t.airspeed, t.gamma) for t in box]
+    trims = gates.all
     keys = [(t.airspeed, t.gamma) for t in trims]
     assert len(keys) == len(set(keys))
     assert set((t.airspeed, t.gamma) for t in box) <= set(keys)

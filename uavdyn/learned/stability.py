@@ -85,30 +85,45 @@ def reach_speeds(envelope: Envelope) -> tuple[float, float]:
                                     envelope.high + envelope.fade, envelope.fade))
 
 
+@dataclass(frozen=True)
+class GateTrims:
+    """The trims of a correction's stability check: over the box's airspeeds (where the
+    training penalty holds the network) and in the margins beyond, out to where the gate
+    reaches zero; with the speeds that could not be trimmed."""
+
+    box: list[TrimSample]
+    margins: list[TrimSample]
+    skipped: list[str]
+
+    @property
+    def all(self) -> list[TrimSample]:
+        return self.box + self.margins
+
+
 def gate_trims(airframe: Airframe, envelope: Envelope, layout: StateLayout,
-               n_speeds: int = 4) -> tuple[list[TrimSample], list[str]]:
+               n_speeds: int = 4) -> GateTrims:
     """The trims the exact stability check runs at: ``n_speeds`` over the box's airspeeds
-    (where the training penalty holds the network, :func:`envelope_speeds`) and more over the
-    middle half of each margin out to where the gate reaches zero (:func:`reach_speeds`;
-    beyond, the step is the physics), so the check covers trimmed flight wherever the
-    correction acts. A point found twice (a multirotor's hover) is kept once. Returns the
-    points and the speeds that could not be trimmed."""
+    (:func:`envelope_speeds`) and more over the middle half of each margin out to where the
+    gate reaches zero (:func:`reach_speeds`; beyond, the step is the physics), so the check
+    covers trimmed flight wherever the correction acts. A margin point already in the box (a
+    multirotor's hover) is not repeated."""
     lo, hi = envelope_speeds(envelope)
     reach_lo, reach_hi = reach_speeds(envelope)
-    trims, skipped = trims_between(airframe, lo, hi, layout, n_speeds)
+    box, skipped = trims_between(airframe, lo, hi, layout, n_speeds)
+    seen = {(round(t.airspeed, 6), round(t.gamma, 9)) for t in box}
+    margins: list[TrimSample] = []
     for a, b in ((max(reach_lo, 0.0), lo), (hi, reach_hi)):
-        if b > a:
-            quarter = 0.25 * (b - a)
-            more, why = trims_between(airframe, a + quarter, b - quarter, layout, 3)
-            trims += more
-            skipped += why
-    seen, out = set(), []
-    for t in trims:
-        key = (round(t.airspeed, 6), round(t.gamma, 9))
-        if key not in seen:
-            seen.add(key)
-            out.append(t)
-    return out, skipped
+        if b <= a:
+            continue
+        quarter = 0.25 * (b - a)
+        more, why = trims_between(airframe, a + quarter, b - quarter, layout, 3)
+        skipped += why
+        for t in more:
+            key = (round(t.airspeed, 6), round(t.gamma, 9))
+            if key not in seen:
+                seen.add(key)
+                margins.append(t)
+    return GateTrims(box, margins, skipped)
 
 
 def trims_between(airframe: Airframe, lo: float, hi: float, layout: StateLayout,
@@ -322,6 +337,6 @@ def envelope_check(net, airframe: Airframe, dt: float | None = None,
         raise ValueError("these weights store no training envelope (weight formats 3-4, "
                          "'improved' formulation, have one): no envelope sweep")
     model = model if model is not None else hybrid_step(net, airframe, compile=False)
-    trims, skipped = gate_trims(airframe, net.envelope, model.layout, n_speeds)
-    return check_map_stability(model, physics_step(model.structure), trims, dt or net.dt,
-                               margin, skipped)
+    trims = gate_trims(airframe, net.envelope, model.layout, n_speeds)
+    return check_map_stability(model, physics_step(model.structure), trims.all, dt or net.dt,
+                               margin, trims.skipped)

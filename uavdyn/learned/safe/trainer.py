@@ -29,28 +29,23 @@ from uavdyn.learned.safe.selection import Checks, RunFacts, fallback, search
 from uavdyn.learned.safe.twin import CompiledTwin, FittedStartPredictor
 from uavdyn.learned.safe.verdict import kept_reason, refusal_reason, validation_summary
 from uavdyn.learned.stability import (
+    TrimSample,
     body_abscissa,
-    envelope_speeds,
     gate_trims,
     training_target,
-    trims_between,
 )
 from uavdyn.learned.torch_model import TorchCorrection, seeded_generator
 
 
-def _stability_targets(airframe: Airframe, setup: SafeSetup, envelope
-                       ) -> tuple[StabilityTargets, list[str]]:
-    """Trims over the airspeeds the envelope's box spans (where the gate lets the network
-    act, and what ``uavdyn modes --hybrid`` sweeps), each with its training target; and the
-    speeds skipped."""
-    trims, skipped = trims_between(airframe, *envelope_speeds(envelope),
-                                   StateLayout(setup.structure, setup.memory_tau))
+def _stability_targets(setup: SafeSetup, trims: list[TrimSample]) -> StabilityTargets:
+    """The training target of each trim over the envelope's box (where the penalty holds
+    the network; the exact check adds the margins, :func:`gate_trims`)."""
     phys, dt = setup.physics, setup.dt
     jp = phys.jacobians()
     sigma = [body_abscissa(np.array(jp(t.z[:phys.nx], t.u, t.p, dt)[1]), dt)[0]
              for t in trims]
     margin = setup.config.stability_margin
-    return StabilityTargets(trims, [training_target(s, margin) for s in sigma]), skipped
+    return StabilityTargets(trims, [training_target(s, margin) for s in sigma])
 
 
 def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
@@ -104,10 +99,9 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
 
     model = network(cfg.seed)
     scales = loss_scales(tr)
-    stab, _ = _stability_targets(airframe, setup, scaling.envelope)
-    # the exact check also runs where the gate fades out, beyond the penalty's trims
-    check_trims, skipped = gate_trims(airframe, scaling.envelope,
-                                      StateLayout(setup.structure, setup.memory_tau))
+    gates = gate_trims(airframe, scaling.envelope, StateLayout(setup.structure,
+                                                                setup.memory_tau))
+    stab = _stability_targets(setup, gates.box)
     twin = (CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
             if cfg.compiled and find_compiler() is not None else None)
     fitted = None
@@ -124,13 +118,14 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     loop.advance(cfg.epochs)
     model, run = loop.model, loop.result()
     ref, horizon_s = data.reference, setup.selection_horizon_s
-    checks = Checks(model, layout, model.out_scale.clone(), airframe, setup, check_trims,
-                    skipped, data.val, ref,
+    checks = Checks(model, layout, model.out_scale.clone(), airframe, setup, gates.all,
+                    gates.skipped, data.val, ref,
                     FreeRunGuard(setup.physics, val_sorties, airframe, setup.sample_dt,
                                  sortie_noise, cfg.free_run_ratio),
                     RunFacts(cfg, airframe.name, ref.physics_rmse, horizon_s,
                              len(run.history) - 1, len(train_sorties), len(val_sorties),
-                             [t.describe() for t in check_trims], skipped, setup.memory_tau,
+                             [t.describe() for t in gates.all], gates.skipped,
+                             setup.memory_tau,
                              start, run.screened,
                              fits), data.predict)
     found = search(checks, run)
