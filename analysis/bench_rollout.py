@@ -14,10 +14,20 @@ Per sample in microseconds, the median of ``--repeats`` calls each; the ratios a
 loop of the same run. The states of the two library routes are compared too (max abs
 difference). Prints JSON; ``--out`` also writes it.
 
+The C loops of the physics and the hybrid step are compiled into one program that runs them in
+turn, pass after pass (``--repeats`` passes), and ``hybrid_over_physics_c_loop`` is the median
+of the passes' ratios (each pass's pair under the same load; the ratios are listed). The C
+loop at the trim holds the trim command (no doublet), so an exact-hover trim keeps the physics
+at zero velocity and pitch, where the C library's ``sin``/``cos`` take their shortcut; with
+``--dataset`` both steps are also timed on recorded flight (back-to-back ``--window-s``
+windows of the ``--split`` sorties, each started from its records, the recorded commands
+applied: ``hybrid_over_physics_c_loop_recorded``), the states a prediction meets.
+
 With ``--jsbsim`` (the ``jsbsim`` package installed) JSBSim's bundled Cessna 172 is timed per
 simulated second beside them (:func:`jsbsim_anchor`), the anchor a user would pick otherwise.
 
 Usage: ``python analysis/bench_rollout.py [--samples 100000] [--repeats 7] [--jsbsim]
+[--airframe FILE --weights FILE [--airspeed V]] [--dataset DIR [--split test] [--window-s 1]]
 [--out FILE]``.
 """
 
@@ -35,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from uavdyn.evaluation.c_loop import c_loop_us
+from uavdyn.evaluation.c_loop import CLoop, LoopWork, recorded_workload
 
 
 def library_us(call, args, n: int, repeats: int) -> tuple[float, np.ndarray]:
@@ -47,6 +57,32 @@ def library_us(call, args, n: int, repeats: int) -> tuple[float, np.ndarray]:
         out = np.asarray(call(*args))
         times.append((time.perf_counter() - t0) / n * 1e6)
     return statistics.median(times), out
+
+
+def c_loop_times(models: dict, point, p: np.ndarray, dt: float, n: int, flights: list | None,
+                 window_s: float, passes: int) -> tuple[dict, dict]:
+    """Every model's step in one C program (:class:`CLoop`), timed in turn pass after pass:
+    at the trim under the held trim command (``"trim"``) and, with ``flights``, over their
+    recorded windows (``"recorded"``). Returns the median us per step of each
+    ``(label, workload)`` and, per workload, the per-pass ratios hybrid / physics."""
+    keys, works = [], []
+    for label, model in models.items():
+        x0 = np.asarray(model.initial_state(point.x, point.u, p, dt), float).ravel()
+        keys.append((label, "trim"))
+        works.append(LoopWork(model.function, x0, point.u, p, dt, n))
+        if flights is not None:
+            work = recorded_workload(model, flights, window_s, p)
+            keys.append((label, "recorded"))
+            works.append(LoopWork(model.function, work.starts, work.controls, p,
+                                  flights[0].dt, work.steps))
+    with CLoop(works) as loop:
+        run = loop.run(passes)
+    where = {key: i for i, key in enumerate(keys)}
+    medians = {key: float(run.us_per_step[i]) for key, i in where.items()}
+    ratios = {work: [float(r) for r in run.ratios(where[("hybrid", work)],
+                                                  where[("physics", work)])]
+              for work in ("trim", "recorded") if ("hybrid", work) in where}
+    return medians, ratios
 
 
 def jsbsim_anchor(simulated_s: float, repeats: int) -> dict:
@@ -103,6 +139,12 @@ def main() -> None:
     ap.add_argument("--airspeed", type=float, default=None,
                     help="trim airspeed in m/s (default 25, the Aerosonde's; the airframe's "
                          "own nominal speed with --airframe)")
+    ap.add_argument("--dataset", help="also time both steps' C loops on recorded flight: "
+                    "back-to-back windows of this dataset's --split sorties, each started "
+                    "from its records and driven by the recorded commands")
+    ap.add_argument("--split", default="test", help="the dataset's split to use (default test)")
+    ap.add_argument("--window-s", type=float, default=1.0,
+                    help="window length in seconds for --dataset (default 1)")
     ap.add_argument("--jsbsim", action="store_true",
                     help="also time JSBSim's c172x per simulated second (needs jsbsim)")
     args = ap.parse_args()
@@ -122,31 +164,40 @@ def main() -> None:
     else:
         airframe, weights, speed = load_airframe(args.airframe), args.weights, args.airspeed
     dt, n = 0.01, args.samples
+    flights = None
+    if args.dataset:
+        from uavdyn.flightdata import load_dataset
+        flights = load_dataset(args.dataset).split(args.split)
+        if not flights:
+            ap.error(f"--dataset {args.dataset} has no {args.split} sorties")
     point = trim(airframe, speed)
     models = {"physics": physics_step(airframe),
               "hybrid": hybrid_step(weights, airframe, compile=False)}
+    p = np.asarray(airframe.p, float)
+    c_times, ratios = c_loop_times(models, point, p, dt, n, flights, args.window_s,
+                                   args.repeats)
     results = {}
     for label, model in models.items():
         function = model.function
-        nx = function.size1_in(0)
-        p = np.asarray(airframe.p, float)
         x0 = np.asarray(model.initial_state(point.x, point.u, p, dt), float).ravel()
         controls = np.tile(point.u, (n, 1))
         phase = np.arange(n) % 500
         controls[phase < 25, 0] += 0.02  # an elevator doublet every 5 s
         controls[(phase >= 25) & (phase < 50), 0] -= 0.02
-        floor = c_loop_us(function, x0, point.u, p, dt, n, args.repeats)
+        floor = c_times[(label, "trim")]
         native = compiled_rollout(function, n)
         old = compile_function(rollout(function, n))
         call_args = (x0, controls.T, p, dt)
         t_native, x_native = library_us(native, call_args, n, args.repeats)
         t_old, x_old = library_us(old, call_args, n, args.repeats)
         results[label] = {
-            "states": nx, "c_loop_us_per_sample": floor,
+            "states": function.size1_in(0), "c_loop_us_per_sample": floor,
             "compiled_rollout_us_per_sample": t_native, "mapaccum_us_per_sample": t_old,
             "compiled_rollout_over_c_loop": t_native / floor,
             "mapaccum_over_c_loop": t_old / floor,
             "max_abs_difference": float(np.max(np.abs(x_native - x_old)))}
+        if flights is not None:
+            results[label]["c_loop_recorded_us_per_step"] = c_times[(label, "recorded")]
     anchor = None
     if args.jsbsim:
         anchor = jsbsim_anchor(n * dt, 3)
@@ -157,11 +208,16 @@ def main() -> None:
                 anchor["us_per_simulated_second"] / r["compiled_rollout_us_per_simulated_second"])
     out = {"airframe": args.airframe or "aerosonde (shipped identified)",
            "weights": str(args.weights or "shipped"), "samples": n, "dt": dt,
-           "hybrid_over_physics_c_loop": (results["hybrid"]["c_loop_us_per_sample"]
-                                          / results["physics"]["c_loop_us_per_sample"]),
+           "hybrid_over_physics_c_loop": statistics.median(ratios["trim"]),
+           "hybrid_over_physics_c_loop_passes": ratios["trim"],
            "hybrid_over_physics_compiled_rollout": (
                results["hybrid"]["compiled_rollout_us_per_sample"]
                / results["physics"]["compiled_rollout_us_per_sample"]),
+           **({"hybrid_over_physics_c_loop_recorded": statistics.median(ratios["recorded"]),
+               "hybrid_over_physics_c_loop_recorded_passes": ratios["recorded"],
+               "recorded": {"dataset": args.dataset, "split": args.split,
+                            "sorties": len(flights), "window_s": args.window_s}}
+              if flights is not None else {}),
            "network": load_weights(weights, airframe).describe(),
            "jsbsim": anchor,
            "repeats": args.repeats, "results": results,
@@ -170,6 +226,8 @@ def main() -> None:
            "command": "python analysis/bench_rollout.py"
            + (f" --airframe {args.airframe} --weights {args.weights}" if args.airframe else "")
            + (f" --airspeed {args.airspeed:g}" if args.airspeed is not None else "")
+           + (f" --dataset {args.dataset} --split {args.split} --window-s {args.window_s:g}"
+              if args.dataset else "")
            + (" --jsbsim" if args.jsbsim else "")}
     print(json.dumps(out, indent=2))
     if args.out:

@@ -7,11 +7,14 @@ network's inputs computed inside the step and one linear map of them), ``+bound`
 clamp), ``+gate`` (the envelope gate), ``+bound+gate`` (all the guard; no hidden layer), then
 the weight file's own network (``real``). The linear map's weights are random and tiny (1e-3),
 so the state stays at the trim and the timing does not depend on them. Each variant is timed
-``--rounds`` times, interleaved with the others (the load moves all alike); the minimum and the
-median per sample are printed as JSON, with the ratio of each median to the physics'.
+``--rounds`` times, all variants compiled into one program and run in turn, pass after pass
+(the load moves all alike); the minimum and the median per sample are printed as JSON, with
+the ratio of each median to the physics'. ``--dataset`` times them on recorded flight instead
+of at the trim (:func:`uavdyn.evaluation.c_loop.recorded_workload`; an exact hover flatters the
+physics).
 
 Usage: ``python analysis/bench_step_pieces.py --airframe examples/x500.toml --weights W.npz
---airspeed 0 [--out FILE]``.
+--airspeed 0 [--dataset DIR] [--out FILE]``.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ import sys
 import casadi as ca
 import numpy as np
 
-from uavdyn.evaluation.c_loop import c_loop_us
+from uavdyn.evaluation.c_loop import CLoop, LoopWork, recorded_workload
 from uavdyn.evaluation.emit import emit_json, machine_facts
 
 
@@ -87,6 +90,9 @@ def main() -> None:
     ap.add_argument("--shapes", default="4,4,4;8;",
                     help="hidden widths of random networks to time, ';' between networks, "
                          "',' between layers, empty: no hidden layer (default '4,4,4;8;')")
+    ap.add_argument("--dataset", help="time on recorded flight: back-to-back 1 s windows of "
+                    "this dataset's test sorties from their records under the recorded "
+                    "commands (default: one chain at the trim, the trim command held)")
     ap.add_argument("--out", help="also write the JSON here")
     args = ap.parse_args()
     shapes = [tuple(int(w) for w in item.split(",") if w.strip())
@@ -101,15 +107,25 @@ def main() -> None:
     net = load_weights(args.weights, airframe)
     point = trim(airframe, args.airspeed)
     p = np.asarray(airframe.p, float)
-    starts = {model.function.size1_in(0): np.asarray(
-        model.initial_state(point.x, point.u, p, 0.01), float).ravel()
-        for model in (physics_step(airframe), hybrid_step(net, airframe, compile=False))}
+    models = (physics_step(airframe), hybrid_step(net, airframe, compile=False))
+    if args.dataset:  # recorded flight: windows of the test sorties from their records
+        from uavdyn.flightdata import load_dataset
+        flights = load_dataset(args.dataset).split("test")
+        work = {m.function.size1_in(0): recorded_workload(m, flights, 1.0, p) for m in models}
+        loop_args = {nx: (w.starts, w.controls, flights[0].dt, w.steps)
+                     for nx, w in work.items()}
+    else:  # one chain at the trim under the held trim command
+        loop_args = {m.function.size1_in(0): (np.asarray(
+            m.initial_state(point.x, point.u, p, 0.01), float).ravel(), point.u, 0.01,
+            args.samples) for m in models}
     steps = variants(airframe, net, shapes)
-    times: dict[str, list[float]] = {name: [] for name in steps}
-    for _ in range(args.rounds):
-        for name, fn in steps.items():
-            times[name].append(c_loop_us(fn, starts[fn.size1_in(0)], point.u, p, 0.01,
-                                         args.samples, 5))
+    works = []
+    for fn in steps.values():
+        starts, controls, dt, n = loop_args[fn.size1_in(0)]
+        works.append(LoopWork(fn, starts, controls, p, dt, n))
+    with CLoop(works) as loop:  # all variants in one program, in turn, pass after pass
+        run = loop.run(args.rounds)
+    times = {name: list(run.pass_us[:, i]) for i, name in enumerate(steps)}
     physics = statistics.median(times["physics"])
     results = {}
     for name, fn in steps.items():
