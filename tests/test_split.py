@@ -197,6 +197,79 @@ def test_refused_split_leaves_manifest_untouched(tmp_path):
     assert (tmp_path / "manifest.json").read_bytes() == old
 
 
+# ------------------------------------------------------------------------ by mission
+
+def flights(missions: int, per_mission: int) -> list[dict]:
+    """Entries cycling through ``missions`` missions, conditions alternating per mission."""
+    out = []
+    for i in range(missions * per_mission):
+        out.append({"file": f"s{i:02d}.csv", "mission": f"m{i % missions}",
+                    "condition": "calm" if (i // missions) % 2 else "turbulent",
+                    "duration_s": 30.0})
+    return out
+
+
+@pytest.mark.parametrize("missions, per_mission", [(7, 3), (7, 4), (3, 5), (1, 10)])
+def test_by_mission_counts_equal_by_sortie(missions, per_mission):
+    e = flights(missions, per_mission)
+    for seed in range(5):
+        assert Counter(assign_split(e, "mission", seed=seed)) == Counter(assign_split(e))
+
+
+def test_by_mission_spreads_each_mission_over_the_parts():
+    # 7 missions x 3 sorties at 0.7/0.15/0.15: 15/3/3. Each mission keeps two sorties in
+    # train and its third goes to validation or test (or train, once): no part holds two
+    # sorties of one mission outside train. A random split does (checked over seeds).
+    e = flights(7, 3)
+    random_doubles = 0
+    for seed in range(20):
+        parts = assign_split(e, "mission", seed=seed)
+        for name in ("validation", "test"):
+            missions = [x["mission"] for x, p in zip(e, parts) if p == name]
+            assert len(missions) == len(set(missions)) == 3
+        train = Counter(x["mission"] for x, p in zip(e, parts) if p == "train")
+        assert set(train) == {f"m{i}" for i in range(7)} and min(train.values()) >= 2
+        plain = assign_split(e, "sortie", seed=seed)
+        random_doubles += any(len(m) != len(set(m)) for m in (
+            [x["mission"] for x, p in zip(e, plain) if p == name]
+            for name in ("validation", "test")))
+    assert random_doubles > 0
+
+
+def test_by_mission_gives_each_part_both_conditions_where_it_can():
+    # 2 missions x 10 sorties, half calm: 14/3/3; every part gets both conditions in most
+    # seeds, and train always does.
+    e = flights(2, 10)
+    both = 0
+    for seed in range(20):
+        parts = assign_split(e, "mission", seed=seed)
+        conditions = {name: {x["condition"] for x, p in zip(e, parts) if p == name}
+                      for name in ("train", "validation", "test")}
+        assert conditions["train"] == {"calm", "turbulent"}
+        both += conditions["validation"] == conditions["test"] == {"calm", "turbulent"}
+    assert both >= 10
+    # 7 missions x 3 (two turbulent, one calm each): one sortie per mission leaves train,
+    # and a swap within a mission gives validation and test both conditions in every seed,
+    # mission shares and counts unchanged
+    e = flights(7, 3)
+    for seed in range(20):
+        parts = assign_split(e, "mission", seed=seed)
+        for name in ("validation", "test"):
+            assert {x["condition"] for x, p in zip(e, parts) if p == name} == {
+                "calm", "turbulent"}, (seed, name)
+            missions = [x["mission"] for x, p in zip(e, parts) if p == name]
+            assert len(set(missions)) == 3
+        assert Counter(parts) == Counter(assign_split(e))
+
+
+def test_by_mission_deterministic_per_seed_and_without_labels_still_splits():
+    e = flights(7, 3)
+    assert assign_split(e, "mission", seed=4) == assign_split(e, "mission", seed=4)
+    assert len({tuple(assign_split(e, "mission", seed=s)) for s in range(6)}) > 1
+    bare = [{k: v for k, v in x.items() if k not in ("mission", "condition")} for x in e]
+    assert Counter(assign_split(bare, "mission", seed=2)) == Counter(assign_split(bare))
+
+
 # ------------------------------------------------------------------------ CLI
 
 def test_cli_end_to_end(tmp_path, capsys):
@@ -213,6 +286,9 @@ def test_cli_end_to_end(tmp_path, capsys):
     assert len(ds.train) == 3 and len(ds.validation) == 2 and len(ds.test) == 1
     assert main(["split", str(folder), "--by", "time-block"]) == 0
     assert [s.name for s in load_dataset(folder).test] == ["seg05"]
+    assert main(["split", str(folder), "--by", "mission", "--seed", "1"]) == 0
+    assert "split by mission, seed 1" in capsys.readouterr().out
+    assert json.loads((folder / "manifest.json").read_text())["split_rule"]["by"] == "mission"
 
 
 def test_cli_too_few_sorties_one_line(tmp_path, capsys):

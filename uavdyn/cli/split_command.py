@@ -66,7 +66,9 @@ def _add_options(parser: argparse.ArgumentParser, by_flag: str) -> None:
                         help="sortie: whole sorties at random (seeded); time-block: "
                              "consecutive blocks in flight order, the later flight held out; "
                              "log: whole logs of a campaign in import order, the later "
-                             "logs held out (default sortie)")
+                             "logs held out; mission: whole sorties at random, every part "
+                             "given each mission (and calm/turbulent condition) in "
+                             "proportion (default sortie)")
     parser.add_argument("--fractions", type=fractions_text, default=None,
                         metavar="TRAIN,VALIDATION,TEST",
                         help="shares of train, validation and test (sortie counts, or "
@@ -124,7 +126,8 @@ def cmd_split(args: argparse.Namespace) -> int:
         totals[entry["split"]][1] += float(entry["duration_s"])
     for name, (n, seconds) in totals.items():
         print(f"{name}: {n} sortie{'' if n == 1 else 's'}, {seconds:.1f} s")
-    rule = options["by"] + (f", seed {options['seed']}" if options["by"] == "sortie" else "")
+    seeded = options["by"] in ("sortie", "mission")
+    rule = options["by"] + (f", seed {options['seed']}" if seeded else "")
     note = manifest.get("split_rule", {}).get("note")
     print(f"wrote {path} (split by {rule}{'; ' + note if note else ''})")
     return 0

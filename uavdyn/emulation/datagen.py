@@ -186,7 +186,8 @@ def assign_sorties(recipe: Recipe, kind: str) -> list[dict]:
         if fraction > 0 and not any(p["split"] == split for p in plan):
             warnings.warn(f"{recipe.sorties} sorties over {len(missions)} missions leave the "
                           f"'{split}' split empty although its fraction is {fraction:g}: "
-                          "give more sorties (at least one per mission and split)",
+                          "give more sorties (at least one per mission and split), or "
+                          "re-split with uavdyn split --by mission",
                           UserWarning, stacklevel=2)
     return plan
 

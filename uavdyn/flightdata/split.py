@@ -12,7 +12,11 @@ to one part. Two rules:
   validation, then test, so the later flight is held out (no look-ahead);
 * ``by="log"``: whole logs of a campaign (the sorties' ``log``), in the order the logs were
   imported, cut into consecutive blocks the same way: every segment of a log goes to one
-  part, the later flights held out.
+  part, the later flights held out;
+* ``by="mission"``: seeded random sorties, stratified by ``mission`` (and, within a mission,
+  by ``condition`` where the entries have one): the same counts as ``sortie``, but every part
+  gets each kind of flight in proportion where the counts allow (:func:`stratified_order`),
+  so validation does not miss a kind of flight that train and test have.
 
 Without stated fractions (``fractions=None``) the default 0.7/0.15/0.15 applies when there
 are at least three sorties (or logs); two give train and test, one gives train
@@ -35,7 +39,7 @@ from uavdyn.flightdata.manifest import read_manifest
 from uavdyn.flightdata.sortie import SPLIT_NAMES
 from uavdyn.outputs import write_text_atomic
 
-SPLIT_RULES = ("sortie", "time-block", "log")
+SPLIT_RULES = ("sortie", "time-block", "log", "mission")
 DEFAULT_FRACTIONS = (0.7, 0.15, 0.15)
 FEW_UNITS_FRACTIONS = {1: (1.0, 0.0, 0.0), 2: (0.5, 0.0, 0.5)}  # default for 1 or 2 sorties
 FRACTION_TOLERANCE = 1e-6
@@ -232,6 +236,66 @@ def _by_log(entries: list[dict], fractions: tuple[float, float, float] | None) -
     return out
 
 
+def _spread(groups: list[list[int]], rng: np.random.Generator) -> dict[int, float]:
+    """Each member of ``groups`` (lists of indices) at a position in [0, 1): a group's members
+    in random order at ``(rank + offset) / size``, one random offset per group, so every
+    group is spread evenly over [0, 1)."""
+    out: dict[int, float] = {}
+    for group in groups:
+        offset = rng.random()
+        for rank, j in enumerate(rng.permutation(len(group))):
+            out[group[int(j)]] = (rank + offset) / len(group)
+    return out
+
+
+def stratified_order(entries: list[dict], seed: int) -> list[int]:
+    """The entries in an order whose consecutive blocks give every stratum its share: each
+    mission's sorties spread evenly over [0, 1) (:func:`_spread`; within a mission the
+    ``condition`` groups are spread first and interleaved the same way), all sorted by
+    position. Cutting it at the fractions' counts, train first, hands each mission (and
+    condition) to each part in proportion, up to one sortie, where the counts allow;
+    :func:`balance_conditions` then gives validation and test every condition where a swap
+    within a mission can."""
+    rng = np.random.default_rng([int(seed), 1])
+    missions: dict[str, list[int]] = {}
+    for i, e in enumerate(entries):
+        missions.setdefault(str(e.get("mission", "")), []).append(i)
+    position: dict[int, float] = {}
+    for members in missions.values():
+        conditions: dict[str, list[int]] = {}
+        for i in members:
+            conditions.setdefault(str(entries[i].get("condition", "")), []).append(i)
+        within = _spread(list(conditions.values()), rng)  # conditions interleaved
+        ranked = sorted(members, key=lambda i: (within[i], i))
+        offset = rng.random()
+        for rank, i in enumerate(ranked):
+            position[i] = (rank + offset) / len(members)
+    ties = rng.random(len(entries))
+    return sorted(range(len(entries)), key=lambda i: (position[i], ties[i]))
+
+
+def balance_conditions(entries: list[dict], names: list[str], seed: int) -> list[str]:
+    """``names`` with validation and test each given every ``condition`` the dataset has
+    where a swap can do it: a sortie of a part that lacks a condition trades places with a
+    train sortie of the same mission in that condition (counts and mission shares kept)."""
+    rng = np.random.default_rng([int(seed), 2])
+    names = list(names)
+    conditions = sorted({str(e["condition"]) for e in entries if e.get("condition")})
+    for part in ("validation", "test"):
+        for wanted in conditions:
+            members = [i for i, n in enumerate(names) if n == part]
+            if len(members) < 2 or any(entries[i].get("condition") == wanted
+                                       for i in members):
+                continue
+            pairs = [(i, j) for i in members for j in range(len(entries))
+                     if names[j] == "train" and entries[j].get("condition") == wanted
+                     and entries[j].get("mission") == entries[i].get("mission")]
+            if pairs:
+                i, j = pairs[int(rng.integers(len(pairs)))]
+                names[i], names[j] = "train", part
+    return names
+
+
 def assign_split(entries: list[dict], by: str = "sortie",
                  fractions: tuple[float, float, float] | None = DEFAULT_FRACTIONS,
                  seed: int = 0) -> list[str]:
@@ -242,15 +306,17 @@ def assign_split(entries: list[dict], by: str = "sortie",
     entries : list of dict
         Manifest ``sorties`` entries; ``by="time-block"`` reads ``duration_s`` and, if every
         entry has one, ``source_start_s``; ``by="log"`` reads ``log`` and ``duration_s``.
-    by : {"sortie", "time-block", "log"}
+    by : {"sortie", "time-block", "log", "mission"}
         Seeded random sorties, consecutive blocks in flight order (the later flight held
-        out as test), or consecutive blocks of whole logs in import order.
+        out as test), consecutive blocks of whole logs in import order, or seeded random
+        sorties stratified by mission and condition (:func:`stratified_order`).
     fractions : tuple of float or None
-        Train, validation and test shares (counts for ``sortie``, duration for
+        Train, validation and test shares (counts for ``sortie`` and ``mission``, duration for
         ``time-block`` and ``log``); each >= 0, summing to 1. A zero share leaves its part
         empty. None: :func:`default_fractions` for the number of sorties (or logs).
     seed : int
-        Seed of the ``sortie`` permutation (>= 0); the same seed gives the same split.
+        Seed of the ``sortie`` and ``mission`` orders (>= 0); the same seed gives the same
+        split.
 
     Returns
     -------
@@ -276,6 +342,9 @@ def assign_split(entries: list[dict], by: str = "sortie",
     if by == "sortie":
         order = [int(i) for i in np.random.default_rng(int(seed)).permutation(n)]
         counts = _counts(n, fractions)
+    elif by == "mission":
+        order = stratified_order(entries, int(seed))
+        counts = _counts(n, fractions)
     else:
         order = _flight_order(entries)
         durations = [_finite(entries[i].get("duration_s"), f"sorties[{i}].duration_s")
@@ -285,7 +354,7 @@ def assign_split(entries: list[dict], by: str = "sortie",
     out = [""] * n
     for i, name in zip(order, names):
         out[i] = name
-    return out
+    return balance_conditions(entries, out, int(seed)) if by == "mission" else out
 
 
 def split_rule(entries: list[dict], by: str = "sortie",
