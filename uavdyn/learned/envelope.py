@@ -34,6 +34,8 @@ from uavdyn.model.ops import NUMPY_OPS, pairwise_sum, ramp
 
 GUARDS = {"distance-clamp": ("distance", "clamp"), "product-tanh": ("product", "tanh")}
 DEFAULT_GUARD = "distance-clamp"
+EVIDENCE_FADE_FLOOR = 0.01  # the least fade of Envelope.from_evidence, in range widths (the
+                            # gate stays C1 with a bounded slope)
 LEGACY_GUARD = "product-tanh"  # what weight files of format 3 were trained with
 
 
@@ -106,6 +108,24 @@ class Envelope:
                  else 1e-6 * (1.0 + np.abs(high)))
         fade = np.maximum(fade_fraction * width, floor)
         return cls(low, high, fade)
+
+    @classmethod
+    def from_evidence(cls, inputs: np.ndarray, checked: np.ndarray | None = None,
+                      quantile: float = 0.001, floor: float = EVIDENCE_FADE_FLOOR,
+                      cap: float = 1.0) -> Envelope:
+        """The box of :meth:`from_samples` (``inputs (N, n_in)``, the training data), fading
+        per input over the farthest any trained-on or checked sample (``inputs`` and
+        ``checked``, the validation data) lies beyond it: between ``floor`` and ``cap``
+        range widths. Beyond that reach no data vouch for the network, so there the step
+        is the physics."""
+        box = cls.from_samples(inputs, quantile, cap)
+        rows = np.asarray(inputs, float)
+        if checked is not None and len(checked):
+            rows = np.vstack([rows, np.asarray(checked, float)])
+        beyond = np.max(np.maximum(np.maximum(rows - box.high, box.low - rows), 0.0), axis=0)
+        width = box.high - box.low
+        fade = np.clip(beyond, floor * width, cap * width)
+        return cls(box.low, box.high, np.maximum(fade, 1e-6 * (1.0 + np.abs(box.high))))
 
     @property
     def n_in(self) -> int:

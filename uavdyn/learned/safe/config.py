@@ -92,12 +92,15 @@ class SafeConfig:
     stability_weight: float = 10.0
     stability_margin: float = DEFAULT_MARGIN
     envelope_quantile: float = 0.001
-    envelope_fade: float = 1.0        # the gate fades over this share of each input's range
-                                      # beyond it (the exact stability check runs out to
-                                      # where it reaches 0); on the knockout benchmark 0.25
-                                      # shut the correction off on the aggressive test flights
-                                      # that leave the training box (F450 inflow recovered
-                                      # 0.45 with 0.25, 0.69 with 1.0)
+    envelope_fade: float | None = None  # how far beyond the training box the gate reaches
+                                      # 0 (the exact stability check runs out to there).
+                                      # None: per input, as far as any training or
+                                      # validation sample lies beyond the box, 0.01-1 range
+                                      # widths (Envelope.from_evidence): the network acts only
+                                      # where data vouch for it. A number: this many range
+                                      # widths for every input (1.0 let an X500 correction
+                                      # act 12 % above its fastest flight and made a calm
+                                      # survey 30 % worse; docs/learned_correction.md)
     bound_factor: float = 2.0
     shrink: tuple[float, ...] = (1.0, 0.75, 0.5, 0.35, 0.25)  # output scales tried at the end
     candidate_epochs: int = 5        # the best epochs (by rank) the final checks go through

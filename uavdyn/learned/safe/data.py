@@ -166,13 +166,19 @@ class NetworkScaling:
         return replace(setup.layout, gate=self.envelope.gate, bound=self.bound)
 
 
-def network_scaling(tr: TrainingWindows, cfg: SafeConfig, dt: float) -> NetworkScaling:
-    """:class:`NetworkScaling` of the training windows ``tr``."""
+def network_scaling(tr: TrainingWindows, cfg: SafeConfig, dt: float,
+                    checked: np.ndarray | None = None) -> NetworkScaling:
+    """:class:`NetworkScaling` of the training windows ``tr``; ``checked``: the network's
+    inputs on the validation data, which with ``tr``'s set how far the gate reaches
+    (``cfg.envelope_fade`` None)."""
     rows = tr.inputs
     in_mean = rows.mean(axis=0)
     in_scale = rows.std(axis=0)
     in_scale = np.where(in_scale > 1e-9 * (1 + np.abs(in_mean)), in_scale, 1.0)
-    envelope = Envelope.from_samples(rows, cfg.envelope_quantile, cfg.envelope_fade)
+    if cfg.envelope_fade is None:
+        envelope = Envelope.from_evidence(rows, checked, cfg.envelope_quantile)
+    else:
+        envelope = Envelope.from_samples(rows, cfg.envelope_quantile, cfg.envelope_fade)
     # the residual acceleration of the first step, in the network's output units
     one_step = (tr.y[:, 0, :3] - tr.physics[:, 0, :3]) / dt / tr.gains
     out_scale = np.sqrt(np.mean(one_step**2, axis=0))

@@ -88,7 +88,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     if span:
         va = physics_fitted(va, setup, physics_sim, val_noise)
     fits = {"validation": va.start_fit} if span else {}
-    scaling = network_scaling(tr, cfg, dt)
+    scaling = network_scaling(tr, cfg, dt, va.inputs)
     layout = scaling.layout(setup)
 
     def network(seed: int) -> TorchCorrection:
