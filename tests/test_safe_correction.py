@@ -171,7 +171,7 @@ def test_smoothstep_and_gate_are_exactly_zero_and_one(form):
 def test_the_gate_reaches_as_far_as_the_training_and_validation_data_do():
     """``Envelope.from_evidence``: the box of the training quantiles; per input the fade is the
     farthest a training or validation sample lies beyond it (a training outlier, a validation
-    excursion), at least 0.01 and at most 1 range width; the gate is exactly 0 there."""
+    excursion), at least 0.1 and at most 1 range width; the gate is exactly 0 there."""
     rng = np.random.default_rng(2)
     train = rng.uniform(0.0, 1.0, size=(20_000, 4))
     train[0, 0] = 1.3                 # one trained-on sample 0.3 beyond the box
@@ -182,13 +182,13 @@ def test_the_gate_reaches_as_far_as_the_training_and_validation_data_do():
     width = env.high - env.low
     np.testing.assert_allclose(env.low, np.quantile(train, 0.001, axis=0))
     np.testing.assert_allclose(env.fade, [1.3 - env.high[0], env.low[1] + 0.5,
-                                          0.01 * width[2], width[3]])
+                                          0.1 * width[2], width[3]])
     assert env.gate(np.array([[1.3], [0.5], [0.5], [0.5]]))[0] == 0.0
     assert env.gate(np.array([[0.5], [-0.5], [0.5], [0.5]]))[0] == 0.0
-    assert env.gate(np.array([[0.5], [0.5], [env.high[2] + 0.01 * width[2]], [0.5]]))[0] == 0.0
+    assert env.gate(np.array([[0.5], [0.5], [env.high[2] + 0.1 * width[2]], [0.5]]))[0] == 0.0
     assert 0.0 < env.gate(np.array([[1.1], [0.5], [0.5], [0.5]]))[0] < 1.0
     same = Envelope.from_evidence(train)  # without validation data: the training's reach
-    assert same.fade[1] == pytest.approx(0.01 * width[1])
+    assert same.fade[1] == pytest.approx(0.1 * width[1])
     constant = Envelope.from_evidence(np.column_stack([train[:, 0], np.full(len(train), 3.0)]))
     assert constant.fade[1] > 0 and constant.gate(np.array([[0.5], [3.0]]))[0] == 1.0
 

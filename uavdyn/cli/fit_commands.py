@@ -366,7 +366,7 @@ def add_train(sub) -> None:
                    help="improved/data: how far beyond the training data the correction may "
                         "act: its gate falls from 1 to 0 over this many widths of each "
                         "input's training range (0.05..4; default: per input, as far as the "
-                        "training and validation data reach beyond it, 0.01..1 widths; the "
+                        "training and validation data reach beyond it, 0.1..1 widths; the "
                         "stability check runs out to where it reaches 0)")
     p.add_argument("--horizon", type=seconds(name="horizon"), default=None,
                    help="improved/data: rollout window from recorded states in s, no longer "

@@ -95,7 +95,7 @@ class SafeConfig:
     envelope_fade: float | None = None  # how far beyond the training box the gate reaches
                                       # 0 (the exact stability check runs out to there).
                                       # None: per input, as far as any training or
-                                      # validation sample lies beyond the box, 0.01-1 range
+                                      # validation sample lies beyond the box, 0.1-1 range
                                       # widths (Envelope.from_evidence): the network acts only
                                       # where data vouch for it. A number: this many range
                                       # widths for every input (1.0 let an X500 correction
