@@ -228,8 +228,8 @@ class RecordedWorkload:
 
 
 def recorded_workload(model, sorties: list, window_s: float, p) -> RecordedWorkload:
-    """Back-to-back windows of ``window_s`` seconds from every sortie of ``sorties``, each
-    started from the step ``model``'s state at its first record
+    """Back-to-back windows of ``window_s`` seconds from every sortie of ``sorties`` (one
+    sample rate), each started from the step ``model``'s state at its first record
     (:meth:`uavdyn.integrate.DiscreteModel.initial_state`) and driven by the recorded commands:
     the states and commands the step meets when it predicts flight.
 

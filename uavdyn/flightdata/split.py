@@ -2,7 +2,7 @@
 
 Samples of one flight are correlated: a split by sample would let the model see, in training,
 the seconds either side of every test sample. So each sortie (an imported segment) goes whole
-to one part. Two rules:
+to one part. The rules:
 
 * ``by="sortie"``: a seeded random permutation of the sorties, cut into counts rounded from
   ``fractions x n`` by the largest remainder (every part with a nonzero fraction gets at least
