@@ -206,13 +206,6 @@ class CLoop:
         self.close()
 
 
-def c_loop_us(function: ca.Function, x0, u, p, dt: float, n: int, repeats: int) -> float:
-    """Median us per sample of ``function`` called ``n`` times in a plain C loop from ``x0``
-    under the held command ``u`` (one step of :class:`CLoop`, ``repeats`` passes)."""
-    with CLoop([LoopWork(function, x0, u, p, dt, n)]) as loop:
-        return float(loop.run(repeats).us_per_step[0])
-
-
 @dataclass(frozen=True)
 class RecordedWorkload:
     """Windows of recorded flight for a :class:`LoopWork`: each window's start (the step's own
