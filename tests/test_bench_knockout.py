@@ -63,6 +63,8 @@ def test_share_not_measurable_within_noise_and_worse_sorties_counted(bench):
     assert stats["recovered_share"] is None
     assert "not measurable" in stats["recovered_share_note"]
     assert stats["sorties_worse"] == ["s1", "s2"]    # 1.025 and 1.05 times a; 0.95 is not
+    # both also worse than b by more than 2 % (1.035 and 1.066 times b)
+    assert stats["sorties_worse_than_term"] == ["s1", "s2"]
     stats2 = bench.share_statistics({"a": errors_of([0.02]), "corrected": errors_of([0.0203])})
     assert stats2["n_sorties_worse"] == 0 and "recovered_share" not in stats2
 
@@ -167,3 +169,22 @@ def test_markdown_names_the_split_shares_only_when_scored(bench):
     header, _, row = table.splitlines()
     assert header.endswith("recovered on train / validation sorties |")
     assert row.endswith("| 1.04 / n.m. |") and row.count("|") == 13
+
+
+def test_a_merged_older_case_gets_the_worse_than_the_term_count_from_its_sorties(bench, tmp_path):
+    """A run written before the figure existed: the merge derives it from the per-sortie
+    errors (the same rule as the scoring), and names it in the definitions."""
+    case = {"airframe": "x", "score": {"sorties_worse": ["s0", "s1"], "n_sorties_worse": 2,
+                                       "worse_by_more_than": 0.02},
+            "per_sortie": [{"sortie": "s0", "rmse_1s_a": 0.020, "rmse_1s_corrected": 0.0208,
+                            "rmse_1s_b": 0.0210},
+                           {"sortie": "s1", "rmse_1s_a": 0.010, "rmse_1s_corrected": 0.012,
+                            "rmse_1s_b": 0.005},
+                           {"sortie": "s2", "rmse_1s_a": 0.010, "rmse_1s_corrected": 0.008,
+                            "rmse_1s_b": 0.007}]}
+    path = tmp_path / "run.json"
+    path.write_text(json.dumps({"command": "c", "cases": {"x/t": case}}))
+    doc = bench.merged([path])
+    score = doc["cases"]["x/t"]["score"]
+    assert score["sorties_worse_than_term"] == ["s1"] and score["n_sorties_worse_than_term"] == 1
+    assert "n_sorties_worse_than_term" in doc["definitions"]

@@ -366,7 +366,7 @@ def test_safe_training_keeps_a_correction_only_under_its_rules(tmp_path):
                              C_m_q=airframe.params.C_m_q * 0.8)
     sorties = load_dataset(emulated_dataset(tmp_path / "data", truth, 6, 6.0)).sorties
     cfg = SafeConfig(epochs=3, batches_per_epoch=3, batch_windows=8, horizon_s=1.0,
-                     progress=False, memory_tau=(0.1,))
+                     progress=False, memory_tau=(0.1,), seen_guard=True)
     result = train_safe(sorties[:4], sorties[4:], airframe, cfg)
     assert result.reason and result.stability is not None
     # Table 2's losses: the same fixed windows after every epoch, the physics (epoch 0, zero
@@ -397,6 +397,9 @@ def test_safe_training_keeps_a_correction_only_under_its_rules(tmp_path):
                        and r["scale"] == chosen["scale"] and "channel_scales" not in r]
             assert uniform and uniform[0]["val_state_ratio_worst"] > cfg.state_ratio_limit
         assert chosen["free_run_new_departures"] == 0
+        # no training sortie made worse either (SafeConfig.seen_guard)
+        assert chosen["train_ok"] and chosen["train_ratio_worst"] <= cfg.worst_sortie_ratio
+        assert chosen["train_sorties_worse"] == []
     else:
         assert result.net is None
         assert "physics is kept" in result.reason or "destabilises" in result.reason
@@ -608,6 +611,25 @@ def test_a_refusal_for_a_gain_within_the_spread_says_so():
     assert "the physics is kept" in text
 
 
+def test_a_refusal_for_a_training_sortie_made_worse_names_it():
+    """Candidates that pass every validation rule but make a training sortie worse
+    (``SafeConfig.seen_guard``): the reason says so, with the closest one's ratio and sortie,
+    and the tally counts them."""
+    from uavdyn.learned.safe import SafeConfig
+    from uavdyn.learned.safe.verdict import refusal_reason
+    from uavdyn.learned.stability import StabilityReport
+
+    rows = [{"epoch": e, "scale": 1.0, "val_ratio_worst": 0.95, "val_ratio_geomean": 0.8,
+             "val_theta_rmse": 0.05, "val_state_ratio_worst": 1.0, "val_gain_t": 4.0,
+             "train_ok": False, "train_ratio_worst": w, "train_sorties_worse": [name]}
+            for e, w, name in ((3, 1.31, "sortie_005"), (7, 1.08, "sortie_024"))]
+    text = refusal_reason(rows, SafeConfig(seen_guard=True), 0.06, rows[0],
+                          StabilityReport(0.01, 0.5), 1.0)
+    assert "2 make a training sortie worse than 1.02x" in text
+    assert "closest: epoch 7, scale 1, worst 1.08x: sortie_024" in text
+    assert text.endswith("the physics is kept")
+
+
 def test_output_penalty_is_the_mean_square_output_in_output_scales_and_zero_at_the_start():
     """The ridge penalty in function space (``SafeConfig.output_weight``): zero for the
     untrained network (training starts at the physics), the mean square of the linear path's
@@ -808,3 +830,60 @@ def test_validation_stretches_cut_long_sorties_into_minutes_and_keep_short_ones_
         expected = min(int(s.time[k] // (s.duration / n)), n - 1)
         assert units.sortie[unit] == i
         assert unit - list(units.sortie).index(i) == expected
+
+
+
+def test_a_single_short_validation_sortie_is_cut_into_three_stretches():
+    """Fewer than ``MIN_UNITS`` stretches (a real log's one 13.3 s validation segment) would
+    leave the gain's t unmeasurable: the segment is cut into three stretches of 4.4 s (not
+    below ``MIN_STRETCH_S``: a 7 s one stays whole), two 30 s sorties into two each."""
+    from types import SimpleNamespace
+
+    from uavdyn.flightdata import Sortie
+    from uavdyn.learned.safe.scoring import MIN_STRETCH_S, stretch_length, stretches
+
+    def sortie(name, seconds):
+        t = np.arange(int(round(seconds / DT)) + 1) * DT
+        return Sortie(name, "fixed_wing", t, np.zeros((len(t), 4)), np.zeros((len(t), 2)),
+                      "survey")
+
+    one = [sortie("segment", 13.3)]
+    starts = [(0, k) for k in range(0, len(one[0].time) - 100, 50)]
+    units = stretches(SimpleNamespace(windows=SimpleNamespace(starts=np.array(starts))), one)
+    assert list(units.sortie) == [0, 0, 0]
+    assert units.names == ("segment [0-4 s]", "segment [4-9 s]", "segment [9-13 s]")
+    assert sorted(set(units.index)) == [0, 1, 2]
+    assert stretch_length([7.0]) == MIN_STRETCH_S and round(7.0 / MIN_STRETCH_S) == 1
+    assert stretch_length([30.0, 30.0]) == 20.0 and stretch_length([30.0] * 3) == 60.0
+
+def test_the_training_sortie_guard_refuses_a_correction_worse_on_one_sortie_it_has_seen():
+    """``SafeConfig.seen_guard``: the training windows are scored as the validation ones; a
+    prediction whose pitch error on one training sortie is 1.1x the physics' (noise-free
+    records) fails, with that sortie named and its ratio recorded; 1.01x passes."""
+    from types import SimpleNamespace
+
+    from uavdyn.learned.safe import SafeConfig
+    from uavdyn.learned.safe.scoring import ValidationReference
+    from uavdyn.learned.safe.selection import SeenSorties, _seen_sorties_kept
+
+    W, H = 4, 10
+    y = np.zeros((W, H, 4))
+    sortie = np.array([0, 0, 1, 1])
+    physics_err = 0.01  # the physics' pitch error on every sample
+
+    def checks_with(factor_on_second: float):
+        pred = np.zeros((W, H, 4))
+        pred[:, :, 3] = physics_err * np.where(sortie == 1, factor_on_second, 0.5)[:, None]
+        ref = ValidationReference(y, sortie, H, np.zeros((2, 4)), [physics_err] * 2,
+                                  np.ones(4), physics_err, ("calm_survey", "chirp"))
+        seen = SeenSorties(SimpleNamespace(), ref, lambda model, V: pred)
+        return SimpleNamespace(seen=seen, model=None, config=SafeConfig(seen_guard=True),
+                               setup=SimpleNamespace(dt=0.01))
+
+    row: dict = {}
+    assert not _seen_sorties_kept(checks_with(1.1), row)
+    assert row["train_ratio_worst"] == pytest.approx(1.1)
+    assert row["train_sorties_worse"] == ["chirp"] and row["train_ok"] is False
+    row = {}
+    assert _seen_sorties_kept(checks_with(1.01), row) and row["train_sorties_worse"] == []
+    assert _seen_sorties_kept(SimpleNamespace(seen=None), {})

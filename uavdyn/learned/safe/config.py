@@ -123,6 +123,13 @@ class SafeConfig:
     channel_scales: tuple[float, ...] = (0.5, 0.0)  # where an output scale beats the physics
                                      # in pitch but a state got worse: one output channel at a
                                      # time scaled by these, the others kept
+    seen_guard: bool = False         # True: the training sorties held to worst_sortie_ratio
+                                     # too, scored as the validation ones. Off: on the
+                                     # knockout benchmark it refused what learning the term
+                                     # costs, not harm (the model fitted without the term suits
+                                     # its own training sorties; with the term some get worse):
+                                     # the Aerosonde's power effect 0.62 -> 0.36 recovered, no
+                                     # test sortie fewer worse (docs/learned_correction.md)
     free_run_ratio: float = 1.1      # every validation free run: corrected/physics <= this
     free_run_guard: bool = True      # ... and over its whole free run, where the physics' stays
                                      # within DEPARTURE_RAD of the data; no new departures

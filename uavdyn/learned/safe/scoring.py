@@ -75,15 +75,21 @@ def fixed_windows(cfg: SafeConfig, n_train: int, n_val: int) -> tuple[torch.Tens
 
 
 STRETCH_S = 60.0  # validation sorties longer than this are scored in stretches about this long
+MIN_UNITS = 3  # fewer units than this: stretches cut shorter (the gain's t needs a spread) ...
+MIN_STRETCH_S = 5.0  # ... but not below this (five 1 s windows side by side)
 
 
 @dataclass(frozen=True)
 class Stretches:
     """The units the per-sortie rules score: every validation sortie cut into
-    ``round(duration / STRETCH_S)`` (at least 1) equal stretches by its windows' start times.
-    An emulated 30 s sortie is one stretch; a 6-minute log of a campaign is six, so the rule
-    that no sortie may get worse looks at each minute of it, and the gain's significance (a
-    paired t over the units) has more than one unit to measure a spread on."""
+    ``round(duration / L)`` (at least 1) equal stretches by its windows' start times, ``L``
+    :data:`STRETCH_S` (:func:`stretch_length`). An emulated 30 s sortie is one stretch; a
+    6-minute log of a campaign is six, so the rule that no sortie may get worse looks at each
+    minute of it, and the gain's significance (a paired t over the units) has more than one
+    unit to measure a spread on. Where that would leave fewer than :data:`MIN_UNITS` (a log's
+    one 13 s validation segment), the stretches are cut shorter, down to
+    :data:`MIN_STRETCH_S`: with one unit a gain's t cannot be measured and any gain would
+    pass the significance rule."""
 
     index: np.ndarray         # (W,) the stretch of each window
     sortie: np.ndarray        # (n_units,) the sortie of each stretch
@@ -95,8 +101,9 @@ def stretches(va: TrainingWindows, val_sorties: list[Sortie]) -> Stretches:
     starts = np.asarray(va.windows.starts, int).reshape(-1, 2)
     index = np.zeros(len(starts), int)
     owner, names = [], []
+    stretch_s = stretch_length([s.duration for s in val_sorties])
     for i, s in enumerate(val_sorties):
-        n = max(1, int(round(s.duration / STRETCH_S)))
+        n = max(1, int(round(s.duration / stretch_s)))
         length = s.duration / n
         mine = starts[:, 0] == i
         t0 = s.time[starts[mine, 1]] - s.time[0]
@@ -105,6 +112,16 @@ def stretches(va: TrainingWindows, val_sorties: list[Sortie]) -> Stretches:
         names += [s.name] if n == 1 else [f"{s.name} [{k * length:.0f}-{(k + 1) * length:.0f} s]"
                                           for k in range(n)]
     return Stretches(index, np.array(owner, int), tuple(names))
+
+
+def stretch_length(durations: list[float]) -> float:
+    """The stretch length of :func:`stretches` for sorties of these ``durations`` (s):
+    :data:`STRETCH_S`, or shorter (not below :data:`MIN_STRETCH_S`) so that there are at
+    least :data:`MIN_UNITS` stretches where the flight allows."""
+    units = sum(max(1, int(round(d / STRETCH_S))) for d in durations)
+    if units >= MIN_UNITS:
+        return STRETCH_S
+    return max(MIN_STRETCH_S, float(sum(durations)) / MIN_UNITS)
 
 
 def _sortie_rmse(err: np.ndarray, sortie: np.ndarray, i: int) -> float | None:

@@ -72,6 +72,17 @@ class RunFacts:
 
 
 @dataclass(frozen=True)
+class SeenSorties:
+    """The training sorties' windows, scored by the final checks as the validation ones are
+    (``SafeConfig.seen_guard``): the rule that no sortie gets worse covers every regime flown,
+    not only those the validation split happens to hold."""
+
+    windows: WindowTensors
+    reference: ValidationReference
+    predict: Predictor | None = None
+
+
+@dataclass(frozen=True)
 class Checks:
     """Everything the final checks of a trained model use."""
 
@@ -87,6 +98,7 @@ class Checks:
     guard: FreeRunGuard
     facts: RunFacts
     predict: Predictor | None = None  # the compiled twin's free runs (None: torch's)
+    seen: SeenSorties | None = None   # the training sorties' guard (None: not checked)
 
     @property
     def config(self) -> SafeConfig:
@@ -177,11 +189,30 @@ def _try_scale(checks: Checks, epoch: int, alpha: float, tried: list,
                 trials.extend((np.where(np.arange(n_out) == c, f, 1.0), False)
                               for f in cfg.channel_scales for c in range(n_out))
             continue
+        if not _seen_sorties_kept(checks, row):
+            continue
         chosen, made = final_checks(checks, alpha, channels, sel, row, epoch, tried)
         report = made if made is not None else report
         if chosen is not None:
             return chosen, report
     return None, report
+
+
+def _seen_sorties_kept(checks: Checks, row: dict) -> bool:
+    """Whether no training sortie is worse than the physics beyond the per-sortie limit
+    (noise taken off, at the selection horizon); the worst ratio and the sorties beyond it
+    recorded in ``row``. True without a guard."""
+    seen = checks.seen
+    if seen is None:
+        return True
+    sel = score(checks.model, seen.windows, seen.reference, checks.setup.dt, seen.predict)
+    limit = checks.config.worst_sortie_ratio
+    row["train_ratio_worst"] = sel["val_ratio_worst"]
+    row["train_sorties_worse"] = [name for name, r in zip(seen.reference.names,
+                                                         sel["val_sortie_ratios"])
+                                  if r is not None and r > limit]
+    row["train_ok"] = sel["val_ratio_worst"] <= limit
+    return row["train_ok"]
 
 
 def search(checks: Checks, run: EpochRun) -> Search:

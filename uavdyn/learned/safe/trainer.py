@@ -4,6 +4,7 @@ scaling, epochs, final checks, verdict; one module each)."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -14,6 +15,8 @@ from uavdyn.integrate import StateLayout, find_compiler
 from uavdyn.learned.rules import state_noise
 from uavdyn.learned.safe.config import SafeConfig, SafeResult, SafeSetup, safe_setup
 from uavdyn.learned.safe.data import (
+    LossScales,
+    TrainingWindows,
     loss_scales,
     network_scaling,
     physics_fitted,
@@ -25,7 +28,7 @@ from uavdyn.learned.safe.data import (
 from uavdyn.learned.safe.epochs import StabilityTargets, TrainingData, screened_start
 from uavdyn.learned.safe.freerun import FreeRunGuard
 from uavdyn.learned.safe.scoring import WindowLoss, fixed_windows, validation_reference
-from uavdyn.learned.safe.selection import Checks, RunFacts, fallback, search
+from uavdyn.learned.safe.selection import Checks, RunFacts, SeenSorties, fallback, search
 from uavdyn.learned.safe.twin import CompiledTwin, FittedStartPredictor
 from uavdyn.learned.safe.verdict import kept_reason, refusal_reason, validation_summary
 from uavdyn.learned.stability import (
@@ -46,6 +49,22 @@ def _stability_targets(setup: SafeSetup, trims: list[TrimSample]) -> StabilityTa
              for t in trims]
     margin = setup.config.stability_margin
     return StabilityTargets(trims, [training_target(s, margin) for s in sigma])
+
+
+def _seen_sorties(tr: TrainingWindows, sorties: list[Sortie], setup: SafeSetup, physics_sim,
+                  scales: LossScales, fitter: CompiledTwin | None,
+                  twin: CompiledTwin | None) -> SeenSorties:
+    """The training windows as the final checks score them: from the starts each model fits
+    (as the validation windows, with ``fitter``), against each sortie's own noise."""
+    noise = np.array([state_noise(s) for s in sorties])[tr.sortie]
+    span = start_fit_span(setup)
+    if span:
+        tr = physics_fitted(tr, setup, physics_sim, noise)
+        predict = FittedStartPredictor(fitter, noise, span)
+    else:
+        predict = twin.predict if twin is not None else None
+    return SeenSorties(window_tensors(tr, scales),
+                       validation_reference(tr, sorties, setup.horizon_sel), predict)
 
 
 def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
@@ -104,7 +123,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     stab = _stability_targets(setup, gates.box)
     twin = (CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
             if cfg.compiled and find_compiler() is not None else None)
-    fitted = None
+    fitted = fitter = None
     if span:  # each candidate scored from the starts it fits itself (with a twin of its own
         # where training runs in torch)
         fitter = twin or CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
@@ -128,6 +147,9 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                              setup.memory_tau,
                              start, run.screened,
                              fits), data.predict)
+    if cfg.seen_guard:
+        checks = replace(checks, seen=_seen_sorties(tr, train_sorties, setup, physics_sim,
+                                                    scales, fitter, twin))
     found = search(checks, run)
     chosen, tried = found.chosen, found.tried
     if chosen is None:

@@ -40,6 +40,13 @@ def _noise_level_text(row: dict) -> str:
             "noise, a noise-level difference)") if n else ""
 
 
+def _seen_text(row: dict) -> str:
+    """The training sorties' worst ratio (``SafeConfig.seen_guard``), said (or nothing)."""
+    worst = row.get("train_ratio_worst")
+    return "" if worst is None else (f"; every training sortie's pitch error at most "
+                                     f"{worst:.3g}x the physics'")
+
+
 def kept_reason(final: dict, physics_val: float, alpha: float, channels: np.ndarray,
                 chosen_row: dict, report: StabilityReport, horizon_s: float) -> str:
     """Why the correction is kept: its gains, scale, free runs and stability."""
@@ -59,7 +66,7 @@ def kept_reason(final: dict, physics_val: float, alpha: float, channels: np.ndar
                + ", ".join(f"{c:g}" for c in channels) + ")")
             + f"; every body state's error at most "
             f"{final['val_state_ratio_worst']:.3g}x the "
-            f"physics'){free_text}; "
+            f"physics'){_seen_text(chosen_row)}{free_text}; "
             f"{report.describe()}")
 
 
@@ -79,6 +86,8 @@ def _tally(tried: list, cfg: SafeConfig, physics_val: float, horizon_s: float) -
             + f", {len(states_worse)} make a body state's error grow beyond "
             f"{cfg.state_ratio_limit:g}x"
             + (f" (least {min(states_worse):.4g}x)" if states_worse else "")
+            + (f", {sum(r.get('train_ok') is False for r in tried)} make a training sortie "
+               f"worse than {cfg.worst_sortie_ratio:g}x" if cfg.seen_guard else "")
             + f", {sum(r.get('free_run_ok') is False for r in tried)} fail the free-run guard, "
             f"{sum(r.get('stable') is False for r in tried)} the stability check; ")
 
@@ -104,6 +113,14 @@ def refusal_reason(tried: list, cfg: SafeConfig, physics_val: float, best: dict,
         return (tally + f"every output scale that beats the physics at "
                 f"{horizon_s:g} s makes validation free runs worse (smallest, "
                 f"{r['scale']:g}: {'; '.join(why)}): the physics is kept")
+    seen_fails = [r for r in tried if r.get("train_ok") is False]
+    if seen_fails:  # passed validation, made a sortie it was trained on worse
+        r = min(seen_fails, key=lambda row: row["train_ratio_worst"])
+        names = ", ".join(r["train_sorties_worse"]) or "a run that left the data"
+        return (tally + f"every candidate that passes the validation rules makes a training "
+                f"sortie worse than {cfg.worst_sortie_ratio:g}x the physics at "
+                f"{horizon_s:g} s (closest: epoch {r['epoch']}, scale {r['scale']:g}, worst "
+                f"{r['train_ratio_worst']:.3g}x: {names}): the physics is kept")
     small = [r for r in tried
              if beats_physics_in_pitch(r, cfg, physics_val, gain_checked=False)]
     if small:  # beat the physics on every sortie, by too small a gain
