@@ -80,6 +80,9 @@ class SafeConfig:
                                      # the window's first records over this long (0: the
                                      # records, whose noise a network could earn a gain by
                                      # damping; uavdyn.integrate.start_fit)
+    train_start_fit: bool = False    # True: the training windows start where the physics
+                                     # fits the first start_fit_s of records too (so a network
+                                     # gains nothing by damping a noisy start out)
     average_decay: float = 0.0       # > 0: the epochs score and keep an exponential moving
                                      # average of the weights over the optimiser steps, with
                                      # this decay per step (epochs.WeightAverage)

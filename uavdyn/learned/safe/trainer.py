@@ -107,8 +107,12 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     if span:
         va = physics_fitted(va, setup, physics_sim, val_noise)
     fits = {"validation": va.start_fit} if span else {}
-    scaling = network_scaling(tr, cfg, dt, va.inputs)
+    scaling = network_scaling(tr, cfg, dt, va.inputs)  # from the records' own starts
     layout = scaling.layout(setup)
+    if span and cfg.train_start_fit:
+        tr = physics_fitted(tr, setup, physics_sim,
+                            np.array([state_noise(s) for s in train_sorties])[tr.sortie])
+        fits["train"] = tr.start_fit
 
     def network(seed: int) -> TorchCorrection:
         return TorchCorrection(airframe.kind, "improved", cfg.hidden, cfg.activation,
