@@ -369,7 +369,7 @@ def recipe_for(airframe_ref: str, kind: str, args, truth: dict) -> Recipe:
                   "split": {"train": 0.6, "validation": 0.2, "test": 0.2},
                   "missions": mission_list(kind, args.missions)}
     values.update(airframe=airframe_ref, seed=args.seed, sample_rate_hz=100.0,
-                  turbulent_fraction=0.5)
+                  turbulent_fraction=0.5, noise_scale=args.noise_scale)
     if truth_supported():
         values["truth"] = dict(truth)
     return Recipe(**values)
@@ -909,6 +909,8 @@ def main(argv: list[str] | None = None) -> int:
                          f"mission of the kind but {STALL_MISSION}; the stall term needs "
                          "'all')")
     ap.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
+    ap.add_argument("--noise-scale", type=float, default=1.0,
+                    help="the sensors' noise times this (default 1: the emulator's own)")
     ap.add_argument("--cache", type=Path, default=None,
                     help="cache folder for datasets and identified airframes (default "
                          "$UAVDYN_CACHE/bench_knockout or <tmp>/uavdyn_bench_knockout)")

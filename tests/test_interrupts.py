@@ -187,3 +187,28 @@ def test_command_line_error_after_a_swallowed_ctrl_c_is_the_interrupt(monkeypatc
         signal.signal(signal.SIGINT, previous)
     assert capsys.readouterr().err.strip() == "uavdyn trim: interrupted"
     assert not ctrl_c_pending()  # the record ends with the command
+
+
+def test_a_bar_written_to_a_log_redraws_every_half_minute_at_most():
+    """Written to a file or pipe, a bar redraws at most every LOG_INTERVAL_S (a log holds the
+    start and end lines, not ten a second); on a terminal tqdm's own interval stays."""
+    import io
+
+    from uavdyn.interrupts import LOG_INTERVAL_S, CheckedBar
+
+    log = io.StringIO()
+    with CheckedBar(total=300, file=log, desc="train") as bar:
+        assert bar.mininterval == LOG_INTERVAL_S
+        for _ in range(300):
+            bar.update(1)
+    lines = [part for part in log.getvalue().split("\r") if part.strip()]
+    assert len(lines) <= 3 and "300/300" in lines[-1]
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    with CheckedBar(total=1, file=Terminal()) as bar:
+        assert bar.mininterval < 1.0
+    with CheckedBar(total=1, file=io.StringIO(), mininterval=0.5) as bar:
+        assert bar.mininterval == 0.5

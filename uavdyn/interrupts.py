@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 
@@ -110,9 +111,21 @@ def interruptible() -> Iterator[None]:
         check_interrupted()
 
 
+LOG_INTERVAL_S = 30.0  # a bar written to a file or pipe (a log) redraws at most this often
+
+
 class CheckedBar(tqdm):
     """A tqdm progress bar that calls :func:`check_interrupted` at every step (iteration or
-    ``update``), shown or not: every long loop of the package advances one."""
+    ``update``), shown or not: every long loop of the package advances one. Written to a
+    file or pipe rather than a terminal it redraws every :data:`LOG_INTERVAL_S` at most, so
+    a log gets a progress line every half minute, not ten a second."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        stream = kwargs.get("file") or sys.stderr
+        is_terminal = getattr(stream, "isatty", lambda: False)
+        if "mininterval" not in kwargs and not is_terminal():
+            kwargs["mininterval"] = LOG_INTERVAL_S
+        super().__init__(*args, **kwargs)
 
     def update(self, n: float | None = 1) -> bool | None:
         check_interrupted()
