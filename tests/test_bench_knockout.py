@@ -96,8 +96,9 @@ def test_finished_case_is_resumed_without_any_work(bench, tmp_path, monkeypatch)
     """A case whose definition is unchanged is kept from the result file: no dataset is
     generated and the entry stays as it was; --force would rerun it."""
     args = bench.argparse.Namespace(quick=True, sorties=None, duration=None, seed=0,
-                                    identify_on="train", noise_share=bench.NOISE_SHARE,
-                                    force=False, balance_conditions=True)
+                                    noise_scale=1.0, identify_on="train",
+                                    noise_share=bench.NOISE_SHARE, force=False,
+                                    balance_conditions=True)
     cfg = bench.safe_config({}, quick=True)
     ref, file_hash = bench.airframe_ref("aerosonde")
     af = bench.load_airframe(ref)

@@ -83,6 +83,9 @@ class SafeConfig:
     train_start_fit: bool = False    # True: the training windows start where the physics
                                      # fits the first start_fit_s of records too (so a network
                                      # gains nothing by damping a noisy start out)
+    train_refit_every: int = 0       # > 0: every this many epochs the training windows
+                                     # start where the network being trained fits the first
+                                     # start_fit_s of records (0: from the records)
     average_decay: float = 0.0       # > 0: the epochs score and keep an exponential moving
                                      # average of the weights over the optimiser steps, with
                                      # this decay per step (epochs.WeightAverage)

@@ -9,7 +9,7 @@ import copy
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -52,6 +52,8 @@ class TrainingData:
     inputs: torch.Tensor | None = None  # the network's inputs at every training sample
     validation_predictor: Predictor | None = None  # scores the validation windows (None:
                                                     # the twin's or torch's free runs)
+    train_starts: Callable[[TorchCorrection], torch.Tensor] | None = None  # the training
+    # windows' starts fitted by a network (SafeConfig.train_refit_every; None: records)
 
     @property
     def predict(self) -> Predictor | None:
@@ -203,6 +205,10 @@ class EpochLoop:
             loss, penalty = train_epoch(model, self.opt, data, self.stab, cfg, self.rng,
                                         self.average)
             self.sched.step()
+            if (data.train_starts is not None and cfg.train_refit_every
+                    and epoch % cfg.train_refit_every == 0):
+                self.data = data = replace(data, train=replace(
+                    data.train, z0=data.train_starts(self.scored)))
             sel = score(self.scored, data.val, ref, data.loss.dt, data.predict)
             elapsed = time.perf_counter() - self.start
             self.history.append({"epoch": epoch, "train_loss": loss,

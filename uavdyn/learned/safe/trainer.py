@@ -132,11 +132,20 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         # where training runs in torch)
         fitter = twin or CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
         fitted = FittedStartPredictor(fitter, val_noise, span)
+    train_starts = None
+    if span and cfg.train_refit_every:
+        records = window_tensors(tr, scales)
+        refitter = FittedStartPredictor(
+            fitter, np.array([state_noise(s) for s in train_sorties])[tr.sortie], span)
+
+        def train_starts(net: TorchCorrection):
+            return refitter.starts(net, records)
     data = TrainingData(window_tensors(tr, scales), window_tensors(va, scales),
                         fixed_windows(cfg, len(tr.z0), len(va.z0)),
                         WindowLoss.of(scales, cfg, dt),
                         validation_reference(va, val_sorties, setup.horizon_sel), twin,
-                        torch.as_tensor(tr.inputs, dtype=model.in_mean.dtype), fitted)
+                        torch.as_tensor(tr.inputs, dtype=model.in_mean.dtype), fitted,
+                        train_starts)
     loop = screened_start(model, network, data, stab, cfg, rng, start, airframe.name)
     loop.advance(cfg.epochs)
     model, run = loop.model, loop.result()
