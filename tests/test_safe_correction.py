@@ -887,3 +887,36 @@ def test_the_training_sortie_guard_refuses_a_correction_worse_on_one_sortie_it_h
     row = {}
     assert _seen_sorties_kept(checks_with(1.01), row) and row["train_sorties_worse"] == []
     assert _seen_sorties_kept(SimpleNamespace(seen=None), {})
+
+
+@pytest.mark.slow
+def test_refit_training_starts_are_fitted_by_the_network_being_trained(tmp_path, monkeypatch):
+    """``SafeConfig.train_refit_every``: every that many epochs the training windows start
+    where the network being trained fits their first records (from the records each time,
+    not from the last fit); off, the starts are never refitted."""
+    from emulated_data import emulated_dataset
+
+    from uavdyn.flightdata import load_dataset
+    from uavdyn.learned.safe import SafeConfig, train_safe
+    from uavdyn.learned.safe.twin import FittedStartPredictor
+
+    airframe = load_airframe("aerosonde")
+    sorties = load_dataset(emulated_dataset(tmp_path / "data", airframe, 4, 6.0)).sorties
+    calls = []
+    original = FittedStartPredictor.starts
+
+    def counting(self, model, V):
+        calls.append((V.count, len(self.noise), V.z0.detach().numpy().copy()))
+        return original(self, model, V)
+
+    monkeypatch.setattr(FittedStartPredictor, "starts", counting)
+    base = dict(epochs=4, patience=10, batches_per_epoch=2, batch_windows=8, horizon_s=1.0,
+                progress=False, memory_tau=(0.1,), free_run_guard=False)
+    train_safe(sorties[:3], sorties[3:], airframe, SafeConfig(**base))
+    validation_only = {c[0] for c in calls}
+    calls.clear()
+    train_safe(sorties[:3], sorties[3:], airframe, SafeConfig(**base, train_refit_every=2))
+    refits = [c for c in calls if c[0] not in validation_only]
+    assert len(refits) == 2                       # epochs 2 and 4
+    assert all(n == count for count, n, _ in refits)
+    np.testing.assert_array_equal(refits[0][2], refits[1][2])  # both from the records

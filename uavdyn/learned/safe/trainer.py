@@ -4,6 +4,7 @@ scaling, epochs, final checks, verdict; one module each)."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -17,6 +18,7 @@ from uavdyn.learned.safe.config import SafeConfig, SafeResult, SafeSetup, safe_s
 from uavdyn.learned.safe.data import (
     LossScales,
     TrainingWindows,
+    WindowTensors,
     loss_scales,
     network_scaling,
     physics_fitted,
@@ -51,12 +53,12 @@ def _stability_targets(setup: SafeSetup, trims: list[TrimSample]) -> StabilityTa
     return StabilityTargets(trims, [training_target(s, margin) for s in sigma])
 
 
-def _seen_sorties(tr: TrainingWindows, sorties: list[Sortie], setup: SafeSetup, physics_sim,
-                  scales: LossScales, fitter: CompiledTwin | None,
-                  twin: CompiledTwin | None) -> SeenSorties:
+def _seen_sorties(tr: TrainingWindows, sorties: list[Sortie], noise: np.ndarray,
+                  setup: SafeSetup, physics_sim, scales: LossScales,
+                  fitter: CompiledTwin | None, twin: CompiledTwin | None) -> SeenSorties:
     """The training windows as the final checks score them: from the starts each model fits
-    (as the validation windows, with ``fitter``), against each sortie's own noise."""
-    noise = np.array([state_noise(s) for s in sorties])[tr.sortie]
+    (as the validation windows, with ``fitter``), against each sortie's own ``noise`` (per
+    window)."""
     span = start_fit_span(setup)
     if span:
         tr = physics_fitted(tr, setup, physics_sim, noise)
@@ -65,6 +67,17 @@ def _seen_sorties(tr: TrainingWindows, sorties: list[Sortie], setup: SafeSetup, 
         predict = twin.predict if twin is not None else None
     return SeenSorties(window_tensors(tr, scales),
                        validation_reference(tr, sorties, setup.horizon_sel), predict)
+
+
+def _refitted_starts(cfg: SafeConfig, span: int, fitter: CompiledTwin | None,
+                     records: WindowTensors, noise: np.ndarray
+                     ) -> Callable[[TorchCorrection], torch.Tensor] | None:
+    """The training windows' starts as a network fits them from their ``records``
+    (``SafeConfig.train_refit_every``), or None (they start from the records)."""
+    if not (span and cfg.train_refit_every and fitter is not None):
+        return None
+    refitter = FittedStartPredictor(fitter, noise, span)
+    return lambda net: refitter.starts(net, records)
 
 
 def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
@@ -104,14 +117,14 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     span = start_fit_span(setup)
     sortie_noise = np.array([state_noise(s) for s in val_sorties])  # (n_val, 4)
     val_noise = sortie_noise[va.sortie]
+    train_noise = np.array([state_noise(s) for s in train_sorties])[tr.sortie]
     if span:
         va = physics_fitted(va, setup, physics_sim, val_noise)
     fits = {"validation": va.start_fit} if span else {}
     scaling = network_scaling(tr, cfg, dt, va.inputs)  # from the records' own starts
     layout = scaling.layout(setup)
     if span and cfg.train_start_fit:
-        tr = physics_fitted(tr, setup, physics_sim,
-                            np.array([state_noise(s) for s in train_sorties])[tr.sortie])
+        tr = physics_fitted(tr, setup, physics_sim, train_noise)
         fits["train"] = tr.start_fit
 
     def network(seed: int) -> TorchCorrection:
@@ -132,20 +145,13 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         # where training runs in torch)
         fitter = twin or CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
         fitted = FittedStartPredictor(fitter, val_noise, span)
-    train_starts = None
-    if span and cfg.train_refit_every:
-        records = window_tensors(tr, scales)
-        refitter = FittedStartPredictor(
-            fitter, np.array([state_noise(s) for s in train_sorties])[tr.sortie], span)
-
-        def train_starts(net: TorchCorrection):
-            return refitter.starts(net, records)
     data = TrainingData(window_tensors(tr, scales), window_tensors(va, scales),
                         fixed_windows(cfg, len(tr.z0), len(va.z0)),
                         WindowLoss.of(scales, cfg, dt),
                         validation_reference(va, val_sorties, setup.horizon_sel), twin,
                         torch.as_tensor(tr.inputs, dtype=model.in_mean.dtype), fitted,
-                        train_starts)
+                        _refitted_starts(cfg, span, fitter, window_tensors(tr, scales),
+                                         train_noise))
     loop = screened_start(model, network, data, stab, cfg, rng, start, airframe.name)
     loop.advance(cfg.epochs)
     model, run = loop.model, loop.result()
@@ -161,8 +167,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                              start, run.screened,
                              fits), data.predict)
     if cfg.seen_guard:
-        checks = replace(checks, seen=_seen_sorties(tr, train_sorties, setup, physics_sim,
-                                                    scales, fitter, twin))
+        checks = replace(checks, seen=_seen_sorties(tr, train_sorties, train_noise, setup,
+                                                    physics_sim, scales, fitter, twin))
     found = search(checks, run)
     chosen, tried = found.chosen, found.tried
     if chosen is None:
