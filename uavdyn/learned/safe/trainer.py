@@ -145,13 +145,13 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         # where training runs in torch)
         fitter = twin or CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
         fitted = FittedStartPredictor(fitter, val_noise, span)
-    data = TrainingData(window_tensors(tr, scales), window_tensors(va, scales),
+    train = window_tensors(tr, scales)  # the records' starts: refits start from them too
+    data = TrainingData(train, window_tensors(va, scales),
                         fixed_windows(cfg, len(tr.z0), len(va.z0)),
                         WindowLoss.of(scales, cfg, dt),
                         validation_reference(va, val_sorties, setup.horizon_sel), twin,
                         torch.as_tensor(tr.inputs, dtype=model.in_mean.dtype), fitted,
-                        _refitted_starts(cfg, span, fitter, window_tensors(tr, scales),
-                                         train_noise))
+                        _refitted_starts(cfg, span, fitter, train, train_noise))
     loop = screened_start(model, network, data, stab, cfg, rng, start, airframe.name)
     loop.advance(cfg.epochs)
     model, run = loop.model, loop.result()
