@@ -90,8 +90,8 @@ STEPS = (
     Step(("evaluate", "--airframe", "aerosonde", "--identified", "aerosonde_fit.toml",
           "--dataset", "flights", "--out", "evaluation.json"),
          "Score nominal against identified physics on the held-out test sorties: pitch RMSE, "
-         "pooled, with a bootstrap interval over sorties (one sortie per group here, so the "
-         "interval is a point).",
+         "pooled, with a bootstrap interval over sorties where a group has two or more (one "
+         "sortie per group here, so none: emulate more sorties for one).",
          readme=_one_second),
     Step(("modes", "--airframe", "aerosonde", "--hybrid"),
          "The shipped learned correction on the shipped identified Aerosonde: its discrete map "

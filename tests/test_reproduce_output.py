@@ -111,3 +111,25 @@ def test_evaluate_writes_the_figure_its_report_refers_to(tmp_path, capsys):
 
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([
         "hand", "metrics.json", "metrics.md", "metrics.png", REGISTRY])  # no temporary left
+
+
+def test_a_headline_over_one_sortie_gives_no_interval():
+    """A bootstrap over one sortie is that sortie again: its "interval" has no width and would
+    read as certainty, so a one-sortie group states each figure alone and says why; a group
+    of three keeps its intervals."""
+    from uavdyn.experiments.report import headline_lines
+
+    one, three = _entry("calm", 1, (0.03, 0.02, 0.01), (0, 0)), \
+        _entry("turbulent", 3, (0.06, 0.05, 0.04), (1, 0))
+    for entry in (one, three):
+        entry["corrected_vs_identified"]["share_removed"] = {
+            "share": 0.5, "ci_low": 0.5 if entry is one else 0.2,
+            "ci_high": 0.5 if entry is one else 0.7}
+    lines = headline_lines({"airframe": "trainer", "ladder": {"headline": [one, three]}})
+    calm = next(line for line in lines if "calm" in line)
+    turbulent = next(line for line in lines if "turbulent" in line)
+    assert "one sortie, so no interval" in calm and "[" not in calm
+    assert f"corrected {fmt(0.01)}." in calm and "share removed +0.50)" in calm
+    assert "[95 % bootstrap over sorties]" in turbulent
+    assert f"corrected {fmt(0.04)} [{fmt(0.02)}, {fmt(0.08)}]" in turbulent
+    assert "95 % bootstrap [+0.20, +0.70]" in turbulent

@@ -801,6 +801,27 @@ def test_the_exact_check_runs_out_to_where_the_gate_reaches_zero(name):
     assert below and all(v > reach_lo for v in below)
 
 
+
+def test_a_fixed_wings_physical_inputs_give_the_sweep_its_airspeed_directly():
+    """A fixed wing's physical inputs are angle of attack then airspeed: the sweep's speeds
+    are the airspeed input's range (and its fade), not ``hypot`` of the first two inputs
+    read as ``u``, ``w``; the trims of the check lie at those speeds."""
+    from uavdyn.learned.formulations import airspeed_input
+    from uavdyn.learned.stability import envelope_speeds, gate_trims, reach_speeds
+
+    assert airspeed_input("fixed_wing", "physical") == 1
+    assert airspeed_input("fixed_wing", "state") is None
+    assert airspeed_input("multirotor", "physical") is None
+    low = np.array([-0.05, 18.0, -0.1])
+    high = np.array([0.25, 26.0, 0.1])
+    envelope = Envelope(low, high, np.array([0.1, 2.0, 0.05]))
+    assert envelope_speeds(envelope, 1) == (18.0, 26.0)
+    assert reach_speeds(envelope, 1) == (16.0, 28.0)
+    airframe = load_airframe("aerosonde")
+    gates = gate_trims(airframe, envelope, StateLayout(structure_of(airframe)), 4, 1)
+    assert gates.box and all(18.0 - 1e-9 <= t.airspeed <= 26.0 + 1e-9 for t in gates.box)
+    assert gates.margins and all(16.0 < t.airspeed < 28.0 for t in gates.margins)
+
 def test_validation_stretches_cut_long_sorties_into_minutes_and_keep_short_ones_whole():
     """``scoring.stretches``: a 30 s sortie is one unit under its own name; a 6-minute log
     is six units of 60 s and a 90 s one two of 45 s, each window in the unit its start time

@@ -138,9 +138,19 @@ def cmd_identify(args: argparse.Namespace) -> int:
         if fit:
             print(f"  {split} pitch RMSE over {result.window_s:g} s windows: nominal "
                   f"{fit['theta_rmse']['nominal']:.3g} rad -> identified "
-                  f"{fit['theta_rmse']['identified']:.3g} rad")
+                  f"{fit['theta_rmse']['identified']:.3g} rad" + _inside_note(fit))
     print(f"wrote {paths['airframe']}, {paths['json']} and {paths['png']}")
     return 0
+
+
+def _inside_note(fit: dict) -> str:
+    """The same RMSE over the windows short of the stall onset, where some reach past it."""
+    inside = fit.get("theta_rmse_inside")
+    if not inside:
+        return ""
+    return (f"; without the {fit['windows_past_stall_onset']} windows past the stall onset "
+            f"(not modelled, left out of the fit): {inside['nominal']:.3g} -> "
+            f"{inside['identified']:.3g} rad")
 
 
 PRIOR_FORM = re.compile(r"nominal(?::([0-9]+(?:\.[0-9]*)?(?:[eE][+-]?[0-9]+)?))?")

@@ -47,14 +47,15 @@ PAIRED_WORDS = {"identified_vs_nominal": ("identification", "the nominal physics
                 "corrected_vs_identified": ("the correction", "the identified physics")}
 
 
-def _share_sentence(share: dict | None, upper: str, lower: str) -> str:
+def _share_sentence(share: dict | None, upper: str, lower: str, interval: bool = True) -> str:
     """`` Identification removes 43 % of the pooled error of ... (share removed +0.43, 95 %
     bootstrap [+0.30, +0.55]).``: the share of the lower rung's pooled error the upper rung
-    removes (``error_share``'s dict, negative where it adds), with its bootstrap interval."""
+    removes (``error_share``'s dict, negative where it adds), with its bootstrap interval
+    (``interval`` False: over one sortie, which has none)."""
     if not share or share["share"] is None:
         return ""
     ci = (f", 95 % bootstrap [{share['ci_low']:+.2f}, {share['ci_high']:+.2f}]"
-          if math.isfinite(share["ci_low"]) else "")
+          if interval and math.isfinite(share["ci_low"]) else "")
     verb = "removes" if share["share"] >= 0 else "adds"
     return (f" {upper[0].upper() + upper[1:]} {verb} {100 * abs(share['share']):.0f} % "
             f"{'of' if share['share'] >= 0 else 'to'} the pooled error of {lower} (share "
@@ -63,7 +64,7 @@ def _share_sentence(share: dict | None, upper: str, lower: str) -> str:
 
 def _paired_sentence(cmp: dict, upper: str, lower: str, sorties: int) -> str:
     """One sentence of a sortie-by-sortie comparison (``compare_paired``'s dict)."""
-    return (_share_sentence(cmp.get("share_removed"), upper, lower)
+    return (_share_sentence(cmp.get("share_removed"), upper, lower, sorties >= 2)
             + f" Against {lower}, {upper} is worse on {len(cmp['worse'])} of {sorties} "
             f"sorties, by more than {100 * cmp['tolerance']:.0f} % on "
             f"{len(cmp['worse_beyond_tolerance'])}"
@@ -88,11 +89,14 @@ def headline_lines(af: dict) -> list[str]:
             lines.append(f"- **{name}, {entry['condition']}**: missing ({entry['missing']}).")
             continue
         models = entry["models"]
-        chain = " -> ".join(f"{m} {_ci(v)}" for m, v in models.items())
+        one = entry["sorties"] < 2  # a bootstrap over one sortie is that sortie: no spread
+        chain = " -> ".join(f"{m} {fmt(v['rmse']) if one else _ci(v)}"
+                            for m, v in models.items())
         text = (f"- **{name}, {entry['condition']}, {entry['label']}** "
                 f"({entry['sorties']} test sortie{'s' if entry['sorties'] != 1 else ''}), "
-                "pitch RMSE in rad, pooled "
-                f"[95 % bootstrap over sorties]: {chain}.")
+                "pitch RMSE in rad, "
+                + ("one sortie, so no interval" if one else
+                   "pooled [95 % bootstrap over sorties]") + f": {chain}.")
         if entry["mode"] == "free_run":
             gone = [f"{m} {v['departed']}/{entry['sorties']}" for m, v in models.items()
                     if v.get("departed")]

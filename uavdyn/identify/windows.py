@@ -234,20 +234,39 @@ def training_windows(airframe: Airframe, train: list[Sortie], L: int, stride: in
 def fit_summary(nominal: Airframe, fitted: Airframe, sorties: list[Sortie], interval: float,
                  substeps: int, L: int, stride: int) -> dict:
     """Pitch RMSE over the windows of each sortie, nominal vs fitted airframe (each with its
-    own discrete step: lags, delays and sortie densities included)."""
-    per = []
+    own discrete step: lags, delays and sortie densities included). Where windows reach past
+    the stall onset (:func:`inside_envelope`; the fit leaves them out), the same pooled over
+    the windows inside too (``theta_rmse_inside``, with the count left out), so a fit that
+    improves what it was fitted to is not read as worse because of what it may not model."""
+    per, inside_rows, n_out = [], [], 0
     for s in sorties:
         try:
             w = make_windows([s], L, stride)
         except IdentifyError:
             continue  # a sortie shorter than one window
         row = {"sortie": s.name, "condition": s.meta.get("condition", "")}
+        inside = inside_envelope(nominal, w)
+        n_out += int((~inside).sum())
+        inside_row = {}
         for label, af in (("nominal", nominal), ("identified", fitted)):
             err = physics_windows(af, w, interval, substeps)[..., 3] - w.y[..., 3]
             with np.errstate(all="ignore"):
                 value = float(np.sqrt(np.mean(err**2)))
+                if inside.any():
+                    inside_row[label] = float(np.sqrt(np.mean(err[inside] ** 2)))
             row[f"theta_rmse_{label}"] = value if math.isfinite(value) else math.inf
         per.append(row)
-    pooled = {label: float(np.sqrt(np.mean([r[f"theta_rmse_{label}"] ** 2 for r in per])))
-              if per else math.nan for label in ("nominal", "identified")}
-    return {"per_sortie": per, "theta_rmse": pooled}
+        if inside_row:
+            inside_rows.append({k: v if math.isfinite(v) else math.inf
+                                for k, v in inside_row.items()})
+    out = {"per_sortie": per, "theta_rmse": _pooled(per, "theta_rmse_")}
+    if n_out and inside_rows:
+        out["theta_rmse_inside"] = _pooled(inside_rows, "")
+        out["windows_past_stall_onset"] = n_out
+    return out
+
+
+def _pooled(rows: list[dict], prefix: str) -> dict:
+    """The root mean square over sorties of each label's per-sortie RMSE."""
+    return {label: float(np.sqrt(np.mean([r[prefix + label] ** 2 for r in rows])))
+            if rows else math.nan for label in ("nominal", "identified")}

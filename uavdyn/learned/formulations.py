@@ -171,6 +171,13 @@ class CorrectionLayout:
         return len(self.input_names())
 
 
+def airspeed_input(kind: str, inputs: str) -> int | None:
+    """Which network input is the airspeed itself (a fixed wing's ``physical`` inputs: angle
+    of attack, then airspeed), None where the first two are the body velocities ``u``, ``w``
+    (the gate's trim sweep, :func:`uavdyn.learned.stability.envelope_speeds`)."""
+    return 1 if (kind, inputs) == ("fixed_wing", "physical") else None
+
+
 def correction_inputs(layout: CorrectionLayout, z, u, p, ops):
     """The network's inputs and the gain of each output, at the step's state ``z`` and
     command ``u`` (feature-first, any ``ops``).

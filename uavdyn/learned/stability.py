@@ -34,6 +34,7 @@ from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import DiscreteModel, StateLayout
 from uavdyn.learned.envelope import Envelope
+from uavdyn.learned.formulations import airspeed_input
 from uavdyn.linear import TrimError, point_params, trim
 from uavdyn.linear.trim import step_inputs
 
@@ -67,10 +68,16 @@ def envelope_trims(airframe: Airframe, sorties: list[Sortie], layout: StateLayou
     return trims_between(airframe, float(lo), float(hi), layout, n_speeds)
 
 
-def envelope_speeds(envelope: Envelope) -> tuple[float, float]:
-    """The airspeed range a weight file's envelope spans (its body-velocity inputs ``u``, ``w``
-    are the first two): from the smallest to the largest ``hypot(u, w)`` over the box, so the
-    sweep of ``uavdyn modes --hybrid`` covers what the network was trained on."""
+def envelope_speeds(envelope: Envelope, airspeed_input: int | None = None
+                    ) -> tuple[float, float]:
+    """The airspeed range a weight file's envelope spans, so the sweep of ``uavdyn modes
+    --hybrid`` covers what the network was trained on: the box's range of the airspeed input
+    ``airspeed_input`` where the network sees airspeed itself (a fixed wing's physical inputs,
+    :func:`uavdyn.learned.formulations.airspeed_input`), else from the smallest to the largest
+    ``hypot(u, w)`` over the box of its body-velocity inputs ``u``, ``w`` (the first two)."""
+    if airspeed_input is not None:
+        return (max(float(envelope.low[airspeed_input]), 0.0),
+                max(float(envelope.high[airspeed_input]), 0.0))
     u = (float(envelope.low[0]), float(envelope.high[0]))
     w = (float(envelope.low[1]), float(envelope.high[1]))
     w_min = 0.0 if w[0] <= 0.0 <= w[1] else min(abs(w[0]), abs(w[1]))
@@ -78,11 +85,12 @@ def envelope_speeds(envelope: Envelope) -> tuple[float, float]:
     return math.hypot(u_min, w_min), math.hypot(max(map(abs, u)), max(map(abs, w)))
 
 
-def reach_speeds(envelope: Envelope) -> tuple[float, float]:
+def reach_speeds(envelope: Envelope, airspeed_input: int | None = None) -> tuple[float, float]:
     """The airspeed range over which the gate lets the network act at all: the box widened
     by its fade on every side (:func:`envelope_speeds` of that box)."""
     return envelope_speeds(Envelope(envelope.low - envelope.fade,
-                                    envelope.high + envelope.fade, envelope.fade))
+                                    envelope.high + envelope.fade, envelope.fade),
+                           airspeed_input)
 
 
 @dataclass(frozen=True)
@@ -101,14 +109,14 @@ class GateTrims:
 
 
 def gate_trims(airframe: Airframe, envelope: Envelope, layout: StateLayout,
-               n_speeds: int = 4) -> GateTrims:
+               n_speeds: int = 4, airspeed_input: int | None = None) -> GateTrims:
     """The trims the exact stability check runs at: ``n_speeds`` over the box's airspeeds
     (:func:`envelope_speeds`) and more over the middle half of each margin out to where the
     gate reaches zero (:func:`reach_speeds`; beyond, the step is the physics), so the check
     covers trimmed flight wherever the correction acts. A margin point already in the box (a
-    multirotor's hover) is not repeated."""
-    lo, hi = envelope_speeds(envelope)
-    reach_lo, reach_hi = reach_speeds(envelope)
+    multirotor's hover) is not repeated. ``airspeed_input``: see :func:`envelope_speeds`."""
+    lo, hi = envelope_speeds(envelope, airspeed_input)
+    reach_lo, reach_hi = reach_speeds(envelope, airspeed_input)
     box, skipped = trims_between(airframe, lo, hi, layout, n_speeds)
     seen = {(round(t.airspeed, 6), round(t.gamma, 9)) for t in box}
     margins: list[TrimSample] = []
@@ -337,6 +345,7 @@ def envelope_check(net, airframe: Airframe, dt: float | None = None,
         raise ValueError("these weights store no training envelope (weight formats 3-4, "
                          "'improved' formulation, have one): no envelope sweep")
     model = model if model is not None else hybrid_step(net, airframe, compile=False)
-    trims = gate_trims(airframe, net.envelope, model.layout, n_speeds)
+    trims = gate_trims(airframe, net.envelope, model.layout, n_speeds,
+                       airspeed_input(net.kind, net.inputs))
     return check_map_stability(model, physics_step(model.structure), trims.all, dt or net.dt,
                                margin, trims.skipped)

@@ -13,6 +13,7 @@ import torch
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import StateLayout, find_compiler
+from uavdyn.learned.formulations import airspeed_input
 from uavdyn.learned.rules import state_noise
 from uavdyn.learned.safe.config import SafeConfig, SafeResult, SafeSetup, safe_setup
 from uavdyn.learned.safe.data import (
@@ -136,7 +137,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     model = network(cfg.seed)
     scales = loss_scales(tr)
     gates = gate_trims(airframe, scaling.envelope, StateLayout(setup.structure,
-                                                                setup.memory_tau))
+                                                                setup.memory_tau),
+                       airspeed_input=airspeed_input(airframe.kind, setup.layout.inputs))
     stab = _stability_targets(setup, gates.box)
     twin = (CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
             if cfg.compiled and find_compiler() is not None else None)
