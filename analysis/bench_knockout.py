@@ -444,9 +444,12 @@ def dataset(recipe: Recipe, file_hash: str, cache: Path) -> tuple[Path, float, b
     return folder, time.perf_counter() - t0, False
 
 
-def balance_conditions(ds) -> dict:
+def deal_conditions_by_mission(ds) -> dict:
     """Re-deal each mission's validation and test sorties so both splits hold calm and
-    turbulent sorties (in memory; the dataset folder is unchanged). The recipe's split keeps
+    turbulent sorties (in memory; the dataset folder is unchanged). The benchmark's own fixed
+    rule, not the product's ``uavdyn.flightdata.split.balance_conditions`` (a seeded swap
+    after a stratified split): every result JSON of the benchmark was dealt by this one, and
+    changing it would re-deal every dataset's split. The recipe's split keeps
     its per-mission counts, but its calm/turbulent alternation runs along the same rank order
     as the split, so with equal counts per mission every test sortie comes out turbulent and
     every validation sortie calm. Here mission k (in order of appearance) gives its test
@@ -621,7 +624,7 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
         return
     folder, gen_s, reused = dataset(recipe, file_hash, cache)
     ds = load_dataset(folder)
-    moved = balance_conditions(ds) if args.balance_conditions else {}
+    moved = deal_conditions_by_mission(ds) if args.balance_conditions else {}
     counts = {s: len(ds.split(s)) for s in ("train", "validation", "test")}
     by_condition = {sp: {c: sum(s.meta.get("condition") == c for s in ds.split(sp))
                          for c in ("calm", "turbulent")} for sp in counts}

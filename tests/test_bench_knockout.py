@@ -127,7 +127,7 @@ def test_finished_case_is_resumed_without_any_work(bench, tmp_path, monkeypatch)
                     "--out", str(out), "--cache", str(cache), "--force"])
 
 
-def test_balance_conditions_gives_both_splits_both_conditions(bench):
+def test_the_benchmarks_dealing_gives_both_splits_both_conditions(bench):
     """The recipe's split at equal per-mission counts puts every test sortie in turbulence;
     the re-deal keeps each mission's counts and mixes the conditions."""
     from types import SimpleNamespace
@@ -143,7 +143,7 @@ def test_balance_conditions_gives_both_splits_both_conditions(bench):
     def split_of(s):
         return s.meta["split"]
 
-    moved = bench.balance_conditions(ds)
+    moved = bench.deal_conditions_by_mission(ds)
     assert moved  # the test sorties of the even missions moved
     for m in ("m0", "m1", "m2", "m3"):
         mine = [split_of(s) for s in ds.sorties if s.mission == m]
