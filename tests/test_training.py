@@ -67,7 +67,9 @@ def test_short_training_learns_the_discrepancy(small_data, aerosonde, tmp_path):
     assert e_hybrid < e_physics, (e_hybrid, e_physics)
 
 
-def test_cli_train_writes_weights_history_and_plot(tmp_path, emulated):
+def test_cli_train_writes_weights_history_and_plot(tmp_path, emulated, capsys):
+    """The files written, and what is printed: the verdict in words (the kept reason the
+    history records, the network, the files), not the summary's JSON."""
     from uavdyn.cli import main
 
     out = tmp_path / "w.npz"
@@ -76,6 +78,12 @@ def test_cli_train_writes_weights_history_and_plot(tmp_path, emulated):
                  "--min-gain", "0", "--out", str(out)])
     # short rollouts and one epoch, any gain kept: the files written are what is checked
     assert code == 0
+    lines = capsys.readouterr().out.splitlines()
+    history = json.loads((tmp_path / "w_history.json").read_text())
+    assert lines[0] == f"kept: {history['reason']}"
+    assert "improved MLP" in lines[1] and "validation sorties" in lines[1]
+    assert lines[-1] == f"wrote {out}, {tmp_path / 'w_history.json'} and " \
+        f"{tmp_path / 'w_history.png'}"
     net = load_weights(out)
     assert net.hidden == (4, 4, 4) and net.formulation == "improved"
     assert net.info["data_source"] == f"dataset {emulated}"
@@ -107,7 +115,7 @@ def test_cli_train_restarts_screens_the_starts_and_refuses_bad_counts(tmp_path, 
     out = tmp_path / "w.npz"
     code = main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
                  "--epochs", "2", "--hidden", "4", "--horizon", "0.3", "--quiet",
-                 "--restarts", "2", "--min-gain", "0", "--out", str(out)])
+                 "--restarts", "2", "--min-gain", "0", "--json", "--out", str(out)])
     printed = capsys.readouterr().out
     assert code == 0
     screened = json.loads(printed)["screened"]
@@ -129,7 +137,7 @@ def test_cli_train_start_fit_is_recorded_and_refused_out_of_range(tmp_path, emul
     from uavdyn.cli import main
 
     base = ["train", "--airframe", "aerosonde", "--dataset", str(emulated), "--epochs", "2",
-            "--hidden", "4", "--horizon", "0.3", "--quiet", "--min-gain", "0"]
+            "--hidden", "4", "--horizon", "0.3", "--quiet", "--min-gain", "0", "--json"]
     assert main([*base, "--out", str(tmp_path / "fit.npz")]) == 0
     fits = json.loads(capsys.readouterr().out)["start_fits"]
     assert fits["validation"]["span_samples"] == 21

@@ -239,8 +239,25 @@ def cmd_train(args: argparse.Namespace) -> int:
         check_dataset_fits(airframe, args.dataset, args.lowpass_hz)
     module = training_module()
     summary = module.run(args, airframe)
-    print(json.dumps(summary, indent=2))
+    print(json.dumps(summary, indent=2) if args.json else "\n".join(train_lines(summary)))
     return 0
+
+
+def train_lines(summary: dict) -> list[str]:
+    """What ``uavdyn train`` prints (without ``--json``): the verdict with its numbers, the
+    network and how its run ended, and the files written."""
+    epochs = summary.get("epochs_run")
+    run = (f"best epoch {summary['best_epoch']}" + (f" of {epochs}" if epochs is not None
+                                                    else "")
+           + f", {summary['stopped']}; {summary['seconds']:g} s on {summary['n_train']} "
+           f"train and {summary['n_val']} validation sorties")
+    if "reason" in summary:  # the safe correction: its verdict says why it was kept
+        head = f"kept: {summary['reason']}"
+    else:
+        head = (f"trained: validation loss {summary['val_total_initial']:.4g} -> "
+                f"{summary['val_total_best']:.4g}")
+    return [head, f"  {summary['network']}; {run}",
+            f"wrote {summary['weights']}, {summary['history']} and {summary['png']}"]
 
 
 def add_identify(sub) -> None:
@@ -404,4 +421,6 @@ def add_train(sub) -> None:
     p.add_argument("--history", default=None, type=file_to_write,
                    help="loss-history JSON (default beside --out; a PNG is written too)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true",
+                   help="print the run's summary as JSON (default: its verdict in words)")
     p.set_defaults(func=cmd_train)

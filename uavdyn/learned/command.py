@@ -168,4 +168,5 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
             "epochs_run": len(result.history) - 1, "stopped": result.stopped,
             "screened": result.screened, "start_fits": result.start_fits,
             "seconds": round(result.seconds, 1), "validation": result.validation,
-            "stability": result.stability.describe() if result.stability else None}
+            "stability": result.stability.describe() if result.stability else None,
+            "reason": result.reason}
