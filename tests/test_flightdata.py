@@ -84,6 +84,10 @@ def test_generated_dataset_follows_the_interchange_format(small_dataset):
     ds = load_dataset(small_dataset)
     assert sorted(s.name for s in ds.train + ds.validation + ds.test) == \
         sorted(s.name for s in ds.sorties)  # split by sortie, every sortie in one split
+    # 2 sorties per mission cannot be split alone: the whole dataset split by mission
+    assert ds.train and ds.validation and ds.test
+    assert manifest["split_rule"] == {"by": "mission", "fractions": [0.7, 0.15, 0.15],
+                                      "seed": 0}
     for s in ds.sorties:
         assert np.all(np.isfinite(s.to_array())) and np.all(np.isfinite(s.true_states))
         assert s.true_states.shape == s.states.shape
@@ -98,11 +102,14 @@ def test_same_seed_same_values_and_seeds_differ(small_dataset, tmp_path):
         # 14 sorties over the quadrotor's 7 missions (the CLI run of the fixture said it too)
         generate_dataset(Recipe(sorties=14, seed=0, duration_s=5.0), again, workers=1,
                          progress=False)
-    assert sorted(str(w.message).split("'")[1] for w in said) == ["test", "validation"]
+    assert [str(w.message) for w in said] == [
+        "14 sorties over 7 missions leave the 'validation' split empty when each mission is "
+        "split alone; split over the whole dataset by mission instead (as uavdyn split --by "
+        "mission)"]
     same = compare_fingerprints(dataset_fingerprint(again), dataset_fingerprint(small_dataset))
     assert same.matches() and same.max_abs_difference <= 1e-12
     other = tmp_path / "seed1"
-    with pytest.warns(UserWarning, match="split empty"):
+    with pytest.warns(UserWarning, match="split empty when each mission is split alone"):
         generate_dataset(Recipe(sorties=14, seed=1, duration_s=5.0), other, workers=2,
                          progress=False)
     diff = compare_fingerprints(dataset_fingerprint(other), dataset_fingerprint(small_dataset))

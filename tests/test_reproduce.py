@@ -428,14 +428,39 @@ def test_dataset_cache_key_follows_recipe_version_and_generator_code(monkeypatch
     assert datagen.generator_code_hash() != "other emulator code"
 
 
-def test_a_recipe_that_leaves_a_split_empty_warns():
+def test_a_recipe_too_small_per_mission_is_split_over_the_whole_dataset():
+    """20 sorties over 7 missions: split per mission, every mission's 2-3 sorties would all
+    train. Split as ``uavdyn split --by mission`` instead (one warning saying so): the same
+    missions and conditions per sortie (the flights do not depend on the split), the counts
+    of that rule, no mission twice outside train, calm and turbulent in validation and test.
+    Two sorties cannot fill three parts: the warning says to give more."""
+    import warnings
+
     from uavdyn.emulation.datagen import assign_sorties, shipped_recipe
+    from uavdyn.flightdata.split import assign_split
 
     recipe = shipped_recipe("datagen_fixed_wing")
     recipe.sorties = 20  # too few for train/validation/test in every mission
-    with pytest.warns(UserWarning, match="'test' split empty"):
+    with pytest.warns(UserWarning, match="'test' split empty when each mission is split "
+                                         "alone; split over the whole dataset by mission"):
         plan = assign_sorties(recipe, "fixed_wing")
-    assert not any(p["split"] == "test" for p in plan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        recipe.split = {"train": 1.0, "validation": 0.0, "test": 0.0}
+        alone = assign_sorties(recipe, "fixed_wing")  # the per-mission rule's conditions
+    assert [(p["mission"], p["condition"]) for p in plan] == \
+        [(p["mission"], p["condition"]) for p in alone]
+    fractions = tuple(shipped_recipe("datagen_fixed_wing").split.values())
+    assert [p["split"] for p in plan] == assign_split(plan, "mission", fractions, recipe.seed)
+    assert all(p["split_by"] == "mission" for p in plan)
+    for part in ("validation", "test"):
+        members = [p for p in plan if p["split"] == part]
+        assert members and len({p["mission"] for p in members}) == len(members)
+        assert {p["condition"] for p in members} == {"calm", "turbulent"}
+    recipe.split, recipe.sorties = dict(zip(("train", "validation", "test"), fractions)), 2
+    with pytest.warns(UserWarning, match="and so does splitting them all .*give more"):
+        tiny = assign_sorties(recipe, "fixed_wing")
+    assert "split_by" not in tiny[0]
 
 
 def test_retrain_trains_the_earlier_formulations_on_the_nominal_airframe(monkeypatch, tmp_path):

@@ -52,6 +52,7 @@ from uavdyn.flightdata import (
     write_csv,
     write_manifest,
 )
+from uavdyn.flightdata.split import split_rule
 from uavdyn.interrupts import CheckedBar
 from uavdyn.outputs import output_folder
 
@@ -182,14 +183,35 @@ def assign_sorties(recipe: Recipe, kind: str) -> list[dict]:
         for rank, j in enumerate(order):
             members[j]["condition"] = "turbulent" if (rank * n_turb) // n != \
                 ((rank + 1) * n_turb) // n else "calm"
-    for split, fraction in zip(SPLITS, fractions):
-        if fraction > 0 and not any(p["split"] == split for p in plan):
-            warnings.warn(f"{recipe.sorties} sorties over {len(missions)} missions leave the "
-                          f"'{split}' split empty although its fraction is {fraction:g}: "
-                          "give more sorties (at least one per mission and split), or "
-                          "re-split with uavdyn split --by mission",
-                          UserWarning, stacklevel=2)
+    empty = [split for split, fraction in zip(SPLITS, fractions)
+             if fraction > 0 and not any(p["split"] == split for p in plan)]
+    if empty:
+        _split_over_the_dataset(plan, recipe, empty, len(missions))
     return plan
+
+
+def _split_over_the_dataset(plan: list[dict], recipe: Recipe, empty: list[str],
+                            n_missions: int) -> None:
+    """Where too few sorties per mission leave a split empty, split the whole dataset by
+    mission instead (the rule of ``uavdyn split --by mission``: its counts over all sorties,
+    each mission spread over the parts, both conditions in validation and test where a swap
+    can give them); each item then records ``split_by``. The flights do not depend on the
+    split, so only the parts change. One warning line either way."""
+    from uavdyn.flightdata.split import SplitError, assign_split
+
+    fractions = tuple(recipe.split[s] for s in SPLITS)
+    per_mission = (f"{recipe.sorties} sorties over {n_missions} missions leave the "
+                   f"'{empty[0]}' split empty when each mission is split alone")
+    try:
+        names = assign_split(plan, "mission", fractions, recipe.seed)
+    except SplitError as exc:
+        warnings.warn(f"{per_mission}, and so does splitting them all ({exc}): give more "
+                      "sorties", UserWarning, stacklevel=3)
+        return
+    for item, name in zip(plan, names):
+        item["split"], item["split_by"] = name, "mission"
+    warnings.warn(f"{per_mission}; split over the whole dataset by mission instead (as "
+                  "uavdyn split --by mission)", UserWarning, stacklevel=3)
 
 
 MAX_ATTEMPTS = 5
@@ -346,6 +368,9 @@ def _generate_into(recipe: Recipe, airframe: Airframe, out: Path, workers: int |
     bar.close()
     entries = _drop_failed_missions(entries, out, skipped)
     splits = {s: [e["file"] for e in entries if e["split"] == s] for s in SPLITS}
+    rule = ({"split_rule": split_rule(entries, "mission", tuple(recipe.split[s] for s in
+                                                                 SPLITS), recipe.seed)}
+            if items and items[0].get("split_by") == "mission" else {})
     return write_manifest(
         out, airframe=airframe.name, kind=airframe.kind, sample_rate_hz=recipe.sample_rate_hz,
         source="uavdyn flight-data emulator (uavdyn.emulator), truth model richer than the "
@@ -360,7 +385,7 @@ def _generate_into(recipe: Recipe, airframe: Airframe, out: Path, workers: int |
         emulator={"internal_dt_s": emulator.internal_dt, "truth_params": emulator.truth,
                   "sensor_noise_std": asdict(emulator.noise.scaled(recipe.noise_scale))},
         truth=truth_record(emulator, skipped),
-        recipe=recipe_dict,
+        recipe=recipe_dict, **rule,
     )
 
 
