@@ -35,8 +35,9 @@ TICKED = re.compile(r"`([^`\n]+)`")
 PATH = re.compile(r"(?:(?<=[\s(`'\"])|^)((?:uavdyn|docs|examples|analysis|tests|data|\.ci|"
                   r"training)/[A-Za-z0-9_./+-]*[A-Za-z0-9_/])")
 COMMAND = re.compile(r"(?:^|[$;&|(]\s*)uavdyn ([a-z][a-z-]+)((?: +[^\s`|;&]+)*)")
-QUOTE = re.compile(r"(-?\d+(?:\.\d+)?(?:[eE][+-]?\d+)?)\s*(?:[^\s<]{0,6}\s*)?"
+QUOTE = re.compile(r"(?<![\w.])(-?\d+(?:\.\d+)?(?:[eE][+-]?\d+)?)\s*(?:[^\s<\d]{0,6}\s*)?"
                    r"<!--\s*json\s+(\S+)\s+(\S+)(?:\s+(\S+))?\s*-->")
+TAG = re.compile(r"<!--\s*json\s+(\S+\s+\S+)")
 SKIP = ("*", "<", "{", "...", "$", "_build")  # patterns, placeholders, build outputs
 
 
@@ -140,19 +141,30 @@ def _agrees(quoted: str, value: float) -> bool:
 
 
 def check_quotes(page: Path, lines: list[str], root: Path) -> list[str]:
+    """Every ``NUMBER <!-- json FILE KEY [SCALE] -->`` of the page, the number and its tag on
+    one line or across a line break, against the value it names; and every ``json`` tag
+    with no number right before it (a tag that checks nothing)."""
     problems = []
-    for n, line in enumerate(lines, 1):
-        for match in QUOTE.finditer(line):
-            quoted, file, key, scale = match.groups()
-            path = root / file
-            try:
-                value = float(_value(json.loads(path.read_text()), key)) * float(scale or 1)
-            except (OSError, ValueError, KeyError, IndexError, TypeError) as exc:
-                problems.append(f"{_rel(page)}:{n}: cannot read {key} of {file} ({exc})")
-                continue
-            if not _agrees(quoted, value):
-                problems.append(f"{_rel(page)}:{n}: quotes {quoted} for {key} of {file}, "
-                                f"which is {value:.6g}")
+    text = "\n".join(lines)
+    matched = set()
+    for match in QUOTE.finditer(text):
+        quoted, file, key, scale = match.groups()
+        n = text.count("\n", 0, match.start(1)) + 1
+        matched.add(text.index("<!--", match.end(1)))
+        path = root / file
+        try:
+            value = float(_value(json.loads(path.read_text()), key)) * float(scale or 1)
+        except (OSError, ValueError, KeyError, IndexError, TypeError) as exc:
+            problems.append(f"{_rel(page)}:{n}: cannot read {key} of {file} ({exc})")
+            continue
+        if not _agrees(quoted, value):
+            problems.append(f"{_rel(page)}:{n}: quotes {quoted} for {key} of {file}, "
+                            f"which is {value:.6g}")
+    for tag in TAG.finditer(text):
+        if tag.start() not in matched:
+            n = text.count("\n", 0, tag.start()) + 1
+            problems.append(f"{_rel(page)}:{n}: a json tag with no number right before it "
+                            f"({tag.group(1)})")
     return problems
 
 

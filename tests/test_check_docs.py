@@ -42,5 +42,26 @@ def test_each_stale_statement_is_caught_and_a_true_one_passes(tmp_path):
         assert any(expected in p for p in problems), (expected, problems)
 
 
+def test_a_quote_across_a_line_break_is_checked_and_a_lone_tag_is_reported(tmp_path):
+    """A number at a line's end with its tag on the next line is checked like one on a single
+    line (these went unchecked before); a number inside a name (``12-4-4-3``, ``3211 (1``) is
+    not taken for the quote; a tag with no number right before it is reported."""
+    check = _checker()
+    (tmp_path / "docs" / "benchmarks").mkdir(parents=True)
+    (tmp_path / "docs" / "benchmarks" / "b.json").write_text(
+        json.dumps({"speed": {"wall_s": 54.64}, "n": 1}))
+    tag = "<!-- json docs/benchmarks/b.json"
+    page = tmp_path / "README.md"
+    page.write_text(f"median 54.6\n  {tag} speed.wall_s --> ms; a turbulent 3211\n(1 {tag} n -->)"
+                    f", a 12-4-4-3\n1 {tag} n -->\n")
+    assert check.run(tmp_path, include_help=False) == []
+    page.write_text(f"median 56.1\n  {tag} speed.wall_s --> ms\n")
+    assert [p.split(": ", 1)[1] for p in check.run(tmp_path, include_help=False)] == [
+        "quotes 56.1 for speed.wall_s of docs/benchmarks/b.json, which is 54.64"]
+    page.write_text(f"the median, see {tag} speed.wall_s -->\n")
+    problems = check.run(tmp_path, include_help=False)
+    assert len(problems) == 1 and "a json tag with no number right before it" in problems[0]
+
+
 def test_the_repository_documentation_passes():
     assert _checker().run(ROOT) == []
