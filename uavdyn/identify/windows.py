@@ -250,20 +250,24 @@ def fit_summary(nominal: Airframe, fitted: Airframe, sorties: list[Sortie], inte
         inside_row = {}
         for label, af in (("nominal", nominal), ("identified", fitted)):
             err = physics_windows(af, w, interval, substeps)[..., 3] - w.y[..., 3]
-            with np.errstate(all="ignore"):
-                value = float(np.sqrt(np.mean(err**2)))
-                if inside.any():
-                    inside_row[label] = float(np.sqrt(np.mean(err[inside] ** 2)))
-            row[f"theta_rmse_{label}"] = value if math.isfinite(value) else math.inf
+            row[f"theta_rmse_{label}"] = _rmse(err)
+            if inside.any():
+                inside_row[label] = _rmse(err[inside])
         per.append(row)
         if inside_row:
-            inside_rows.append({k: v if math.isfinite(v) else math.inf
-                                for k, v in inside_row.items()})
+            inside_rows.append(inside_row)
     out = {"per_sortie": per, "theta_rmse": _pooled(per, "theta_rmse_")}
     if n_out and inside_rows:
         out["theta_rmse_inside"] = _pooled(inside_rows, "")
         out["windows_past_stall_onset"] = n_out
     return out
+
+
+def _rmse(err: np.ndarray) -> float:
+    """Root mean square of ``err``; inf where a run left the finite numbers."""
+    with np.errstate(all="ignore"):
+        value = float(np.sqrt(np.mean(err**2)))
+    return value if math.isfinite(value) else math.inf
 
 
 def _pooled(rows: list[dict], prefix: str) -> dict:

@@ -172,10 +172,12 @@ class CorrectionLayout:
 
 
 def airspeed_input(kind: str, inputs: str) -> int | None:
-    """Which network input is the airspeed itself (a fixed wing's ``physical`` inputs: angle
-    of attack, then airspeed), None where the first two are the body velocities ``u``, ``w``
-    (the gate's trim sweep, :func:`uavdyn.learned.stability.envelope_speeds`)."""
-    return 1 if (kind, inputs) == ("fixed_wing", "physical") else None
+    """Which network input is the airspeed itself (``V`` among a design's physical inputs,
+    :data:`PHYSICAL_INPUTS`), None where the network sees no airspeed and its first two inputs
+    are the body velocities ``u``, ``w`` (the gate's trim sweep,
+    :func:`uavdyn.learned.stability.envelope_speeds`)."""
+    names = PHYSICAL_INPUTS.get(kind, ()) if inputs == "physical" else ()
+    return names.index("V") if "V" in names else None
 
 
 def correction_inputs(layout: CorrectionLayout, z, u, p, ops):
