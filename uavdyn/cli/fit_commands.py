@@ -343,7 +343,7 @@ def add_train(sub) -> None:
                         "and bounded)")
     p.add_argument("--hidden", type=count(MAX_HIDDEN, "width"), default=None,
                    help="hidden-layer width (default for the safe correction: 8 for a fixed "
-                        "wing, 6 for a multirotor, whose physics step is cheaper; 16 for the "
+                        "wing, 5 for a multirotor, whose physics step is cheaper; 16 for the "
                         f"legacy formulations; at most {MAX_HIDDEN})")
     p.add_argument("--dt", type=STEP, default=None,
                    help="paper/hypersolver/reference: hybrid step in s (default 0.005; the "

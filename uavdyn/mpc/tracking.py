@@ -32,9 +32,10 @@ from uavdyn.mpc.policy import HELD, SHIFTED, SOLVED, Controller, MPCResult, Solv
 from uavdyn.mpc.problem import DEFAULT_RATE_LIMITS, MPCConfig, TrackingProblem
 
 # Softplus sharpness replacing ReLU in a hybrid prediction model of the full SQP: SQP stalls on
-# ReLU kinks (measured: 5 % of closed-loop solves hit the iteration limit), softplus k=30 solves
-# them all. The real-time iteration predicts with the exact ReLU network (one QP per step has
-# no line search to stall).
+# ReLU kinks (measured: 5 % of closed-loop solves hit the iteration limit), softplus k=30 solved
+# them all then (the 3 x 5 F450 correction still fails 9 of 160 solves in bench_mpc's horizon-50
+# speed step: docs/mpc.md). The real-time iteration predicts with the exact ReLU network (one
+# QP per step has no line search to stall).
 RELU_SMOOTHING = 30.0
 
 __all__ = ["DEFAULT_RATE_LIMITS", "RELU_SMOOTHING", "ClosedLoopResult", "MPCConfig", "MPCResult",
