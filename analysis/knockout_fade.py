@@ -58,13 +58,19 @@ def outside(net, airframe, sortie) -> tuple[float, float]:
 
 def rescored(net, airframe, sorties, nominal) -> list[float]:
     """Each sortie's 1 s pitch RMSE with the hybrid step of ``net``."""
-    from uavdyn.evaluation import Solver, squared_error
-    from uavdyn.experiments.predictions import Candidate, PredictionStore
     from uavdyn.learned import hybrid_step
 
+    return model_errors(hybrid_step(net, airframe, compile=False), airframe, sorties, nominal)
+
+
+def model_errors(model, airframe, sorties, nominal) -> list[float]:
+    """Each sortie's 1 s pitch RMSE with the step ``model`` (a DiscreteModel) on the physics of
+    ``airframe``, as the knockout scores it."""
+    from uavdyn.evaluation import Solver, squared_error
+    from uavdyn.experiments.predictions import Candidate, PredictionStore
+
     dt = float(np.median(np.diff(sorties[0].time)))
-    cand = Candidate(Solver("corrected", hybrid_step(net, airframe, compile=False), dt),
-                     airframe, "identified", "knockout fade")
+    cand = Candidate(Solver("corrected", model, dt), airframe, "identified", "knockout rescore")
     store = PredictionStore(nominal)
     out = []
     for s in sorties:
