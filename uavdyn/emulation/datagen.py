@@ -136,6 +136,11 @@ class Recipe:
             raise ValueError(f"mission(s) {bad} do not apply to {airframe.kind}; "
                              f"choose from {allowed}")
 
+    @property
+    def split_fractions(self) -> tuple[float, float, float]:
+        """The train, validation and test fractions, in :data:`SPLITS` order."""
+        return tuple(self.split[s] for s in SPLITS)
+
     def mission_list(self, kind: str) -> list[str]:
         """The missions to cycle through (all of the kind's missions if none are named)."""
         return list(self.missions) or missions_for(kind)
@@ -167,7 +172,7 @@ def assign_sorties(recipe: Recipe, kind: str) -> list[dict]:
     rng = np.random.default_rng([recipe.seed, 0])
     missions = recipe.mission_list(kind)
     plan = [{"index": i, "mission": missions[i % len(missions)]} for i in range(recipe.sorties)]
-    fractions = [recipe.split[s] for s in SPLITS]
+    fractions = recipe.split_fractions
     for mission in missions:
         members = [p for p in plan if p["mission"] == mission]
         order = rng.permutation(len(members))
@@ -199,11 +204,10 @@ def _split_over_the_dataset(plan: list[dict], recipe: Recipe, empty: list[str],
     split, so only the parts change. One warning line either way."""
     from uavdyn.flightdata.split import SplitError, assign_split
 
-    fractions = tuple(recipe.split[s] for s in SPLITS)
     per_mission = (f"{recipe.sorties} sorties over {n_missions} missions leave the "
                    f"'{empty[0]}' split empty when each mission is split alone")
     try:
-        names = assign_split(plan, "mission", fractions, recipe.seed)
+        names = assign_split(plan, "mission", recipe.split_fractions, recipe.seed)
     except SplitError as exc:
         warnings.warn(f"{per_mission}, and so does splitting them all ({exc}): give more "
                       "sorties", UserWarning, stacklevel=3)
@@ -368,8 +372,7 @@ def _generate_into(recipe: Recipe, airframe: Airframe, out: Path, workers: int |
     bar.close()
     entries = _drop_failed_missions(entries, out, skipped)
     splits = {s: [e["file"] for e in entries if e["split"] == s] for s in SPLITS}
-    rule = ({"split_rule": split_rule(entries, "mission", tuple(recipe.split[s] for s in
-                                                                 SPLITS), recipe.seed)}
+    rule = ({"split_rule": split_rule(entries, "mission", recipe.split_fractions, recipe.seed)}
             if items and items[0].get("split_by") == "mission" else {})
     return write_manifest(
         out, airframe=airframe.name, kind=airframe.kind, sample_rate_hz=recipe.sample_rate_hz,
