@@ -48,6 +48,10 @@ Usage::
     python analysis/bench_knockout.py --airframes aerosonde --terms alpha_dot
     python analysis/bench_knockout.py --quick --airframes f450 --terms inflow --out /tmp/k.json
     python analysis/bench_knockout.py --safe-config 'inputs="physical",horizon_s=3.0'
+    python analysis/bench_knockout.py --terms reynolds none --truth 'C_D_Re=0.3,C_m_Re=-0.3'
+
+``--truth KEY=VALUE,...`` replaces truth-model extras of the terms (a stronger effect than the
+default flies) on the airframes whose truth model has them.
 """
 
 from __future__ import annotations
@@ -307,7 +311,7 @@ def worse_than_the_term(rows: list[tuple], worse: list[str], tolerance: float) -
 # the pipeline's pieces
 
 
-def parse_key_values(text: str | None) -> dict:
+def parse_key_values(text: str | None, option: str = "--safe-config") -> dict:
     """``KEY=VALUE,...``, each value JSON where it parses (numbers, strings in quotes, lists,
     true/false/null), else the bare string. A comma inside brackets stays in its value."""
     if not text:
@@ -327,7 +331,7 @@ def parse_key_values(text: str | None) -> dict:
     out = {}
     for part in filter(None, (p.strip() for p in parts)):
         if "=" not in part:
-            raise ValueError(f"--safe-config: '{part}' is not KEY=VALUE")
+            raise ValueError(f"{option}: '{part}' is not KEY=VALUE")
         key, value = (s.strip() for s in part.split("=", 1))
         try:
             out[key] = json.loads(value)
@@ -596,6 +600,7 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
     status = {t: term_status(t, nominal) for t in TERMS if TERMS[t]["kind"] == kind}
     flown = [t for t, why in status.items() if why is None]
     truth = {k: v for t in flown for k, v in TERMS[t]["truth"].items()}
+    truth.update({k: v for k, v in args.truth.items() if k in truth_keys(kind)})
     recipe = recipe_for(ref, kind, args, truth)
     if "stall" in status and status["stall"] is None and recipe.missions \
             and STALL_MISSION not in recipe.missions:
@@ -804,7 +809,8 @@ def merged(files: list[Path], keep: list[str] | None = None) -> dict:
     for path in files:
         run = json.loads(path.read_text())
         facts = {k: run.get(k) for k in ("command", "machine", "safe_config",
-                                         "safe_config_overrides", "wall_s", "quick")}
+                                         "safe_config_overrides", "truth_overrides",
+                                         "wall_s", "quick")}
         doc["merged_from"].append({"file": path.name, **facts})
         for key in ("metric", "definitions", "terms"):
             doc.setdefault(key, run.get(key))
@@ -921,6 +927,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--safe-config", default=None, metavar="KEY=VALUE,...",
                     help="SafeConfig fields, values as JSON where they parse, e.g. "
                          "'inputs=\"physical\",horizon_s=3.0'")
+    ap.add_argument("--truth", default=None, metavar="KEY=VALUE,...",
+                    help="truth-model extras replacing the terms' own (e.g. a stronger "
+                         "Reynolds effect: 'C_D_Re=0.3,C_m_Re=-0.3'); each applies to the "
+                         "airframes whose kind's truth model has it")
     ap.add_argument("--identify-on", choices=("train", "calm"), default="train",
                     help="identify on all train sorties (as `uavdyn identify`, default) or "
                          "the calm ones only (as `uavdyn reproduce`)")
@@ -956,7 +966,17 @@ def main(argv: list[str] | None = None) -> int:
             write_atomic(args.markdown, markdown_table(doc))
         say(f"wrote {args.out}" + (f" and {args.markdown}" if args.markdown else ""))
         return 0
-    cfg = safe_config(parse_key_values(args.safe_config), args.quick)
+    try:
+        cfg = safe_config(parse_key_values(args.safe_config), args.quick)
+        args.truth = parse_key_values(args.truth, "--truth")
+    except ValueError as exc:
+        ap.error(str(exc))
+    known = set().union(*(truth_keys(load_airframe(airframe_ref(a)[0]).kind)
+                          for a in args.airframes))
+    unknown = sorted(set(args.truth) - known)
+    if unknown:
+        ap.error(f"--truth: no airframe's truth model has {', '.join(unknown)} (known: "
+                 f"{', '.join(sorted(known))})")
     cache = args.cache or (Path(os.environ["UAVDYN_CACHE"]) / "bench_knockout"
                            if os.environ.get("UAVDYN_CACHE")
                            else Path(tempfile.gettempdir()) / "uavdyn_bench_knockout")
@@ -977,6 +997,7 @@ def main(argv: list[str] | None = None) -> int:
         "machine": machine(), "cache": str(cache), "quick": args.quick,
         "safe_config": dataclasses.asdict(cfg),
         "safe_config_overrides": parse_key_values(args.safe_config),
+        "truth_overrides": args.truth,
         "metric": "pitch RMSE over 1 s windows restarted from the recorded (noise-free) "
                   "states, per test sortie, pooled as sqrt(sum sq / samples) (uavdyn "
                   "evaluate's horizon_1s); each model at the log interval",

@@ -92,6 +92,16 @@ def test_safe_config_parsing(bench):
         bench.parse_key_values("horizon_s")
 
 
+def test_truth_overrides_are_checked_against_the_truth_model(bench, capsys):
+    assert bench.parse_key_values("C_D_Re=0.3,C_m_Re=-0.3", "--truth") == {
+        "C_D_Re": 0.3, "C_m_Re": -0.3}
+    with pytest.raises(ValueError, match="^--truth: 'C_D_Re' is not KEY=VALUE"):
+        bench.parse_key_values("C_D_Re", "--truth")
+    with pytest.raises(SystemExit):
+        bench.main(["--airframes", "aerosonde", "--truth", "C_X=1", "--out", "unused.json"])
+    assert "--truth: no airframe's truth model has C_X" in capsys.readouterr().err
+
+
 def test_finished_case_is_resumed_without_any_work(bench, tmp_path, monkeypatch):
     """A case whose definition is unchanged is kept from the result file: no dataset is
     generated and the entry stays as it was; --force would rerun it."""
