@@ -589,8 +589,6 @@ def case_key(airframe: str, term: str, recipe: Recipe, file_hash: str, cfg, args
 
 def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
                  out: Path) -> None:
-    from uavdyn.learned import hybrid_step
-
     ref, file_hash = airframe_ref(name)
     nominal = load_airframe(ref)
     kind = nominal.kind
@@ -643,7 +641,6 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
             if not any(p in TERMS[t]["params"] for t in TERMS)]
     full = base + [p for t in flown if TERMS[t]["in_full"] for p in TERMS[t]["params"]]
     dt = 1.0 / ds.sample_rate_hz
-    test = ds.test
     for term, label, key in todo:
         t_case = time.perf_counter()
         stages: dict = {"generate_dataset_s": gen_s, "dataset_reused": reused}
@@ -698,49 +695,8 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
             entry["correction"] = corr
             say(f"{label}: correction {'kept' if corr['kept'] else 'not kept'} "
                 f"({secs:.0f} s): {corr['reason'][:160]}")
-            t0 = time.perf_counter()
-            models = {"a": physics_step(af_a)}
-            afs = {"a": af_a}
-            if net is not None:
-                models["corrected"] = hybrid_step(net, af_a, compile=False)
-                afs["corrected"] = af_a
-                if args.weights_dir is not None:  # to look at a case's correction later
-                    entry["weights"] = str(keep_weights(net, af_a, args.weights_dir,
-                                                        label.replace("/", "_")))
-            if term != "none":
-                models["b"] = physics_step(af_b)
-                afs["b"] = af_b
-            scored = test_errors(afs, models, test, nominal)
-            errors = scored["errors"]
-            if net is None:  # no correction kept: the corrected model is the identified one
-                errors["corrected"] = list(errors["a"])
-                scored["free_run_rmse"]["corrected"] = scored["free_run_rmse"]["a"]
-            stages["score_s"] = time.perf_counter() - t0
-            stats = share_statistics(errors, noise_share=args.noise_share)
-            stats["by_condition"] = {}
-            for cond in ("calm", "turbulent"):
-                idx = [i for i, s in enumerate(test) if s.meta.get("condition") == cond]
-                if idx:
-                    sub = share_statistics({m: [e[i] for i in idx] for m, e in errors.items()},
-                                           noise_share=args.noise_share)
-                    stats["by_condition"][cond] = {
-                        k: sub.get(k) for k in ("sorties", "err", "removed_share",
-                                                "recovered_share", "recovered_share_interval",
-                                                "recovered_share_note", "n_sorties_worse")}
-            stats["modes_made_unstable"] = (
-                corr["stability"]["failures"] if corr.get("stability") and net is not None
-                else 0)
-            stats["stability_checked"] = bool(corr.get("stability")) and net is not None
-            entry["score"] = stats
-            if args.score_splits:
-                entry["score_on"] = split_scores(ds, args.score_splits, afs, models, nominal,
-                                                 net is not None, args.noise_share)
-            entry["per_sortie"] = [
-                {"sortie": s.name, "condition": s.meta.get("condition"), "mission": s.mission,
-                 **{f"rmse_1s_{m}": errors[m][i].rmse for m in errors},
-                 **{f"free_run_rmse_{m}": scored["free_run_rmse"][m].get(s.name)
-                    for m in scored["free_run_rmse"]}}
-                for i, s in enumerate(test)]
+            stats = score_case(entry, stages, net, corr, af_a, None if term == "none" else af_b,
+                               label, ds, nominal, args)
             entry["model_dt_s"] = dt
             say(f"{label}: " + headline(stats))
         except (IdentifyError, ValueError, RuntimeError) as exc:
@@ -752,6 +708,60 @@ def run_airframe(name: str, terms: list[str], args, cfg, cache: Path, doc: dict,
         entry["load_average_after"] = list(os.getloadavg())
         doc["cases"][label] = json_safe(entry)
         save(doc, out)
+
+
+def score_case(entry: dict, stages: dict, net, corr: dict, af_a, af_b, label: str, ds,
+               nominal, args) -> dict:
+    """Score a case's models on the test sorties into ``entry`` (``score``, ``score_on``,
+    ``per_sortie``): (a), the corrected model (None ``net``: (a) itself) and, where a term was
+    knocked out (``af_b`` not None), (b); returns the share statistics."""
+    from uavdyn.learned import hybrid_step
+
+    test = ds.test
+    t0 = time.perf_counter()
+    models = {"a": physics_step(af_a)}
+    afs = {"a": af_a}
+    if net is not None:
+        models["corrected"] = hybrid_step(net, af_a, compile=False)
+        afs["corrected"] = af_a
+        if args.weights_dir is not None:  # to look at a case's correction later
+            entry["weights"] = str(keep_weights(net, af_a, args.weights_dir,
+                                                label.replace("/", "_")))
+    if af_b is not None:
+        models["b"] = physics_step(af_b)
+        afs["b"] = af_b
+    scored = test_errors(afs, models, test, nominal)
+    errors = scored["errors"]
+    if net is None:  # no correction kept: the corrected model is the identified one
+        errors["corrected"] = list(errors["a"])
+        scored["free_run_rmse"]["corrected"] = scored["free_run_rmse"]["a"]
+    stages["score_s"] = time.perf_counter() - t0
+    stats = share_statistics(errors, noise_share=args.noise_share)
+    stats["by_condition"] = {}
+    for cond in ("calm", "turbulent"):
+        idx = [i for i, s in enumerate(test) if s.meta.get("condition") == cond]
+        if idx:
+            sub = share_statistics({m: [e[i] for i in idx] for m, e in errors.items()},
+                                   noise_share=args.noise_share)
+            stats["by_condition"][cond] = {
+                k: sub.get(k) for k in ("sorties", "err", "removed_share",
+                                        "recovered_share", "recovered_share_interval",
+                                        "recovered_share_note", "n_sorties_worse")}
+    stats["modes_made_unstable"] = (
+        corr["stability"]["failures"] if corr.get("stability") and net is not None
+        else 0)
+    stats["stability_checked"] = bool(corr.get("stability")) and net is not None
+    entry["score"] = stats
+    if args.score_splits:
+        entry["score_on"] = split_scores(ds, args.score_splits, afs, models, nominal,
+                                         net is not None, args.noise_share)
+    entry["per_sortie"] = [
+        {"sortie": s.name, "condition": s.meta.get("condition"), "mission": s.mission,
+         **{f"rmse_1s_{m}": errors[m][i].rmse for m in errors},
+         **{f"free_run_rmse_{m}": scored["free_run_rmse"][m].get(s.name)
+            for m in scored["free_run_rmse"]}}
+        for i, s in enumerate(test)]
+    return stats
 
 
 def split_scores(ds, splits: list[str], afs: dict, models: dict, nominal, corrected: bool,
