@@ -18,17 +18,18 @@ from uavdyn.linear import trim
 ANALYSIS = Path(__file__).resolve().parent.parent / "analysis"
 
 
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(name, ANALYSIS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # the ensemble script imports its sibling by name
+    spec.loader.exec_module(module)
+    return module
+
+
 @pytest.fixture(scope="module")
 def ensemble():
-    sys.path.insert(0, str(ANALYSIS))
-    try:
-        spec = importlib.util.spec_from_file_location("knockout_ensemble",
-                                                      ANALYSIS / "knockout_ensemble.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(ANALYSIS))
-    return module
+    _load("knockout_fade")
+    return _load("knockout_ensemble")
 
 
 def test_the_ensemble_step_is_the_mean_of_its_members(ensemble):
