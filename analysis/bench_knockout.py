@@ -981,12 +981,13 @@ def main(argv: list[str] | None = None) -> int:
         args.truth = parse_key_values(args.truth, "--truth")
     except ValueError as exc:
         ap.error(str(exc))
-    known = set().union(*(truth_keys(load_airframe(airframe_ref(a)[0]).kind)
-                          for a in args.airframes))
-    unknown = sorted(set(args.truth) - known)
-    if unknown:
-        ap.error(f"--truth: no airframe's truth model has {', '.join(unknown)} (known: "
-                 f"{', '.join(sorted(known))})")
+    if args.truth:
+        known = set().union(*(truth_keys(load_airframe(airframe_ref(a)[0]).kind)
+                              for a in args.airframes))
+        unknown = sorted(set(args.truth) - known)
+        if unknown:
+            ap.error(f"--truth: no airframe's truth model has {', '.join(unknown)} (known: "
+                     f"{', '.join(sorted(known))})")
     cache = args.cache or (Path(os.environ["UAVDYN_CACHE"]) / "bench_knockout"
                            if os.environ.get("UAVDYN_CACHE")
                            else Path(tempfile.gettempdir()) / "uavdyn_bench_knockout")

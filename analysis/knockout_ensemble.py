@@ -18,14 +18,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
-import numpy as np
-from knockout_fade import model_errors, test_sorties  # the script's own folder is on the path
-
-WORSE = 1.02  # the knockout's "worse by more than 2 %"
+from knockout_fade import (  # the script's own folder is on the path
+    knockout_references,
+    model_errors,
+    rescore_summary,
+    test_sorties,
+)
 
 
 def ensemble_step(steps: list):
@@ -44,14 +45,6 @@ def ensemble_step(steps: list):
                          description=f"mean of {len(steps)} hybrid steps")
 
 
-def scored(errors: list[float], a: list[float], pooled_a: float, pooled_b: float) -> dict:
-    pooled = math.sqrt(float(np.mean(np.square(errors))))
-    return {"rmse_1s_pooled": pooled,
-            "recovered_share": (pooled_a - pooled) / (pooled_a - pooled_b),
-            "n_sorties_worse": int(sum(e > WORSE * x for e, x in zip(errors, a))),
-            "ratio_to_a": [e / x for e, x in zip(errors, a)]}
-
-
 def case_rows(case: dict, label: str, dirs: list[Path]) -> dict:
     from uavdyn.airframes import load_airframe
     from uavdyn.learned import hybrid_step, load_weights
@@ -62,14 +55,11 @@ def case_rows(case: dict, label: str, dirs: list[Path]) -> dict:
              for d in dirs]
     nominal = load_airframe(case["airframe"])
     sorties = test_sorties(case)
-    recorded = {r["sortie"]: r for r in case["per_sortie"]}
-    a = [recorded[s.name]["rmse_1s_a"] for s in sorties]
-    b = [recorded[s.name]["rmse_1s_b"] for s in sorties]
-    pooled_a, pooled_b = (math.sqrt(float(np.mean(np.square(v)))) for v in (a, b))
-    members = [scored(model_errors(s, airframe, sorties, nominal), a, pooled_a, pooled_b)
-               for s in steps]
-    mean = scored(model_errors(ensemble_step(steps), airframe, sorties, nominal), a, pooled_a,
-                  pooled_b)
+    a, _, pooled_a, pooled_b = knockout_references(case, sorties)
+    members = [rescore_summary(model_errors(s, airframe, sorties, nominal), a, pooled_a,
+                               pooled_b) for s in steps]
+    mean = rescore_summary(model_errors(ensemble_step(steps), airframe, sorties, nominal), a,
+                           pooled_a, pooled_b)
     return {"weights": [str(d / f"{stem}.npz") for d in dirs],
             "sorties": [s.name for s in sorties], "err_a": pooled_a, "err_b": pooled_b,
             "members": members, "ensemble": mean}

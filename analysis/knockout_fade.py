@@ -79,6 +79,35 @@ def model_errors(model, airframe, sorties, nominal) -> list[float]:
     return out
 
 
+WORSE = 1.02  # the knockout's "worse by more than 2 %"
+
+
+def pooled_rmse(errors: list[float]) -> float:
+    return math.sqrt(float(np.mean(np.square(errors))))
+
+
+def knockout_references(case: dict, sorties) -> tuple[list, list, float, float | None]:
+    """The knockout's own per-sortie 1 s errors of (a) and (b) on ``sorties`` and their pooled
+    values (b: None where the case has no model with the term)."""
+    recorded = {r["sortie"]: r for r in case["per_sortie"]}
+    a = [recorded[s.name]["rmse_1s_a"] for s in sorties]
+    b = [recorded[s.name].get("rmse_1s_b") for s in sorties]
+    return a, b, pooled_rmse(a), None if None in b else pooled_rmse(b)
+
+
+def rescore_summary(errors: list[float], a: list[float], pooled_a: float,
+                    pooled_b: float | None) -> dict:
+    """A re-scored correction's per-sortie 1 s ``errors`` against the knockout's (a) and (b):
+    pooled error, recovered and removed shares, sorties worse than (a), each sortie's ratio."""
+    pooled = pooled_rmse(errors)
+    share = (None if pooled_b is None or pooled_a == pooled_b
+             else (pooled_a - pooled) / (pooled_a - pooled_b))
+    return {"rmse_1s_pooled": pooled, "recovered_share": share,
+            "removed_share": (pooled_a - pooled) / pooled_a,
+            "n_sorties_worse": int(sum(e > WORSE * x for e, x in zip(errors, a))),
+            "ratio_to_a": [e / x for e, x in zip(errors, a)]}
+
+
 def case_rows(case: dict, label: str, weights_dir: Path, fades: list[float]) -> dict:
     from uavdyn.airframes import load_airframe
     from uavdyn.learned import load_weights
@@ -89,36 +118,26 @@ def case_rows(case: dict, label: str, weights_dir: Path, fades: list[float]) -> 
     net = load_weights(stem.with_suffix(".npz"), airframe)
     nominal = load_airframe(case["airframe"])
     sorties = test_sorties(case)
-    recorded = {r["sortie"]: r for r in case["per_sortie"]}
-    a = [recorded[s.name]["rmse_1s_a"] for s in sorties]
-    b = [recorded[s.name].get("rmse_1s_b") for s in sorties]
-    pooled = [math.sqrt(float(np.mean(np.square(v)))) if None not in v else None
-              for v in (a, b)]
+    a, b, pooled_a, pooled_b = knockout_references(case, sorties)
     sortie_rows = []
-    for s in sorties:
+    for s, a_s, b_s in zip(sorties, a, b):
         out_box, low_gate = outside(net, airframe, s)
         sortie_rows.append({"sortie": s.name, "mission": s.mission,
                             "condition": s.meta.get("condition"),
                             "outside_box": out_box, "gate_below_half": low_gate,
-                            "rmse_1s_a": recorded[s.name]["rmse_1s_a"],
-                            "rmse_1s_b": recorded[s.name].get("rmse_1s_b")})
+                            "rmse_1s_a": a_s, "rmse_1s_b": b_s})
     runs = []
     for fade in fades:
         e = net.envelope
         width = np.maximum(e.high - e.low, 1e-9)
         env = e if fade <= 0 else Envelope(e.low, e.high, np.maximum(fade * width, 1e-9))
         errs = rescored(dataclasses.replace(net, envelope=env), airframe, sorties, nominal)
-        c = math.sqrt(float(np.mean(np.square(errs))))
-        share = (None if pooled[1] is None or pooled[0] == pooled[1]
-                 else (pooled[0] - c) / (pooled[0] - pooled[1]))
         runs.append({"fade": fade if fade > 0 else "file's own",
-                     "recovered_share": share, "removed_share": (pooled[0] - c) / pooled[0],
-                     "n_sorties_worse": int(sum(e_ > 1.02 * a_ for e_, a_ in zip(errs, a))),
-                     "rmse_1s_corrected": errs})
+                     **rescore_summary(errs, a, pooled_a, pooled_b), "rmse_1s_corrected": errs})
     return {"weights": str(stem.with_suffix(".npz")),
             "file_fade_over_width": float(np.median(net.envelope.fade / np.maximum(
                 net.envelope.high - net.envelope.low, 1e-12))),
-            "err_a": pooled[0], "err_b": pooled[1], "sorties": sortie_rows, "fades": runs}
+            "err_a": pooled_a, "err_b": pooled_b, "sorties": sortie_rows, "fades": runs}
 
 
 def main() -> None:

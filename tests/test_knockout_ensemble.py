@@ -1,6 +1,6 @@
 """The ensemble step of ``analysis/knockout_ensemble.py``: its next state is the mean of its
 members' next states (checked on two physics steps of different order, whose next states
-differ), and its share arithmetic is the knockout's."""
+differ), and the re-scoring arithmetic it shares with ``analysis/knockout_fade.py``."""
 
 import importlib.util
 import math
@@ -48,11 +48,14 @@ def test_the_ensemble_step_is_the_mean_of_its_members(ensemble):
     assert step.state_names == members[0].state_names
 
 
-def test_scored_shares_and_worse_count(ensemble):
+def test_rescored_shares_and_worse_count(ensemble):
     a, pooled_b = [0.02, 0.01], 0.005
     pooled_a = math.sqrt((0.02**2 + 0.01**2) / 2)
-    out = ensemble.scored([0.01, 0.0103], a, pooled_a, pooled_b)
+    out = sys.modules["knockout_fade"].rescore_summary([0.01, 0.0103], a, pooled_a, pooled_b)
     pooled = math.sqrt((0.01**2 + 0.0103**2) / 2)
     assert out["recovered_share"] == pytest.approx((pooled_a - pooled) / (pooled_a - pooled_b))
+    assert out["removed_share"] == pytest.approx((pooled_a - pooled) / pooled_a)
+    no_b = sys.modules["knockout_fade"].rescore_summary([0.01, 0.0103], a, pooled_a, None)
+    assert no_b["recovered_share"] is None  # no model with the term: nothing to recover
     assert out["n_sorties_worse"] == 1  # 0.0103 is 3 % above its (a)
     assert out["ratio_to_a"] == pytest.approx([0.5, 1.03])
