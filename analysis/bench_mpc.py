@@ -231,7 +231,8 @@ def bench_airframe(name: str, log) -> dict:
                 key = f"h{horizon}_{model}{suffix(mode)}"
                 if model not in setups[mode].models:
                     for what in ("median_ms", "max_ms", "p95_ms", "success_rate",
-                                 "failed_solves", "fallbacks", "tracking_rmse"):
+                                 "failed_solves", "iteration_limit_solves", "fallbacks",
+                                 "tracking_rmse"):
                         result[f"{what}_{key}"] = None
                     continue
                 stats = pooled(runs, model)
@@ -240,6 +241,7 @@ def bench_airframe(name: str, log) -> dict:
                 result[f"p95_ms_{key}"] = stats["p95_ms"]
                 result[f"success_rate_{key}"] = stats["success_rate"]
                 result[f"failed_solves_{key}"] = stats["failed_solves"]
+                result[f"iteration_limit_solves_{key}"] = stats["iteration_limit_solves"]
                 result[f"fallbacks_{key}"] = stats["fallback_shifted"] + stats["fallback_held"]
                 result[f"tracking_rmse_{key}"] = {sc: summary[sc][model]["tracking_rmse"]
                                                   for sc in SCENARIO_NAMES}
@@ -296,9 +298,10 @@ def markdown(results: list[dict]) -> str:
     for r in results:
         lines += [f"## {r['airframe']} ({r['plant']}; MPC dt {r['dt']} s)", "",
                   "| horizon | mode | prediction | median / max solve (ms) | success | "
-                  "fallbacks | " + " | ".join(f"{s} RMSE ({r['tracking_rmse_unit'][s]})"
-                                              for s in r["scenarios"]) + " |",
-                  "|---" * (6 + len(r["scenarios"])) + "|"]
+                  "at the iteration limit | fallbacks | "
+                  + " | ".join(f"{s} RMSE ({r['tracking_rmse_unit'][s]})"
+                               for s in r["scenarios"]) + " |",
+                  "|---" * (7 + len(r["scenarios"])) + "|"]
         for h in HORIZONS:
             for mode in MODES:
                 for m in ("hybrid", "physics"):
@@ -312,9 +315,10 @@ def markdown(results: list[dict]) -> str:
                     rm = [("diverged" if v is None else f"{v:.4g}"
                            + (" (lost control)" if sc in lost else ""))
                           for sc, v in r[f"tracking_rmse_{k}"].items()]
+                    limited = r.get(f"iteration_limit_solves_{k}", "-")
                     lines.append(f"| {h} | {mode.upper()} | {m} | {times} | "
-                                 f"{r[f'success_rate_{k}']:.1%} | {r[f'fallbacks_{k}']} | "
-                                 + " | ".join(rm) + " |")
+                                 f"{r[f'success_rate_{k}']:.1%} | {limited} | "
+                                 f"{r[f'fallbacks_{k}']} | " + " | ".join(rm) + " |")
         diag = r["diagnostic_nominal_physics_rti_h20"]
         lines += [""] + [f"Not flown: {m}: {why}" for m, why in r["missing"].items()]
         lines += ["", f"Diagnostic, RTI horizon 20 with the nominal {r['airframe']} physics as "

@@ -4,6 +4,7 @@ converges to the full SQP's optimum and flies the same trajectory; its compiled 
 built once and loaded from the cache on the next construction; predictions stay finite."""
 
 import math
+from dataclasses import replace
 
 import casadi as ca
 import numpy as np
@@ -179,6 +180,46 @@ def test_rti_converges_to_the_full_sqp(aerosonde, aerosonde_trim, physics):
     # it stops on a predicted relative decrease below 1e-10: the last throttle, which acts on
     # the final state only, is then within 2e-6 of the optimum
     np.testing.assert_allclose(c.predicted_controls, a.predicted_controls, rtol=0, atol=1e-5)
+
+
+def test_sqp_at_its_iteration_limit_applies_only_a_plan_that_lowered_the_merit(
+        aerosonde, aerosonde_trim, physics):
+    """Stopped at the iteration limit, the full SQP applies the last plan it linearised about
+    when the line search lowered the exact-penalty merit below the warm start's (checked here
+    on the merit Function itself), and the plan keeps the hard control bounds; with one
+    iteration there is no such plan and the solve fails, its control never applied."""
+    from uavdyn.mpc.rti import ITERATION_LIMIT
+    N = 10
+    x0 = np.array([aerosonde_trim.x[0] - 1.0, aerosonde_trim.x[1], 0.1,
+                   aerosonde_trim.x[3] - 0.05, 100.0])
+    args = (x0, aerosonde_trim.u, aerosonde_trim.x[3] + math.radians(8.0), 101.0, 25.0,
+            (100.0, 1.0, 1.0))
+    cfg = MPCConfig(horizon=N, dt=0.05, mode="sqp", compile=False, sqp_tol=1e-12)
+    limited = build_controller(physics, aerosonde_trim.u, replace(cfg, sqp_max_iter=3))
+    warm = limited.warm_plan(aerosonde_trim.u)
+    res = limited.solve(*args)
+    assert res.success and res.status == ITERATION_LIMIT and res.iterations == 3
+    assert res.source == "solved"
+    refs = limited.references(*args[2:5])
+    xa = (np.concatenate([x0, limited.actuator_states(aerosonde_trim.u)]) if limited.n_extra
+          else x0)
+
+    def merit(plan):
+        return float(limited.merit(xa, plan, aerosonde_trim.u, refs, args[5]))
+
+    m_warm, m_plan = merit(warm), merit(res.predicted_controls)
+    assert m_plan < m_warm
+    lo, hi = limited.bounds[:, :1], limited.bounds[:, 1:]
+    assert np.all(res.predicted_controls >= lo - 1e-12)
+    assert np.all(res.predicted_controls <= hi + 1e-12)
+    # the converged SQP goes further down than the limited one stopped
+    full = build_controller(physics, aerosonde_trim.u, cfg).solve(*args)
+    assert full.success and full.status != ITERATION_LIMIT
+    assert merit(full.predicted_controls) <= m_plan
+    once = build_controller(physics, aerosonde_trim.u, replace(cfg, sqp_max_iter=1))
+    failed = once.solve(*args)
+    assert not failed.success and failed.status == "maximum iterations"
+    assert failed.source == "held"
 
 
 def test_rti_and_sqp_fly_the_same_trajectory(aerosonde, aerosonde_trim, physics):

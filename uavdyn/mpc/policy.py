@@ -1,6 +1,7 @@
 """The status policy every MPC mode shares: a failed solve is never applied; the controller falls
 back to the shifted previous plan (the last successful plan's next control), then to the last
-applied control, and counts which one it used.
+applied control, and counts which one it used. (A full SQP stopped at its iteration limit with
+the merit lowered is not a failure: :class:`uavdyn.mpc.rti.SQPController`.)
 
 :class:`Controller` is the base of both modes: it carries the step's extra states, builds the
 references over the horizon, times the whole solve (what a flight computer waits for), marks a

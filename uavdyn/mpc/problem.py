@@ -81,7 +81,8 @@ class MPCConfig:
         Full SQP: converged when the plan changes by less than this (max abs).
     sqp_max_iter : int
         Full (Gauss-Newton) SQP iteration limit: a cold start before a large step in the
-        references needs up to ~100 iterations at horizon 50 (measured), warm starts a few.
+        references needs up to ~100 iterations at horizon 50 (measured), warm starts a few;
+        at the limit the last plan is applied only if it lowered the merit.
     solver_options : dict
         Extra options for ``nlpsol`` (full SQP) or ``conic`` (RTI).
     """

@@ -27,6 +27,8 @@ from uavdyn.mpc.policy import Controller, SolveOutcome
 from uavdyn.mpc.problem import TrackingProblem
 
 SOLVED_STATUS = "solved"  # the status of a solve the strict solver returned from
+# the status of a full SQP stopped at its iteration limit after lowering the merit (applied)
+ITERATION_LIMIT = "iteration limit (merit lowered)"
 QP_SOLVERS = ("daqp", "qrqp", "osqp", "highs", "qpoases", "proxqp", "piqp", "hpipm")
 _QUIET = {
     "qrqp": {"print_iter": False, "print_header": False, "print_info": False,
@@ -281,10 +283,16 @@ class SQPController(RTIController):
     iteration, each step scaled by a backtracking line search on the exact-penalty merit
     (:meth:`uavdyn.mpc.problem.TrackingProblem.merit_function`, the nonlinear rollout), until
     the plan changes by less than ``config.sqp_tol`` or the QP predicts no relative decrease
-    above 1e-10 (success), or ``config.sqp_max_iter`` iterations or a failed line search
-    (failure).
+    above 1e-10 (success), or a failed line search (failure).
     Warm-started from the shifted previous plan. Gauss-Newton converges linearly where the
-    optimal residuals are large (a step reference): expect tens of iterations there.
+    optimal residuals are large (a step reference): expect tens of iterations there, and
+    more with a hybrid prediction, whose network's curvature Gauss-Newton leaves out.
+
+    At ``config.sqp_max_iter`` iterations the last plan linearised about is applied (status
+    :data:`ITERATION_LIMIT`) if the line search lowered the merit below the warm start's:
+    every iterate keeps the hard bounds and the rollout is exact, so that plan is better
+    by the controller's own measure than the fallback, which is the warm start itself.
+    Otherwise the solve fails (``"maximum iterations"``).
     """
 
     ARMIJO = 1e-4
@@ -305,7 +313,8 @@ class SQPController(RTIController):
             args[1] = plan
             return float(self.merit.call(args)[0])
 
-        m0 = merit(U)
+        m0 = m_start = merit(U)
+        last = None  # the last plan linearised about, its rollout and merit
         for it in range(1, cfg.sqp_max_iter + 1):
             out, qp_obj = self._iteration(x0, U, u_prev, refs, weights)
             if not out.success:
@@ -317,6 +326,7 @@ class SQPController(RTIController):
             decrease = max(-float(qp_obj), 0.0)
             if decrease <= self.STATIONARY * (1.0 + abs(m0)):  # no descent left to find
                 return SolveOutcome(U, out.X, True, "converged (stationary)", it, out.slack)
+            last = (U, out.X, m0)
             alpha = 1.0
             while True:
                 m = merit(U + alpha * dU)
@@ -328,4 +338,6 @@ class SQPController(RTIController):
             U, m0 = U + alpha * dU, m
             if alpha * np.max(np.abs(dU)) < cfg.sqp_tol:
                 return SolveOutcome(U, out.X, True, "converged", it, out.slack)
+        if last is not None and last[2] < m_start:
+            return SolveOutcome(last[0], last[1], True, ITERATION_LIMIT, cfg.sqp_max_iter)
         return SolveOutcome(U, None, False, "maximum iterations", cfg.sqp_max_iter)

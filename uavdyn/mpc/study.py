@@ -35,6 +35,7 @@ from uavdyn.learned import (
 from uavdyn.linear import TrimPoint, trim
 from uavdyn.mpc.policy import Controller
 from uavdyn.mpc.problem import MPCConfig
+from uavdyn.mpc.rti import ITERATION_LIMIT
 from uavdyn.mpc.scenarios import SCENARIO_NAMES, Scenario, run_scenario, scenario
 from uavdyn.mpc.tracking import RELU_SMOOTHING, ClosedLoopResult, build_controller
 
@@ -172,7 +173,8 @@ def fly_all(setup: StudySetup, config: MPCConfig,
 
 def solve_statistics(res: ClosedLoopResult) -> dict:
     """Solve-time statistics of one flight: median, 95th percentile and max over successful
-    solves only (ms), the success rate, the failures and the fallbacks applied."""
+    solves only (ms), the success rate, the failures, the fallbacks applied and the full-SQP
+    solves applied at the iteration limit (counted as successful)."""
     ok = res.solve_times_s[res.success] * 1e3
     counts = res.counts()
     return {
@@ -181,6 +183,7 @@ def solve_statistics(res: ClosedLoopResult) -> dict:
         "failed_solves": int((~res.success).sum()),
         "success_rate": float(res.success.mean()) if len(res.success) else 0.0,
         "fallback_shifted": counts["shifted"], "fallback_held": counts["held"],
+        "iteration_limit_solves": _iteration_limited(res),
         "solve_ms_median": float(np.median(ok)) if len(ok) else None,
         "solve_ms_p95": float(np.percentile(ok, 95)) if len(ok) else None,
         "solve_ms_max": float(np.max(ok)) if len(ok) else None,
@@ -218,6 +221,11 @@ def summarise(results: dict) -> dict:
     return out
 
 
+def _iteration_limited(res: ClosedLoopResult) -> int:
+    """Full-SQP solves applied at the iteration limit (:data:`uavdyn.mpc.rti.ITERATION_LIMIT`)."""
+    return 0 if res.status is None else int(np.sum(res.status == ITERATION_LIMIT))
+
+
 def pooled(results: dict, model: str) -> dict:
     """Solve statistics of one model pooled over every scenario flown."""
     runs = [r for (_, m), (_, r) in results.items() if m == model]
@@ -229,6 +237,7 @@ def pooled(results: dict, model: str) -> dict:
             "failed_solves": int((~ok).sum()),
             "fallback_shifted": int(np.sum(source == "shifted")),
             "fallback_held": int(np.sum(source == "held")),
+            "iteration_limit_solves": sum(_iteration_limited(r) for r in runs),
             "median_ms": float(np.median(good)) if len(good) else None,
             "p95_ms": float(np.percentile(good, 95)) if len(good) else None,
             "max_ms": float(np.max(good)) if len(good) else None}

@@ -33,9 +33,11 @@ from uavdyn.mpc.problem import DEFAULT_RATE_LIMITS, MPCConfig, TrackingProblem
 
 # Softplus sharpness replacing ReLU in a hybrid prediction model of the full SQP: SQP stalls on
 # ReLU kinks (measured: 5 % of closed-loop solves hit the iteration limit), softplus k=30 solved
-# them all then (the 3 x 5 F450 correction still fails 9 of 160 solves in bench_mpc's horizon-50
-# speed step: docs/mpc.md). The real-time iteration predicts with the exact ReLU network (one
-# QP per step has no line search to stall).
+# them all then. The 3 x 5 F450 correction still needs more than the 200 iterations in a few
+# solves of bench_mpc's horizon-50 speed step (Gauss-Newton, which leaves out the network's
+# curvature, converges linearly there: about 245 iterations, measured); those apply their last
+# plan, which lowered the merit (uavdyn.mpc.rti.SQPController). The real-time iteration
+# predicts with the exact ReLU network (one QP per step has no line search to stall).
 RELU_SMOOTHING = 30.0
 
 __all__ = ["DEFAULT_RATE_LIMITS", "RELU_SMOOTHING", "ClosedLoopResult", "MPCConfig", "MPCResult",
@@ -184,6 +186,8 @@ class ClosedLoopResult:
     departure : str or None
         When the plant left the physical ranges (:func:`uavdyn.model.first_departure`): the
         time and the state. The flight stops at that sample.
+    status : ndarray of str or None
+        Each solve's status (the solver's, or the policy's for a non-finite plan).
     """
 
     time: np.ndarray
@@ -197,6 +201,7 @@ class ClosedLoopResult:
     success: np.ndarray
     source: np.ndarray
     departure: str | None = None
+    status: np.ndarray | None = None
 
     def rmse(self, which: str = "theta", t_from: float = 0.0) -> float:
         """Tracking RMSE of ``"theta"`` (rad), ``"h"`` (m) or ``"speed"`` (m/s) over times
@@ -251,7 +256,7 @@ def fly_closed_loop(mpc: Controller, plant_step: Callable, x0, u0, n_steps: int,
     mpc.reset()
     xp, y = plant_step(x0, None)
     u = np.asarray(u0, float)
-    ys, us, times, ok, src = [y], [], [], [], []
+    ys, us, times, ok, src, status = [y], [], [], [], [], []
     departure = None
     for k in range(n_steps):
         check_interrupted()  # a Ctrl-C CasADi swallowed in the last step
@@ -261,6 +266,7 @@ def fly_closed_loop(mpc: Controller, plant_step: Callable, x0, u0, n_steps: int,
         times.append(res.solve_time_s)
         ok.append(res.success)
         src.append(res.source)
+        status.append(res.status)
         xp, y = plant_step(xp, u)
         ys.append(y)
         us.append(u)
@@ -276,7 +282,8 @@ def fly_closed_loop(mpc: Controller, plant_step: Callable, x0, u0, n_steps: int,
                             speed_ref=np.asarray(v_ref(t[1:]), float),
                             speed=np.array([_speed(mpc.kind, s) for s in states]),
                             solve_times_s=np.array(times), success=np.array(ok, bool),
-                            source=np.array(src), departure=departure)
+                            source=np.array(src), departure=departure,
+                            status=np.array(status))
 
 
 def emulator_plant(emulator, dt: float):
