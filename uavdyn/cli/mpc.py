@@ -43,7 +43,8 @@ MAX_HORIZON = 200
 LOG_INTERVAL = 0.01  # the calm emulator's log interval (s)
 MAX_DT = 1.0
 HISTORY_COLUMNS = ("time", "u", "w", "q", "theta", "h", "speed", "theta_ref", "h_ref",
-                   "speed_ref", "control_1", "control_2", "solve_ms", "success", "source")
+                   "speed_ref", "control_1", "control_2", "solve_ms", "success", "source",
+                   "status")
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -112,9 +113,9 @@ def _write_history(path: Path, res) -> None:
             row = [res.time[k], *res.states[k], res.speed[k]]
             row += (["", "", ""] if k == 0 else
                     [res.theta_ref[k - 1], res.h_ref[k - 1], res.speed_ref[k - 1]])
-            row += (["", "", "", "", ""] if last else
+            row += (["", "", "", "", "", ""] if last else
                     [*res.controls[k], res.solve_times_s[k] * 1e3, int(res.success[k]),
-                     res.source[k]])
+                     res.source[k], "" if res.status is None else res.status[k]])
             out.writerow([f"{v:.10g}" if isinstance(v, (float, np.floating)) else v
                           for v in row])
 
@@ -217,8 +218,10 @@ def cmd_mpc(args: argparse.Namespace) -> int:
         med = "-" if s["solve_ms_median"] is None else f"{s['solve_ms_median']:.3g}"
         mx = "-" if s["solve_ms_max"] is None else f"{s['solve_ms_max']:.3g}"
         print(f"  {name}: tracking RMSE {rmse}; solves {s['success_rate']:.1%} succeeded "
-              f"(median {med} ms, max {mx} ms); fallbacks {s['fallback_shifted']} shifted, "
-              f"{s['fallback_held']} held")
+              f"(median {med} ms, max {mx} ms"
+              + (f"; {s['iteration_limit_solves']} applied at the iteration limit, their "
+                 "merit lowered" if s["iteration_limit_solves"] else "")
+              + f"); fallbacks {s['fallback_shifted']} shifted, {s['fallback_held']} held")
     print(f"wrote {args.out}/ (history_*.csv, stats.json, mpc.png)")
     departed = [name for name, s in stats["models"].items() if s["departure"]]
     if departed:
