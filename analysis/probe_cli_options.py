@@ -319,6 +319,7 @@ OPTIONS: dict[tuple[str, str], Num | Values] = {
     ("train", "--output"): choice("acceleration, coefficient (coefficient: fixed wing; "
                                   "improved/data only)"),
     ("train", "--linear-path"): choice("on, off (improved/data only)"),
+    ("train", "--stability-trims"): choice("box, gate (improved/data only)"),
 }
 
 # valid values that break a relation to another option or to the data: (command, argv added
@@ -451,6 +452,8 @@ RELATIONS: tuple[tuple[str, tuple[str, ...], tuple[str, ...], str], ...] = (
      ("--output", "--target"), "an improved/data option: ignored with --target reference"),
     ("train", ("--formulation", "hypersolver", "--linear-path", "off"),
      ("--linear-path", "--formulation"), "an improved/data option: ignored"),
+    ("train", ("--formulation", "paper", "--stability-trims", "gate"),
+     ("--stability-trims", "--formulation"), "an improved/data option: ignored"),
 )
 
 # the smallest valid arguments of each command (cwd is the run's own folder; {F} fixtures)

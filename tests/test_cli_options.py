@@ -150,6 +150,8 @@ RELATIONS = [
     (["train", "--dt", "0.01"], ("--dt", "--formulation"), "applies only"),
     (["train", "--formulation", "paper", "--horizon", "1"], ("--horizon", "--formulation"),
      "applies only"),
+    (["train", "--formulation", "paper", "--stability-trims", "gate"],
+     ("--stability-trims", "--formulation"), "applies only"),
     (["train", "--memory-tau", *["0.1"] * 9], ("--memory-tau",), "at most 8"),
     (["train", "--out", "w.npz", "--history", "w.npz"], ("--history", "--out"),
      "must not be"),

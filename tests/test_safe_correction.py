@@ -799,6 +799,23 @@ def test_the_exact_check_runs_out_to_where_the_gate_reaches_zero(name):
     assert beyond and all(v < reach_hi for v in beyond)
     below = [t.airspeed for t in trims if t.airspeed < lo and t.airspeed > 0]
     assert below and all(v > reach_lo for v in below)
+    # the training penalty: the box's trims by default, every trim the check runs at on "gate"
+    from uavdyn.learned.safe.trainer import penalty_trims
+    assert penalty_trims(gates, "box") == gates.box
+    assert penalty_trims(gates, "gate") == gates.all and len(gates.all) > len(gates.box)
+
+
+def test_a_penalty_trim_choice_other_than_box_or_gate_is_refused(tmp_path):
+    from emulated_data import emulated_dataset
+
+    from uavdyn.flightdata import load_dataset
+    from uavdyn.learned.safe import SafeConfig
+    from uavdyn.learned.safe.config import safe_setup
+
+    airframe = load_airframe("aerosonde")
+    sorties = load_dataset(emulated_dataset(tmp_path / "data", airframe, 2, 4.0)).sorties
+    with pytest.raises(ValueError, match="stability_trims must be one of box, gate, got 'edge'"):
+        safe_setup(sorties[:1], sorties[1:], airframe, SafeConfig(stability_trims="edge"))
 
 
 

@@ -207,9 +207,9 @@ def training_module():
     return module
 
 
-SAFE_ONLY = ("--stability-weight", "--stability-margin", "--horizon", "--memory-tau",
-             "--inputs", "--output", "--linear-path", "--min-gain", "--restarts", "--start-fit",
-             "--envelope-fade")
+SAFE_ONLY = ("--stability-weight", "--stability-margin", "--stability-trims", "--horizon",
+             "--memory-tau", "--inputs", "--output", "--linear-path", "--min-gain", "--restarts",
+             "--start-fit", "--envelope-fade")
 LEGACY_ONLY = ("--dt", "--rollout-horizon", "--rollout-weight")
 
 
@@ -372,6 +372,12 @@ def add_train(sub) -> None:
     p.add_argument("--stability-margin", type=number(0.0, 1.0, name="fraction"), default=None,
                    help="improved/data: how much a stable physics mode's decay rate may shrink "
                         "(fraction 0..1, default 0.5); a neutral mode may never grow")
+    p.add_argument("--stability-trims", choices=("box", "gate"), default=None,
+                   help="improved/data: where the training penalty holds the hybrid's modes: "
+                        "box (default), the trims over the training envelope's airspeeds; "
+                        "gate, those and the ones beyond out to where the gate reaches 0, "
+                        "every trim the final stability check runs at (measured: "
+                        "docs/learned_correction.md)")
     p.add_argument("--min-gain", type=number(0.0, 0.5, name="fraction"), default=None,
                    help="improved/data: the least gain a correction must show on the "
                         "validation sorties to be kept (geometric mean of the per-sortie "

@@ -36,6 +36,10 @@ DEFAULT_DESIGN = {"fixed_wing": ("physical", "coefficient"),
                   "multirotor": ("physical", "acceleration")}
 
 
+# Where the training's stability penalty holds the network (SafeConfig.stability_trims)
+STABILITY_TRIMS = ("box", "gate")
+
+
 class SafeTrainingError(ValueError):
     """The data cannot train a correction (the message says why)."""
 
@@ -100,6 +104,14 @@ class SafeConfig:
                                      # training samples, in output scales; epochs.py)
     stability_weight: float = 10.0
     stability_margin: float = DEFAULT_MARGIN
+    stability_trims: str = "box"      # where the training penalty holds the hybrid's modes:
+                                      # "box" (trims over the training envelope's airspeeds)
+                                      # or "gate" (those and the margins' out to where the gate
+                                      # reaches 0: every trim the final exact check runs at).
+                                      # On an imported turning campaign "box" let the phugoid
+                                      # at the fast margin go unstable at full output, and the
+                                      # check kept the correction at output scale 0.35; "gate"
+                                      # kept it at 1 (docs/benchmarks/turning_correction*.json)
     envelope_quantile: float = 0.001
     envelope_fade: float | None = None  # how far beyond the training box the gate reaches
                                       # 0 (the exact stability check runs out to there).
@@ -205,8 +217,13 @@ def safe_setup(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     ------
     SafeTrainingError
         If a split is empty.
+    ValueError
+        On a ``stability_trims`` other than ``"box"`` or ``"gate"``.
     """
     cfg = config or SafeConfig()
+    if cfg.stability_trims not in STABILITY_TRIMS:
+        raise ValueError(f"stability_trims must be one of {', '.join(STABILITY_TRIMS)}, got "
+                         f"{cfg.stability_trims!r}")
     if cfg.hidden is None:
         cfg = replace(cfg, hidden=DEFAULT_HIDDEN[airframe.kind])
     inputs, output = DEFAULT_DESIGN[airframe.kind]

@@ -35,6 +35,7 @@ from uavdyn.learned.safe.selection import Checks, RunFacts, SeenSorties, fallbac
 from uavdyn.learned.safe.twin import CompiledTwin, FittedStartPredictor
 from uavdyn.learned.safe.verdict import kept_reason, refusal_reason, validation_summary
 from uavdyn.learned.stability import (
+    GateTrims,
     TrimSample,
     body_abscissa,
     gate_trims,
@@ -43,9 +44,15 @@ from uavdyn.learned.stability import (
 from uavdyn.learned.torch_model import TorchCorrection, seeded_generator
 
 
+def penalty_trims(gates: GateTrims, where: str) -> list[TrimSample]:
+    """The trims the training penalty holds the network at (``SafeConfig.stability_trims``):
+    over the envelope's box (``"box"``; the exact check adds the margins) or every trim the
+    exact check runs at (``"gate"``)."""
+    return gates.all if where == "gate" else gates.box
+
+
 def _stability_targets(setup: SafeSetup, trims: list[TrimSample]) -> StabilityTargets:
-    """The training target of each trim over the envelope's box (where the penalty holds
-    the network; the exact check adds the margins, :func:`gate_trims`)."""
+    """The training target of each trim the penalty holds the network at."""
     phys, dt = setup.physics, setup.dt
     jp = phys.jacobians()
     sigma = [body_abscissa(np.array(jp(t.z[:phys.nx], t.u, t.p, dt)[1]), dt)[0]
@@ -139,7 +146,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     gates = gate_trims(airframe, scaling.envelope, StateLayout(setup.structure,
                                                                 setup.memory_tau),
                        airspeed_input=airspeed_input(airframe.kind, setup.layout.inputs))
-    stab = _stability_targets(setup, gates.box)
+    stab = _stability_targets(setup, penalty_trims(gates, cfg.stability_trims))
     twin = (CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
             if cfg.compiled and find_compiler() is not None else None)
     fitted = fitter = None
