@@ -48,6 +48,9 @@ from uavdyn.outputs import write_text_atomic
 
 TERM = "C_m_alpha_dot"
 MODELS = {"a": "identified physics", "corrected": "corrected"}
+LABELS = {"test_log": "test log", "unseen_flights": "unseen flights",
+          "test_log_stretches": "test log, stretches",
+          "unseen_flights_stretches": "unseen flights, stretches"}
 
 
 def train(work: Path, fitted: Path, data: Path, seed: int, options: list[str]) -> dict:
@@ -122,9 +125,9 @@ def campaign(work: Path, duration: float, unseen_seeds: list[int]) -> dict:
          "--turns", "--out", ds])
     run(["import-log", work / "unseen", "--kind", "fixed_wing", "--split-by", "log", "--turns",
          "--fractions", "0,0,1", "--out", unseen])
-    return {"test log": ds, "unseen flights": unseen,
-            "test log, stretches": stretches(ds, work / "st_test")[0],
-            "unseen flights, stretches": stretches(unseen, work / "st_unseen")[0]}
+    return {"test_log": ds, "unseen_flights": unseen,
+            "test_log_stretches": stretches(ds, work / "st_test")[0],
+            "unseen_flights_stretches": stretches(unseen, work / "st_unseen")[0]}
 
 
 def identify_both(work: Path, data: Path, structure_auto: bool) -> tuple[Path, Path, dict]:
@@ -157,14 +160,14 @@ def measure(args) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         sets = campaign(work, args.duration, args.unseen_seeds)
-        a, b, id_seconds = identify_both(work, sets["test log"], args.structure_auto)
+        a, b, id_seconds = identify_both(work, sets["test_log"], args.structure_auto)
         from uavdyn.airframes import load_airframe
         b_value = getattr(load_airframe(b).params, TERM, None)
         b_runs = {name: evaluate(work, data, b, None, f"b{i}")
                   for i, (name, data) in enumerate(sets.items())}
         seeds = []
         for seed in args.seeds:
-            t = train(work, a, sets["test log"], seed, train_options(args))
+            t = train(work, a, sets["test_log"], seed, train_options(args))
             print(f"seed {seed}: {t['verdict']} ({t['train_s']:.0f} s)", flush=True)
             scored = {name: score(evaluate(work, data, a, t["weights"], f"s{seed}_{i}"),
                                   b_runs[name])
@@ -216,7 +219,7 @@ def markdown(doc: dict) -> str:
             corrected = f"{err['corrected']:.5f}" if "corrected" in err else "-"
             worse = (f"{st['n_sorties_worse']} ({st.get('n_sorties_worse_than_term', '-')})"
                      if "n_sorties_worse" in st else "-")
-            lines.append(f"| {s['seed']} | {name} | {st['sorties']} | {err['a']:.5f} | "
+            lines.append(f"| {s['seed']} | {LABELS[name]} | {st['sorties']} | {err['a']:.5f} | "
                          f"{corrected} | {err['b']:.5f} | {_interval(st, 'removed_share')} | "
                          f"{_interval(st, 'recovered_share')} | {worse} |")
     lines += ["", "Training: " + "; ".join(
