@@ -195,7 +195,9 @@ def _interval(stats: dict, key: str) -> str:
 
 
 def markdown(doc: dict) -> str:
-    lines = ["# The correction on imported turning flights", "",
+    options = " ".join(doc["train_options"])
+    lines = ["# The correction on imported turning flights"
+             + (f" (train {options})" if options else ""), "",
              f"Written by `{doc['command']}` ({doc['wall_s'] / 60:.0f} min on a "
              f"{doc['machine']['cpu_count']}-core machine, load "
              f"{doc['machine']['load_average'][0]:.1f} at the start). The example trainer's "
