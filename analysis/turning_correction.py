@@ -45,6 +45,7 @@ from bench_knockout import machine, share_statistics  # the script's own folder 
 from turning_acceptance import AIRFRAME, PARAMS, RATES, run, stretches
 
 from uavdyn.evaluation import SortieError
+from uavdyn.learned.stability import STABILITY_TRIMS
 from uavdyn.outputs import write_text_atomic
 
 TERM = "C_m_alpha_dot"
@@ -238,7 +239,7 @@ def main() -> int:
                         help="training seeds")
     parser.add_argument("--unseen-seeds", type=int, nargs="+", default=[11, 12],
                         help="seeds of the flights the pipeline never sees")
-    parser.add_argument("--stability-trims", choices=("box", "gate"), default=None,
+    parser.add_argument("--stability-trims", choices=STABILITY_TRIMS, default=None,
                         help="uavdyn train --stability-trims (default: train's own)")
     parser.add_argument("--structure-auto", action="store_true",
                         help="(b) from identify --structure auto (about 15 min) instead of "

@@ -800,7 +800,7 @@ def test_the_exact_check_runs_out_to_where_the_gate_reaches_zero(name):
     below = [t.airspeed for t in trims if t.airspeed < lo and t.airspeed > 0]
     assert below and all(v > reach_lo for v in below)
     # the training penalty: the box's trims by default, every trim the check runs at on "gate"
-    from uavdyn.learned.safe.trainer import penalty_trims
+    from uavdyn.learned.stability import penalty_trims
     assert penalty_trims(gates, "box") == gates.box
     assert penalty_trims(gates, "gate") == gates.all and len(gates.all) > len(gates.box)
 

@@ -37,6 +37,7 @@ from uavdyn.identify.report import HELD_HEADLINE, estimate_line, structure_lines
 from uavdyn.identify.selection import select_structure
 from uavdyn.identify.unknowns import DELAY_PREFIX, control_names
 from uavdyn.integrate import EvalGrid, GridError
+from uavdyn.learned.stability import STABILITY_TRIMS
 from uavdyn.learned.weights import MAX_MEMORY_FILTERS
 from uavdyn.outputs import check_output_files, single_outputs
 
@@ -372,7 +373,7 @@ def add_train(sub) -> None:
     p.add_argument("--stability-margin", type=number(0.0, 1.0, name="fraction"), default=None,
                    help="improved/data: how much a stable physics mode's decay rate may shrink "
                         "(fraction 0..1, default 0.5); a neutral mode may never grow")
-    p.add_argument("--stability-trims", choices=("box", "gate"), default=None,
+    p.add_argument("--stability-trims", choices=STABILITY_TRIMS, default=None,
                    help="improved/data: where the training penalty holds the hybrid's modes: "
                         "box (default), the trims over the training envelope's airspeeds; "
                         "gate, those and the ones beyond out to where the gate reaches 0, "

@@ -108,6 +108,17 @@ class GateTrims:
         return self.box + self.margins
 
 
+# Where the training's stability penalty holds the network (SafeConfig.stability_trims)
+STABILITY_TRIMS = ("box", "gate")
+
+
+def penalty_trims(gates: GateTrims, where: str) -> list[TrimSample]:
+    """The trims the training penalty holds the network at (``SafeConfig.stability_trims``):
+    over the envelope's box (``"box"``; the exact check adds the margins) or every trim the
+    exact check runs at (``"gate"``)."""
+    return gates.all if where == "gate" else gates.box
+
+
 def gate_trims(airframe: Airframe, envelope: Envelope, layout: StateLayout,
                n_speeds: int = 4, airspeed_input: int | None = None) -> GateTrims:
     """The trims the exact stability check runs at: ``n_speeds`` over the box's airspeeds

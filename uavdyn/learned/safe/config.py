@@ -13,7 +13,7 @@ from uavdyn.flightdata import Sortie
 from uavdyn.integrate import DiscreteModel, physics_step
 from uavdyn.learned.formulations import CorrectionLayout
 from uavdyn.learned.hybrid import correction_structure
-from uavdyn.learned.stability import DEFAULT_MARGIN, StabilityReport
+from uavdyn.learned.stability import DEFAULT_MARGIN, STABILITY_TRIMS, StabilityReport
 from uavdyn.learned.weights import CorrectionNet
 from uavdyn.model import ModelStructure
 
@@ -34,10 +34,6 @@ DEFAULT_HIDDEN = {"fixed_wing": 8, "multirotor": 5}
 # scaled by dynamic pressure (a hovering multirotor has none to scale by).
 DEFAULT_DESIGN = {"fixed_wing": ("physical", "coefficient"),
                   "multirotor": ("physical", "acceleration")}
-
-
-# Where the training's stability penalty holds the network (SafeConfig.stability_trims)
-STABILITY_TRIMS = ("box", "gate")
 
 
 class SafeTrainingError(ValueError):

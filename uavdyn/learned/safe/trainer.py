@@ -35,20 +35,13 @@ from uavdyn.learned.safe.selection import Checks, RunFacts, SeenSorties, fallbac
 from uavdyn.learned.safe.twin import CompiledTwin, FittedStartPredictor
 from uavdyn.learned.safe.verdict import kept_reason, refusal_reason, validation_summary
 from uavdyn.learned.stability import (
-    GateTrims,
     TrimSample,
     body_abscissa,
     gate_trims,
+    penalty_trims,
     training_target,
 )
 from uavdyn.learned.torch_model import TorchCorrection, seeded_generator
-
-
-def penalty_trims(gates: GateTrims, where: str) -> list[TrimSample]:
-    """The trims the training penalty holds the network at (``SafeConfig.stability_trims``):
-    over the envelope's box (``"box"``; the exact check adds the margins) or every trim the
-    exact check runs at (``"gate"``)."""
-    return gates.all if where == "gate" else gates.box
 
 
 def _stability_targets(setup: SafeSetup, trims: list[TrimSample]) -> StabilityTargets:
