@@ -8,6 +8,7 @@ reason."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -803,9 +804,10 @@ def test_the_exact_check_runs_out_to_where_the_gate_reaches_zero(name):
     from uavdyn.learned.stability import penalty_trims
     assert penalty_trims(gates, "box") == gates.box
     assert penalty_trims(gates, "gate") == gates.all and len(gates.all) > len(gates.box)
+    assert penalty_trims(gates, "repair") == gates.box  # until a repair (its own test)
 
 
-def test_a_penalty_trim_choice_other_than_box_or_gate_is_refused(tmp_path):
+def test_a_penalty_trim_choice_other_than_box_gate_or_repair_is_refused(tmp_path):
     from emulated_data import emulated_dataset
 
     from uavdyn.flightdata import load_dataset
@@ -814,8 +816,100 @@ def test_a_penalty_trim_choice_other_than_box_or_gate_is_refused(tmp_path):
 
     airframe = load_airframe("aerosonde")
     sorties = load_dataset(emulated_dataset(tmp_path / "data", airframe, 2, 4.0)).sorties
-    with pytest.raises(ValueError, match="stability_trims must be one of box, gate, got 'edge'"):
+    with pytest.raises(ValueError, match="stability_trims must be one of box, gate, repair, got 'edge'"):
         safe_setup(sorties[:1], sorties[1:], airframe, SafeConfig(stability_trims="edge"))
+
+
+def test_a_repair_is_made_only_for_a_stability_failure_that_beats_what_was_kept():
+    """The candidate repaired: of the rows at full uniform output that failed only the exact
+    check (``stable`` False), the best by mean validation ratio, and only if it beats the
+    kept candidate's; channel variants, smaller scales and rows stopped earlier never."""
+    from uavdyn.learned.safe.repair import repair_candidate
+    from uavdyn.learned.safe.selection import Search
+
+    rows = [{"epoch": 4, "scale": 1.0, "val_ratio_geomean": 0.7, "stable": False},
+            {"epoch": 9, "scale": 1.0, "val_ratio_geomean": 0.6, "stable": False},
+            {"epoch": 9, "scale": 0.75, "val_ratio_geomean": 0.5, "stable": False},
+            {"epoch": 7, "scale": 1.0, "val_ratio_geomean": 0.4, "free_run_ok": False},
+            {"epoch": 8, "scale": 1.0, "val_ratio_geomean": 0.3, "stable": False,
+             "channel_scales": [1.0, 0.5, 1.0]},
+            {"epoch": 5, "scale": 1.0, "val_ratio_geomean": 0.9}]
+    assert repair_candidate(Search(None, rows, None), 1.0)["epoch"] == 9
+
+    class Kept:
+        def __init__(self, geomean):
+            self.selection = {"val_ratio_geomean": geomean}
+
+    assert repair_candidate(Search(Kept(0.65), rows, None), 1.0)["epoch"] == 9
+    assert repair_candidate(Search(Kept(0.6), rows, None), 1.0) is None
+    assert repair_candidate(Search(None, rows[3:], None), 1.0) is None
+
+
+def test_a_stability_repair_trains_the_failed_epoch_on_with_the_penalty_at_every_trim(
+        tmp_path, monkeypatch):
+    """``stability_trims="repair"``: where the search reports a candidate at full output that
+    failed only the exact check (made to here: the short run's candidates do not beat the
+    physics), that epoch's network is trained on for ``repair_epochs`` epochs numbered after
+    the run's, at the learning rate it had, with the penalty at every trim the check runs
+    at; the history and the stop reason say so, and the repaired epochs go through the same
+    final checks."""
+    from emulated_data import emulated_dataset
+
+    import uavdyn.learned.safe.trainer as trainer_module
+    from uavdyn.flightdata import load_dataset
+    from uavdyn.learned.safe import SafeConfig, train_safe
+    from uavdyn.learned.safe.epochs import EpochLoop
+    from uavdyn.learned.safe.selection import search
+
+    airframe = load_airframe("aerosonde")
+    truth = airframe.replace(C_m_0=airframe.params.C_m_0 + 0.01)
+    sorties = load_dataset(emulated_dataset(tmp_path / "data", truth, 5, 6.0)).sorties
+    failed = {}
+
+    def search_with_a_stability_failure(checks, run):
+        found = search(checks, run)
+        first = found.tried[0]  # a candidate's row at full output, as if only unstable
+        epoch = first["epoch"]
+        failed.update(epoch=epoch, lr=next(h["lr"] for h in run.history
+                                           if h["epoch"] == epoch), last=run.history[-1]["epoch"])
+        found.tried.append({**first, "val_ratio_geomean": 0.5, "stable": False})
+        return found
+
+    penalties = []
+    original_init = EpochLoop.__init__
+
+    def recording_init(self, model, data, stab, *args, **kwargs):
+        penalties.append(len(stab.trims))
+        original_init(self, model, data, stab, *args, **kwargs)
+
+    monkeypatch.setattr(trainer_module, "search", search_with_a_stability_failure)
+    monkeypatch.setattr(EpochLoop, "__init__", recording_init)
+    cfg = SafeConfig(epochs=4, batches_per_epoch=2, batch_windows=6, horizon_s=1.0,
+                     progress=False, memory_tau=(0.1,), patience=100,
+                     stability_trims="repair", repair_epochs=3)
+    result = train_safe(sorties[:3], sorties[3:], airframe, cfg)
+    repaired = [h for h in result.history if h.get("phase") == "stability repair"]
+    assert [h["epoch"] for h in repaired] == [failed["last"] + i for i in (1, 2, 3)]
+    assert all(h["repair_of"] == failed["epoch"] for h in repaired)
+    assert all(h["lr"] == pytest.approx(failed["lr"], rel=1e-12) for h in repaired)
+    n_check = len(result.stability.findings)  # the exact check's trims
+    assert penalties[0] < n_check and penalties[-1] == n_check
+    assert (f"stability repair: epoch {failed['epoch']} trained on for 3 epochs"
+            in result.stopped) and f"all {n_check} trims of the exact check" in result.stopped
+    tried_after = [r for r in result.validation["shrink_tried"]
+                   if r.get("repair_of") == failed["epoch"]]
+    assert tried_after and {r["epoch"] for r in tried_after} <= {h["epoch"] for h in repaired}
+    from uavdyn.learned.safe.history import write_safe_history
+    record, png = write_safe_history(result, tmp_path / "history.json")
+    written = json.loads(record.read_text())
+    assert [h["epoch"] for h in written["history"] if h.get("phase")] == \
+        [h["epoch"] for h in repaired] and png.stat().st_size > 0
+    # without the option the same run makes no repair
+    monkeypatch.setattr(EpochLoop, "__init__", original_init)
+    plain = train_safe(sorties[:3], sorties[3:], airframe,
+                       SafeConfig(**{**cfg.__dict__, "stability_trims": "box"}))
+    assert "stability repair" not in plain.stopped
+    assert not any(h.get("phase") for h in plain.history)
 
 
 

@@ -109,13 +109,13 @@ class GateTrims:
 
 
 # Where the training's stability penalty holds the network (SafeConfig.stability_trims)
-STABILITY_TRIMS = ("box", "gate")
+STABILITY_TRIMS = ("box", "gate", "repair")
 
 
 def penalty_trims(gates: GateTrims, where: str) -> list[TrimSample]:
     """The trims the training penalty holds the network at (``SafeConfig.stability_trims``):
-    over the envelope's box (``"box"``; the exact check adds the margins) or every trim the
-    exact check runs at (``"gate"``)."""
+    over the envelope's box (``"box"``, and ``"repair"`` until a repair; the exact check adds
+    the margins) or every trim the exact check runs at (``"gate"``)."""
     return gates.all if where == "gate" else gates.box
 
 

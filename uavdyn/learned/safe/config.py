@@ -108,6 +108,11 @@ class SafeConfig:
                                       # at the fast margin go unstable at full output, and the
                                       # check kept the correction at output scale 0.35; "gate"
                                       # kept it at 1 (docs/benchmarks/turning_correction*.json)
+                                      # "repair": "box", and where a candidate at full output
+                                      # fails only the exact check, the best of them trained
+                                      # on with the penalty at every trim the check runs at
+                                      # (repair_epochs); its epochs join the candidates
+    repair_epochs: int = 40           # the epochs of a stability repair (stability_trims)
     envelope_quantile: float = 0.001
     envelope_fade: float | None = None  # how far beyond the training box the gate reaches
                                       # 0 (the exact stability check runs out to there).
@@ -214,7 +219,7 @@ def safe_setup(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     SafeTrainingError
         If a split is empty.
     ValueError
-        On a ``stability_trims`` other than ``"box"`` or ``"gate"``.
+        On a ``stability_trims`` other than ``"box"``, ``"gate"`` or ``"repair"``.
     """
     cfg = config or SafeConfig()
     if cfg.stability_trims not in STABILITY_TRIMS:

@@ -173,22 +173,28 @@ class EpochLoop:
     for a few epochs each and one carried on (:func:`screened_start`, ``restarts``)."""
 
     def __init__(self, model: TorchCorrection, data: TrainingData, stab: StabilityTargets,
-                 cfg: SafeConfig, rng: np.random.Generator, start: float, name: str) -> None:
+                 cfg: SafeConfig, rng: np.random.Generator, start: float, name: str,
+                 first_epoch: int = 0, lr: float | None = None) -> None:
+        """``first_epoch``, ``lr``: a loop carrying on a trained ``model`` (a stability
+        repair) counts its epochs from ``first_epoch`` at the fixed learning rate ``lr``;
+        otherwise epochs count from 0 and the rate decays from ``cfg.lr`` to
+        ``cfg.lr_final``."""
         self.model, self.data, self.stab, self.cfg, self.rng = model, data, stab, cfg, rng
         self.start, self.name = start, name
         self.average = WeightAverage(model, cfg.average_decay) if cfg.average_decay else None
-        self.opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-        gamma = (cfg.lr_final / cfg.lr) ** (1.0 / max(1, cfg.epochs))
+        self.opt = torch.optim.Adam(model.parameters(), lr=cfg.lr if lr is None else lr)
+        gamma = (1.0 if lr is not None
+                 else (cfg.lr_final / cfg.lr) ** (1.0 / max(1, cfg.epochs)))
         self.sched = torch.optim.lr_scheduler.ExponentialLR(self.opt, gamma)
         sel0 = score(model, data.val, data.reference, data.loss.dt, data.predict)
-        self.history = [{"epoch": 0, **sel0, **fixed_losses(model, data),
+        self.history = [{"epoch": first_epoch, **sel0, **fixed_losses(model, data),
                          "physics_val_theta_rmse": data.reference.physics_rmse,
                          "seconds": time.perf_counter() - start}]
-        self.best = Snapshot((True, math.inf), 0, _state(model), sel0)
+        self.best = Snapshot((True, math.inf), first_epoch, _state(model), sel0)
         # patience counts epochs without progress: a better rank, or a better mean ratio over
         # the validation sorties (an epoch that makes one sortie a little worse still learns:
         # the final checks scale its output down until every sortie passes)
-        self.best_mean, self.progress, self.epoch = math.inf, 0, 0
+        self.best_mean, self.progress, self.epoch = math.inf, first_epoch, first_epoch
         self.snapshots: list[Snapshot] = []
         self.stopped = ""
         self.screened: list[dict] = []  # the starts screened before this one was chosen

@@ -77,7 +77,11 @@ def _plot(result: SafeResult, png_path: Path, data: str) -> None:
         ax.yaxis.set_minor_formatter(plain if high < 10 * low else NullFormatter())
     ax.set_ylabel("loss relative to the physics")
     ax.set_title("train split: loss over each epoch's mini-batches", fontsize=9)
+    repaired = [h for h in result.history if h.get("phase") == "stability repair"]
     for ax in axes:
+        if repaired:  # epochs carrying an earlier one on (SafeConfig.stability_trims)
+            ax.axvspan(repaired[0]["epoch"] - 0.5, repaired[-1]["epoch"] + 0.5, color="C2",
+                       alpha=0.12, label=f"stability repair of epoch {repaired[0]['repair_of']}")
         ax.set_xlabel("epoch (0 = untrained: the physics)")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.grid(alpha=0.3)

@@ -30,6 +30,7 @@ from uavdyn.learned.safe.data import (
 )
 from uavdyn.learned.safe.epochs import StabilityTargets, TrainingData, screened_start
 from uavdyn.learned.safe.freerun import FreeRunGuard
+from uavdyn.learned.safe.repair import stability_repair
 from uavdyn.learned.safe.scoring import WindowLoss, fixed_windows, validation_reference
 from uavdyn.learned.safe.selection import Checks, RunFacts, SeenSorties, fallback, search
 from uavdyn.learned.safe.twin import CompiledTwin, FittedStartPredictor
@@ -172,6 +173,10 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         checks = replace(checks, seen=_seen_sorties(tr, train_sorties, train_noise, setup,
                                                     physics_sim, scales, fitter, twin))
     found = search(checks, run)
+    if cfg.stability_trims == "repair":
+        found, run, _ = stability_repair(checks, run, found, data,
+                                         _stability_targets(setup, gates.all), loop.rng, start,
+                                         airframe.name)
     chosen, tried = found.chosen, found.tried
     if chosen is None:
         report = fallback(checks, run.best, tried, found.report)
