@@ -816,7 +816,8 @@ def test_a_penalty_trim_choice_other_than_box_gate_or_repair_is_refused(tmp_path
 
     airframe = load_airframe("aerosonde")
     sorties = load_dataset(emulated_dataset(tmp_path / "data", airframe, 2, 4.0)).sorties
-    with pytest.raises(ValueError, match="stability_trims must be one of box, gate, repair, got 'edge'"):
+    with pytest.raises(ValueError,
+                       match="stability_trims must be one of box, gate, repair, got 'edge'"):
         safe_setup(sorties[:1], sorties[1:], airframe, SafeConfig(stability_trims="edge"))
 
 
