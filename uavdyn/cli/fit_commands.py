@@ -375,12 +375,12 @@ def add_train(sub) -> None:
                         "(fraction 0..1, default 0.5); a neutral mode may never grow")
     p.add_argument("--stability-trims", choices=STABILITY_TRIMS, default=None,
                    help="improved/data: where the training penalty holds the hybrid's modes: "
-                        "box (default), the trims over the training envelope's airspeeds; "
-                        "gate, those and the ones beyond out to where the gate reaches 0, "
-                        "every trim the final stability check runs at; repair, box, and "
-                        "where a candidate at full output fails only the final check, the "
-                        "best of them trained on for 40 epochs with the penalty at every "
-                        "trim the check runs at (measured: docs/learned_correction.md)")
+                        "box, the trims over the training envelope's airspeeds; gate, those "
+                        "and the ones beyond out to where the gate reaches 0, every trim the "
+                        "final stability check runs at; repair (default), box, and where a "
+                        "candidate at full output fails only the final check, the best of "
+                        "them trained on for 40 epochs with the penalty at every trim the "
+                        "check runs at (measured: docs/learned_correction.md)")
     p.add_argument("--min-gain", type=number(0.0, 0.5, name="fraction"), default=None,
                    help="improved/data: the least gain a correction must show on the "
                         "validation sorties to be kept (geometric mean of the per-sortie "

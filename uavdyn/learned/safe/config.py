@@ -100,18 +100,20 @@ class SafeConfig:
                                      # training samples, in output scales; epochs.py)
     stability_weight: float = 10.0
     stability_margin: float = DEFAULT_MARGIN
-    stability_trims: str = "box"      # where the training penalty holds the hybrid's modes:
+    stability_trims: str = "repair"   # where the training penalty holds the hybrid's modes:
                                       # "box" (trims over the training envelope's airspeeds)
                                       # or "gate" (those and the margins' out to where the gate
-                                      # reaches 0: every trim the final exact check runs at).
-                                      # On an imported turning campaign "box" let the phugoid
-                                      # at the fast margin go unstable at full output, and the
-                                      # check kept the correction at output scale 0.35; "gate"
-                                      # kept it at 1 (docs/benchmarks/turning_correction*.json)
-                                      # "repair": "box", and where a candidate at full output
-                                      # fails only the exact check, the best of them trained
-                                      # on with the penalty at every trim the check runs at
-                                      # (repair_epochs); its epochs join the candidates
+                                      # reaches 0: every trim the final exact check runs at);
+                                      # "repair" (default): "box", and where a candidate at
+                                      # full output fails only the exact check, the best of
+                                      # them trained on for repair_epochs epochs with the
+                                      # penalty at every trim the check runs at, its epochs
+                                      # competing in the final checks. On an imported turning
+                                      # campaign "box" let the phugoid at the fast margin go
+                                      # unstable at full output and the check kept the
+                                      # correction at output scale 0.35; "gate" held the
+                                      # knockout's networks more than its data needed
+                                      # (docs/learned_correction.md, turning_correction*.json)
     repair_epochs: int = 40           # the epochs of a stability repair (stability_trims)
     envelope_quantile: float = 0.001
     envelope_fade: float | None = None  # how far beyond the training box the gate reaches
