@@ -70,10 +70,12 @@ def train(work: Path, fitted: Path, data: Path, seed: int, options: list[str]) -
     text = buffer.getvalue()
     verdict = next((line.strip() for line in text.splitlines()
                     if line.strip().startswith(("kept", "no correction", "not kept"))), "")
+    run = next((line.strip() for line in text.splitlines() if "best epoch" in line), "")
     if code != 0 and out.exists():
         raise SystemExit(f"uavdyn train exited {code} but wrote {out}:\n{text}")
     return {"seed": seed, "kept": out.exists(), "weights": out if out.exists() else None,
-            "train_s": seconds, "verdict": verdict or text.strip().splitlines()[-1]}
+            "train_s": seconds, "verdict": verdict or text.strip().splitlines()[-1],
+            "run": run}  # the network, its best epoch and how the run ended (a repair too)
 
 
 def errors(result: dict, model: str) -> list[SortieError]:
@@ -227,7 +229,8 @@ def markdown(doc: dict) -> str:
                          f"{corrected} | {err['b']:.5f} | {_interval(st, 'removed_share')} | "
                          f"{_interval(st, 'recovered_share')} | {worse} |")
     lines += ["", "Training: " + "; ".join(
-        f"seed {s['seed']} {s['train_s']:.0f} s, {s['verdict']}" for s in doc["seeds"]), ""]
+        f"seed {s['seed']} {s['train_s']:.0f} s, {s['verdict']}"
+        + (f" ({s['run']})" if s.get("run") else "") for s in doc["seeds"]), ""]
     return "\n".join(lines)
 
 
