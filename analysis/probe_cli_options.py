@@ -325,7 +325,7 @@ OPTIONS: dict[tuple[str, str], Num | Values] = {
     ("train", "--output"): choice("acceleration, coefficient (coefficient: fixed wing; "
                                   "improved/data only)"),
     ("train", "--linear-path"): choice("on, off (improved/data only)"),
-    ("train", "--stability-trims"): choice("box, gate (improved/data only)"),
+    ("train", "--stability-trims"): choice("box, gate, repair (improved/data only)"),
 }
 
 # valid values that break a relation to another option or to the data: (command, argv added
