@@ -115,5 +115,6 @@ def stability_repair(checks: Checks, run: EpochRun, found: Search, data: Trainin
     tried = found.tried + again.tried
     if chosen is not None:  # its weight file records every candidate and the repair
         chosen.net.info.update(shrink_tried=tried, stability_repair=done.to_dict(),
+                               epochs_run=len(history) - 1,
                                train_seconds=time.perf_counter() - start)
     return Search(chosen, tried, report), merged, done
