@@ -92,10 +92,12 @@ def errors(result: dict, model: str) -> list[SortieError]:
     return out
 
 
-def evaluate(work: Path, data: Path, fitted: Path, weights: Path | None, tag: str) -> dict:
-    """``uavdyn evaluate`` of one identified airframe (and correction) on ``data``."""
+def evaluate(work: Path, data: Path, fitted: Path, weights: Path | None, tag: str,
+             airframe: str = AIRFRAME) -> dict:
+    """``uavdyn evaluate`` of one identified airframe (and correction) on ``data`` against the
+    nominal ``airframe``."""
     out = work / f"eval_{tag}.json"
-    run(["evaluate", "--airframe", AIRFRAME, "--identified", fitted, "--dataset", data,
+    run(["evaluate", "--airframe", airframe, "--identified", fitted, "--dataset", data,
          *(["--weights", weights] if weights is not None else []), "--out", out])
     return json.loads(out.read_text())
 
@@ -114,16 +116,19 @@ def score(a_run: dict, b_run: dict) -> dict:
     return stats
 
 
-def campaign(work: Path, duration: float, unseen_seeds: list[int]) -> dict:
-    """Write the flights and import them: the campaign's dataset, the unseen flights' dataset
-    (all test) and both cut into wings-level and turning stretches."""
+def campaign(work: Path, duration: float, unseen_seeds: list[int],
+             airframe: str = AIRFRAME) -> dict:
+    """Write the flights of ``airframe``'s truth and import them: the campaign's dataset, the
+    unseen flights' dataset (all test) and both cut into wings-level and turning stretches."""
     from tests.campaign_flights import write_campaign
     from tests.turning_flights import turning_flight
+    from uavdyn.airframes import load_airframe
 
-    write_campaign(work / "flights", [turning_flight(k, duration, rate)
+    nominal = load_airframe(airframe)
+    write_campaign(work / "flights", [turning_flight(k, duration, rate, nominal=nominal)
                                       for k, rate in enumerate(RATES, start=1)])
-    write_campaign(work / "unseen", [turning_flight(k, duration, 50.0) for k in unseen_seeds],
-                   stem="unseen")
+    write_campaign(work / "unseen", [turning_flight(k, duration, 50.0, nominal=nominal)
+                                     for k in unseen_seeds], stem="unseen")
     ds, unseen = work / "ds", work / "ds_unseen"
     run(["import-log", work / "flights", "--kind", "fixed_wing", "--split-by", "log",
          "--turns", "--out", ds])
@@ -134,16 +139,17 @@ def campaign(work: Path, duration: float, unseen_seeds: list[int]) -> dict:
             "unseen_flights_stretches": stretches(unseen, work / "st_unseen")[0]}
 
 
-def identify_both(work: Path, data: Path, structure_auto: bool) -> tuple[Path, Path, dict]:
+def identify_both(work: Path, data: Path, structure_auto: bool, airframe: str = AIRFRAME
+                  ) -> tuple[Path, Path, dict]:
     a, b = work / "a.toml", work / "b.toml"
     t0 = time.perf_counter()
-    run(["identify", "--airframe", AIRFRAME, "--dataset", data, "--params", PARAMS, "--out", a,
+    run(["identify", "--airframe", airframe, "--dataset", data, "--params", PARAMS, "--out", a,
          "--quiet"])
     seconds = {"a": time.perf_counter() - t0}
     t0 = time.perf_counter()
     extra = ["--structure", "auto"] if structure_auto else []
     params = PARAMS if structure_auto else f"{PARAMS},{TERM}"
-    run(["identify", "--airframe", AIRFRAME, "--dataset", data, "--params", params, *extra,
+    run(["identify", "--airframe", airframe, "--dataset", data, "--params", params, *extra,
          "--out", b, "--quiet"])
     seconds["b"] = time.perf_counter() - t0
     return a, b, seconds
@@ -154,33 +160,49 @@ def train_options(args) -> list[str]:
 
 
 def out_stem(args) -> str:
-    """The file name: the defaults', or the option's."""
-    return ("turning_correction" if args.stability_trims is None
+    """The file name: the defaults', or the option's; another airframe's with its name."""
+    stem = ("turning_correction" if args.stability_trims is None
             else f"turning_correction_stability_{args.stability_trims}")
+    return stem if args.airframe == AIRFRAME else f"{stem}_{Path(args.airframe).stem}"
+
+
+def shown(airframe) -> str:
+    """An airframe file as the command line names it (the default relative to the root)."""
+    return "examples/trainer.toml" if airframe == AIRFRAME else str(airframe)
+
+
+def command(args) -> str:
+    """The command that writes this run's files into docs/benchmarks."""
+    return ("PYTHONPATH=. python analysis/turning_correction.py --out docs/benchmarks"
+            + ("" if args.airframe == AIRFRAME else f" --airframe {args.airframe}")
+            + (" --structure-auto" if args.structure_auto else "")
+            + "".join(f" {o}" for o in train_options(args)))
 
 
 def measure(args) -> dict:
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        sets = campaign(work, args.duration, args.unseen_seeds)
-        a, b, id_seconds = identify_both(work, sets["test_log"], args.structure_auto)
+        sets = campaign(work, args.duration, args.unseen_seeds, args.airframe)
+        a, b, id_seconds = identify_both(work, sets["test_log"], args.structure_auto,
+                                         args.airframe)
         from uavdyn.airframes import load_airframe
         b_value = getattr(load_airframe(b).params, TERM, None)
-        b_runs = {name: evaluate(work, data, b, None, f"b{i}")
+        b_runs = {name: evaluate(work, data, b, None, f"b{i}", args.airframe)
                   for i, (name, data) in enumerate(sets.items())}
         seeds = []
         for seed in args.seeds:
             t = train(work, a, sets["test_log"], seed, train_options(args))
             print(f"seed {seed}: {t['verdict']} ({t['train_s']:.0f} s)", flush=True)
-            scored = {name: score(evaluate(work, data, a, t["weights"], f"s{seed}_{i}"),
+            scored = {name: score(evaluate(work, data, a, t["weights"], f"s{seed}_{i}",
+                                           args.airframe),
                                   b_runs[name])
                       for i, (name, data) in enumerate(sets.items())}
             seeds.append({k: v for k, v in t.items() if k != "weights"} | {"scores": scored})
     return {"benchmark": "turning_correction", "machine": machine(),
-            "command": "PYTHONPATH=. python analysis/turning_correction.py --out "
-                       "docs/benchmarks" + "".join(f" {o}" for o in train_options(args)),
-            "airframe": "examples/trainer.toml (truth: tests.campaign_flights.truth_airframe)",
+            "command": command(args),
+            "airframe": f"{shown(args.airframe)} (truth: "
+                        "tests.campaign_flights.truth_airframe)",
             "flights": {"campaign_seeds": [1, 2, 3, 4], "campaign_rates_hz": list(RATES),
                         "unseen_seeds": args.unseen_seeds, "duration_s": args.duration},
             "params_a": PARAMS, "term": TERM, "term_value_b": b_value,
@@ -200,12 +222,16 @@ def _interval(stats: dict, key: str) -> str:
 
 def markdown(doc: dict) -> str:
     options = " ".join(doc["train_options"])
+    name = doc["airframe"].split(" (")[0]
+    other = name != shown(AIRFRAME)
     lines = ["# The correction on imported turning flights"
+             + (f": {Path(name).stem}" if other else "")
              + (f" (train {options})" if options else ""), "",
              f"Written by `{doc['command']}` ({doc['wall_s'] / 60:.0f} min on a "
              f"{doc['machine']['cpu_count']}-core machine, load "
-             f"{doc['machine']['load_average'][0]:.1f} at the start). The example trainer's "
-             "turning campaign (`tests/turning_flights.py`: coordinated turns the pitch-plane "
+             f"{doc['machine']['load_average'][0]:.1f} at the start). "
+             + (f"`{name}`'s" if other else "The example trainer's")
+             + " turning campaign (`tests/turning_flights.py`: coordinated turns the pitch-plane "
              "dynamics feel, climbs, wind, turbulence, sensor noise), imported with `--turns`; "
              f"(a) identified with `{doc['params_a']}`, the correction trained on (a) at the "
              "defaults" + "".join(f" {o}" for o in doc["train_options"])
@@ -244,6 +270,9 @@ def main() -> int:
                         help="seeds of the flights the pipeline never sees")
     parser.add_argument("--stability-trims", choices=STABILITY_TRIMS, default=None,
                         help="uavdyn train --stability-trims (default: train's own)")
+    parser.add_argument("--airframe", default=AIRFRAME,
+                        help="the nominal airframe whose truth flies the campaign (default "
+                             "%(default)s; another needs Jx, Jz, Jxz for the turns)")
     parser.add_argument("--structure-auto", action="store_true",
                         help="(b) from identify --structure auto (about 15 min) instead of "
                              f"adding {TERM}")
