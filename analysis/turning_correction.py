@@ -28,6 +28,11 @@ error the correction removes, the share of the term's gain it recovers, both wit
 bootstrap intervals over stretches, and the stretches it makes more than 2 % worse::
 
     PYTHONPATH=. python analysis/turning_correction.py --out docs/benchmarks
+
+``--airframe FILE`` flies the same campaign with another airframe's truth (the file needs
+``Jx, Jz, Jxz`` for the turns; ``examples/alfa_t28.toml``), written as
+``turning_correction[_stability_X]_<name>``; with ``--structure-auto`` (b) is what the
+structure search keeps on that campaign, the term to recover unchosen by hand.
 """
 
 from __future__ import annotations
