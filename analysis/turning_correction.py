@@ -168,18 +168,23 @@ def out_stem(args) -> str:
     """The file name: the defaults', or the option's; another airframe's with its name."""
     stem = ("turning_correction" if args.stability_trims is None
             else f"turning_correction_stability_{args.stability_trims}")
-    return stem if args.airframe == AIRFRAME else f"{stem}_{Path(args.airframe).stem}"
+    return stem if is_default(args.airframe) else f"{stem}_{Path(args.airframe).stem}"
+
+
+def is_default(airframe) -> bool:
+    """Whether ``airframe`` names the example trainer's file (however it is written)."""
+    return Path(airframe).resolve() == Path(AIRFRAME).resolve()
 
 
 def shown(airframe) -> str:
     """An airframe file as the command line names it (the default relative to the root)."""
-    return "examples/trainer.toml" if airframe == AIRFRAME else str(airframe)
+    return "examples/trainer.toml" if is_default(airframe) else str(airframe)
 
 
 def command(args) -> str:
     """The command that writes this run's files into docs/benchmarks."""
     return ("PYTHONPATH=. python analysis/turning_correction.py --out docs/benchmarks"
-            + ("" if args.airframe == AIRFRAME else f" --airframe {args.airframe}")
+            + ("" if is_default(args.airframe) else f" --airframe {args.airframe}")
             + (" --structure-auto" if args.structure_auto else "")
             + "".join(f" {o}" for o in train_options(args)))
 

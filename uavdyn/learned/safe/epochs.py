@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from uavdyn.interrupts import CheckedBar
-from uavdyn.learned.safe.config import SafeConfig
+from uavdyn.learned.safe.config import SafeConfig, SafeSetup
 from uavdyn.learned.safe.data import WindowTensors
 from uavdyn.learned.safe.scoring import (
     Predictor,
@@ -25,7 +25,12 @@ from uavdyn.learned.safe.scoring import (
     score,
 )
 from uavdyn.learned.safe.twin import CompiledTwin
-from uavdyn.learned.stability import TrimSample, stability_penalty
+from uavdyn.learned.stability import (
+    TrimSample,
+    body_abscissa,
+    stability_penalty,
+    training_target,
+)
 from uavdyn.learned.torch_model import TorchCorrection, seeded_generator
 
 
@@ -76,6 +81,16 @@ class StabilityTargets:
 
     trims: list[TrimSample]
     targets: list[float]
+
+    @classmethod
+    def at(cls, setup: SafeSetup, trims: list[TrimSample]) -> StabilityTargets:
+        """The training target of each of ``trims`` (from the physics' own abscissa there)."""
+        phys, dt = setup.physics, setup.dt
+        jp = phys.jacobians()
+        sigma = [body_abscissa(np.array(jp(t.z[:phys.nx], t.u, t.p, dt)[1]), dt)[0]
+                 for t in trims]
+        margin = setup.config.stability_margin
+        return cls(trims, [training_target(x, margin) for x in sigma])
 
 
 @dataclass(frozen=True)

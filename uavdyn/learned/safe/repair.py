@@ -17,6 +17,7 @@ import numpy as np
 
 from uavdyn.learned.safe.epochs import EpochLoop, EpochRun, StabilityTargets, TrainingData
 from uavdyn.learned.safe.selection import Checks, Search, search
+from uavdyn.learned.stability import TrimSample
 
 
 @dataclass(frozen=True)
@@ -63,7 +64,7 @@ def repair_candidate(found: Search, full_scale: float) -> dict | None:
 
 
 def stability_repair(checks: Checks, run: EpochRun, found: Search, data: TrainingData,
-                     every_trim: StabilityTargets, rng: np.random.Generator, start: float,
+                     check_trims: list[TrimSample], rng: np.random.Generator, start: float,
                      name: str) -> tuple[Search, EpochRun, Repair | None]:
     """The search's result after a repair (unchanged where there is nothing to repair).
 
@@ -73,8 +74,9 @@ def stability_repair(checks: Checks, run: EpochRun, found: Search, data: Trainin
         The final checks, the training run and what :func:`search` found on it.
     data : TrainingData
         What the epochs trained on.
-    every_trim : StabilityTargets
-        The penalty's targets at every trim the exact check runs at.
+    check_trims : list of TrimSample
+        Every trim the exact check runs at (the repair's penalty holds them all; their
+        targets are computed only when a repair is made).
     rng, start, name
         The run's generator, start time and airframe name (progress bar).
 
@@ -90,6 +92,7 @@ def stability_repair(checks: Checks, run: EpochRun, found: Search, data: Trainin
     if row is None or cfg.repair_epochs <= 0:
         return found, run, None
     t0 = time.perf_counter()
+    every_trim = StabilityTargets.at(checks.setup, check_trims)
     snapshot = next(s for s in run.snapshots if s.epoch == row["epoch"])
     checks.model.load_state_dict(snapshot.state)
     checks.scale(1.0, np.ones(len(checks.layout.bound)))

@@ -36,23 +36,10 @@ from uavdyn.learned.safe.selection import Checks, RunFacts, SeenSorties, fallbac
 from uavdyn.learned.safe.twin import CompiledTwin, FittedStartPredictor
 from uavdyn.learned.safe.verdict import kept_reason, refusal_reason, validation_summary
 from uavdyn.learned.stability import (
-    TrimSample,
-    body_abscissa,
     gate_trims,
     penalty_trims,
-    training_target,
 )
 from uavdyn.learned.torch_model import TorchCorrection, seeded_generator
-
-
-def _stability_targets(setup: SafeSetup, trims: list[TrimSample]) -> StabilityTargets:
-    """The training target of each trim the penalty holds the network at."""
-    phys, dt = setup.physics, setup.dt
-    jp = phys.jacobians()
-    sigma = [body_abscissa(np.array(jp(t.z[:phys.nx], t.u, t.p, dt)[1]), dt)[0]
-             for t in trims]
-    margin = setup.config.stability_margin
-    return StabilityTargets(trims, [training_target(s, margin) for s in sigma])
 
 
 def _seen_sorties(tr: TrainingWindows, sorties: list[Sortie], noise: np.ndarray,
@@ -140,7 +127,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     gates = gate_trims(airframe, scaling.envelope, StateLayout(setup.structure,
                                                                 setup.memory_tau),
                        airspeed_input=airspeed_input(airframe.kind, setup.layout.inputs))
-    stab = _stability_targets(setup, penalty_trims(gates, cfg.stability_trims))
+    stab = StabilityTargets.at(setup, penalty_trims(gates, cfg.stability_trims))
     twin = (CompiledTwin(model, setup.horizon, dt, scales.state, scales.growth)
             if cfg.compiled and find_compiler() is not None else None)
     fitted = fitter = None
@@ -174,8 +161,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                                                     physics_sim, scales, fitter, twin))
     found = search(checks, run)
     if cfg.stability_trims == "repair":
-        found, run, _ = stability_repair(checks, run, found, data,
-                                         _stability_targets(setup, gates.all), loop.rng, start,
+        found, run, _ = stability_repair(checks, run, found, data, gates.all, loop.rng, start,
                                          airframe.name)
     chosen, tried = found.chosen, found.tried
     if chosen is None:
