@@ -1,0 +1,178 @@
+"""Where along a knockout case's test sortie does the corrected model go wrong, and had any
+training flight been there? (issue 40: the test sorties a correction makes worse).
+
+For each chosen sortie of one case of ``analysis/bench_knockout.py``: every model's one-step
+pitch-acceleration error along the TRUE states (the emulator's noise-free record, the commands
+as flown), ``(q_next_predicted - q_next_true) / dt`` for the model identified without the term
+(a), with it (b) and the corrected one, averaged over windows of the sortie, beside the flight
+condition of each window (airspeed, flight-path angle, commands). A one-step error of a model
+held steady is its moment imbalance at that state: where the corrected model's grows while
+(a)'s and (b)'s stay small, the network's output is wrong there. The same numbers for every
+steady window of the training sorties (pitch rate and every command within a small band over
+the window) show which steady flight conditions the correction was trained on.
+
+    python analysis/knockout_residuals.py --knockout docs/benchmarks/bench_knockout.json \
+        --case trainer2m/alpha_dot --weights-dir W --out residuals.json
+
+``W`` is the case's ``--weights-dir`` (the kept network and the identified airframe (a) it was
+trained on); the model (b) is rebuilt from the case's recorded estimates. Prints a table and
+writes JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_knockout as knockout  # noqa: E402
+
+from uavdyn import physics_step  # noqa: E402
+from uavdyn.airframes.loader import load_airframe  # noqa: E402
+from uavdyn.learned.hybrid import hybrid_step  # noqa: E402
+from uavdyn.learned.weights import load_weights  # noqa: E402
+
+STEADY_Q_BAND = 0.01        # rad/s: pitch rate spread over a steady window
+STEADY_COMMAND_BAND = 0.01  # each command's spread over a steady window (its own units)
+
+
+def one_step_errors(model, sortie) -> np.ndarray:
+    """``(N-1,)`` one-step pitch-acceleration errors of ``model`` along the sortie's true
+    states (its extra states started from the commands flown)."""
+    body, controls = sortie.true_states, sortie.controls
+    dt = float(sortie.dt)
+    z = model.initial_state(body, controls, None, dt)
+    step = model.function.map(len(z) - 1)
+    params = np.tile(np.asarray(model.p, float)[:, None], (1, len(z) - 1))
+    z_next = np.asarray(step(z[:-1].T, controls[:-1].T, params, dt))
+    return (z_next[2] - body[1:, 2]) / dt
+
+
+def windows(sortie, errors: dict[str, np.ndarray], width_s: float) -> list[dict]:
+    """Per window of ``width_s``: each model's mean and RMS one-step error, the flight
+    condition, and whether the window is steady."""
+    body, controls = sortie.true_states[1:], sortie.controls[1:]
+    t = sortie.time[1:] - sortie.time[0]
+    speed = np.hypot(body[:, 0], body[:, 1])
+    gamma = body[:, 3] - np.arctan2(body[:, 1], body[:, 0])
+    out = []
+    for start in np.arange(0.0, t[-1] - 0.5 * width_s, width_s):
+        sel = (t >= start) & (t < start + width_s)
+        if not np.any(sel):
+            continue
+        steady = (np.ptp(body[sel, 2]) < STEADY_Q_BAND
+                  and all(np.ptp(controls[sel, j]) < STEADY_COMMAND_BAND
+                          for j in range(controls.shape[1])))
+        out.append({"start_s": float(start), "steady": bool(steady),
+                    "airspeed_mps": float(speed[sel].mean()),
+                    "gamma_deg": float(np.degrees(gamma[sel].mean())),
+                    "commands": [float(c) for c in controls[sel].mean(axis=0)],
+                    **{f"mean_{k}": float(e[sel].mean()) for k, e in errors.items()},
+                    **{f"rms_{k}": float(np.sqrt(np.mean(e[sel] ** 2)))
+                       for k, e in errors.items()}})
+    return out
+
+
+def models_of(case: dict, weights_dir: Path) -> dict:
+    """The case's three steps: (a) and its kept correction from the weights folder, (b) from
+    the nominal airframe with the recorded estimates of the fit with the term."""
+    stem = case["airframe_name"] + "_" + case["term"]
+    af_a = load_airframe(weights_dir / f"{stem}.toml")
+    net = load_weights(weights_dir / f"{stem}.npz", af_a)
+    nominal = load_airframe(knockout.airframe_ref(case["airframe"])[0])
+    est = case["identify"]["with"]["estimates"]
+    af_b = nominal.replace(**{name: e["value"] for name, e in est.items()})
+    return {"a": physics_step(af_a), "b": physics_step(af_b),
+            "corrected": hybrid_step(net, af_a)}
+
+
+def worse_sorties(case: dict) -> list[str]:
+    """The test sorties the correction made more than 2 % worse than (a)."""
+    return [r["sortie"] for r in case.get("per_sortie", [])
+            if r["rmse_1s_corrected"] > 1.02 * r["rmse_1s_a"]]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--knockout", required=True, type=Path, help="bench_knockout JSON")
+    ap.add_argument("--case", required=True, help="case label, e.g. trainer2m/alpha_dot")
+    ap.add_argument("--weights-dir", required=True, type=Path,
+                    help="the case's --weights-dir (network and identified airframe (a))")
+    ap.add_argument("--sorties", nargs="+", default=None,
+                    help="test sorties to show (default: those made worse by > 2 %%)")
+    ap.add_argument("--window", type=float, default=3.0, help="window length in s")
+    ap.add_argument("--out", type=Path, default=None, help="result JSON")
+    args = ap.parse_args(argv)
+    doc = json.loads(args.knockout.read_text())
+    case = doc["cases"].get(args.case)
+    if case is None or case.get("status") != "done":
+        print(f"error: {args.knockout}: no finished case '{args.case}'", file=sys.stderr)
+        return 2
+    if not case["correction"].get("kept"):
+        print(f"error: {args.case}: no correction kept, nothing to show", file=sys.stderr)
+        return 2
+    ds = knockout.load_dataset(case["dataset"]["folder"])
+    if case["dataset"]["resplit"]["balance_conditions"]:
+        knockout.deal_conditions_by_mission(ds)
+    models = models_of(case, args.weights_dir)
+    by_name = {s.name: s for s in ds.sorties}
+    chosen = args.sorties or worse_sorties(case)
+    command = ["python analysis/knockout_residuals.py"] + list(argv or sys.argv[1:])
+    result = {"command": " ".join(command),
+              "case": args.case, "window_s": args.window, "sorties": {}, "train_steady": []}
+    for name in chosen:
+        sortie = by_name[name]
+        errors = {k: one_step_errors(m, sortie) for k, m in models.items()}
+        result["sorties"][name] = {
+            "mission": sortie.mission, "condition": sortie.meta.get("condition"),
+            "rms": {k: float(np.sqrt(np.mean(e ** 2))) for k, e in errors.items()},
+            "windows": windows(sortie, errors, args.window)}
+    for sortie in ds.split("train"):
+        errors = {k: one_step_errors(m, sortie) for k, m in models.items()}
+        result["train_steady"] += [{"sortie": sortie.name, **w}
+                                   for w in windows(sortie, errors, args.window) if w["steady"]]
+    result["train_steady_range"] = steady_range(result["train_steady"])
+    print_table(result)
+    if args.out:
+        knockout.write_atomic(args.out, json.dumps(knockout.json_safe(result), indent=1))
+    return 0
+
+
+def steady_range(rows: list[dict]) -> dict:
+    """The least and greatest airspeed, flight-path angle and each command over the steady
+    training windows (None where there are none)."""
+    if not rows:
+        return {"airspeed_mps": None, "gamma_deg": None, "commands": None}
+    cmds = np.array([r["commands"] for r in rows])
+    return {key: [min(r[key] for r in rows), max(r[key] for r in rows)]
+            for key in ("airspeed_mps", "gamma_deg")} | {
+        "commands": [[float(c.min()), float(c.max())] for c in cmds.T]}
+
+
+def print_table(result: dict) -> None:
+    """The windows as text: one row each, the models' mean one-step errors in rad/s^2."""
+    def row(label: str, w: dict) -> str:
+        cmds = " ".join(f"{c:+.3f}" for c in w["commands"])
+        return (f"{label:16s} V {w['airspeed_mps']:5.2f} gamma {w['gamma_deg']:+5.1f} "
+                f"cmd {cmds}  a {w['mean_a']:+.3f}  b {w['mean_b']:+.3f}  "
+                f"corrected {w['mean_corrected']:+.3f}{'  steady' if w['steady'] else ''}")
+    for name, s in result["sorties"].items():
+        print(f"{name} ({s['mission']}, {s['condition']}): mean one-step pitch-acceleration "
+              "error per window (rad/s^2); RMS over the sortie "
+              + ", ".join(f"{k} {v:.4f}" for k, v in s["rms"].items()))
+        for w in s["windows"]:
+            print(row(f"  {w['start_s']:4.0f} s", w))
+    span = result["train_steady_range"]
+    print("steady windows of the training sorties"
+          + (f" (gamma {span['gamma_deg'][0]:+.1f} to {span['gamma_deg'][1]:+.1f} deg):"
+             if span["gamma_deg"] else ": none"))
+    for w in result["train_steady"]:
+        print(row(f"  {w['sortie']} {w['start_s']:.0f}", w))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
