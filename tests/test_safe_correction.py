@@ -18,7 +18,7 @@ import torch
 from uavdyn.airframes import load_airframe
 from uavdyn.integrate import StateLayout, physics_step
 from uavdyn.learned import CorrectionNet, hybrid_step, load_weights, save_weights
-from uavdyn.learned.envelope import Envelope, smoothstep
+from uavdyn.learned.envelope import Envelope, SteadyBox, smoothstep, steady_samples
 from uavdyn.learned.stability import check_map_stability, envelope_trims
 from uavdyn.learned.torch_model import TorchCorrection
 from uavdyn.linear import trim
@@ -194,6 +194,61 @@ def test_the_gate_reaches_as_far_as_the_training_and_validation_data_do():
     assert constant.fade[1] > 0 and constant.gate(np.array([[0.5], [3.0]]))[0] == 1.0
 
 
+@pytest.mark.parametrize("form", ["distance", "product"])
+def test_the_steady_box_gates_steady_flight_only(form):
+    """``SteadyBox``: inputs (x, q) with x in [0, 1] trained on, steady flight (|q| <= 0.1)
+    only at x in [0, 0.5] (fading out by 0.6). Steady at x = 0.8 the gate is 0; manoeuvring
+    there (|q| beyond sqrt(2) x 0.1) it is the box's 1; between, it blends smoothly; the
+    rate input itself is not held to the steady range."""
+    steady = SteadyBox(np.array([0.0, -0.1]), np.array([0.5, 0.1]), np.array([10.0, 0.0]),
+                       np.array([0.0, 10.0]))
+    env = Envelope(np.array([0.0, -1.0]), np.array([1.0, 1.0]), np.array([0.5, 0.5]), steady)
+    x = np.array([[0.3, 0.8, 0.8, 0.8, 0.55], [0.0, 0.0, 0.05, 0.2, 0.0]])
+    g = env.gate(x, form=form)
+    np.testing.assert_array_equal(g[:4], [1.0, 0.0, 0.0, 1.0])
+    assert 0.0 < g[4] < 1.0                                       # in the steady fade
+    blend = env.gate(np.array([[0.8], [0.12]]), form=form)[0]     # between steady and not
+    assert 0.0 < blend < 1.0
+    plain = Envelope(env.low, env.high, env.fade)
+    np.testing.assert_array_equal(plain.gate(x, form=form), 1.0)  # the box alone lets all act
+    assert env.terms().shape == (7, 2) and plain.terms().shape == (3, 2)
+
+
+def test_steady_samples_are_held_steady_not_passing_through_zero():
+    """A held segment is steady; a manoeuvre's pitch rate crossing zero is not; the hold
+    does not reach across sorties."""
+    t = np.arange(0.0, 10.0, 0.1)
+    rate = np.where(t < 5.0, 0.01, np.sin(2.0 * t))
+    mask = steady_samples(np.concatenate([rate, rate]), (len(t), len(t)), 5, 0.05)
+    first = mask[:len(t)]
+    assert first[:45].all() and not first[55:].any()
+    np.testing.assert_array_equal(mask[len(t):], first)  # the second sortie alike
+
+
+def test_the_trainer_builds_a_steady_box_from_held_pitch_rates_only():
+    """``safe.data.steady_box``: from windows' inputs (alpha, q_hat, V), the box of the
+    samples whose pitch rate stays within a tenth of its spread for the hold, q_hat free;
+    none where no stretch is held."""
+    from uavdyn.learned.safe.data import TrainingWindows, steady_box
+
+    n = 400
+    t = np.arange(n) * 0.01
+    q = np.where(t < 2.0, 0.0, 0.5 * np.sin(6.0 * t))
+    alpha = np.where(t < 2.0, 0.05, 0.05 + 0.1 * np.sin(6.0 * t))
+    speed = np.where(t < 2.0, 12.0, 15.0)
+    rows = np.column_stack([alpha, q, speed])
+
+    def windows(inputs):
+        return TrainingWindows(None, None, None, None, None, None, inputs, None,
+                               sample_counts=(len(inputs),))
+
+    box = steady_box(windows(rows), windows(rows[:50]), ("alpha", "q_hat", "V"), 50, 0.0)
+    assert box.inv_fade[1] == 0.0 and box.rate[1] > 0 and box.rate[[0, 2]].tolist() == [0, 0]
+    assert box.low[2] == pytest.approx(12.0) and box.high[2] == pytest.approx(12.0)
+    assert steady_box(windows(rows[200:]), windows(rows[:50]), ("alpha", "q_hat", "V"), 50,
+                      0.0) is None
+
+
 @pytest.mark.parametrize("guard", ["distance-clamp", "product-tanh"])
 @pytest.mark.parametrize("name", ["aerosonde", "f450"])
 def test_weight_file_round_trip_and_torch_equals_casadi(name, guard, tmp_path):
@@ -227,6 +282,40 @@ def test_weight_file_round_trip_and_torch_equals_casadi(name, guard, tmp_path):
     expect = np.concatenate([U[0] + (Z[0, 4:6] - U[0]) * decay[0],
                              U[0] + (Z[0, 6:8] - U[0]) * decay[1]])
     np.testing.assert_allclose(want[0, 4:], expect, rtol=1e-14, atol=1e-14)
+
+
+def test_a_steady_box_survives_the_weight_file_and_torch_equals_casadi(tmp_path):
+    import dataclasses
+
+    airframe = load_airframe("aerosonde")
+    point = trim(airframe, None)
+    n_in = structure_of(airframe).nx() + 2 * len(MEMORY) + 2
+    env = _envelope_around(airframe, point, n_in)
+    width = env.high - env.low
+    inv_fade = 1.0 / (0.1 * width)
+    inv_fade[2] = 0.0
+    rate = np.zeros(n_in)
+    rate[2] = 1.0 / (0.05 * width[2])
+    steady = SteadyBox(env.low + 0.4 * width, env.high - 0.4 * width, inv_fade, rate)
+    net = _random_net(airframe, 5, dataclasses.replace(env, steady=steady), np.full(3, 3.0))
+    back = load_weights(save_weights(net, tmp_path / "steady.npz"), airframe)
+    for key in ("low", "high", "inv_fade", "rate"):
+        np.testing.assert_array_equal(getattr(back.envelope.steady, key), getattr(steady, key))
+    hyb = hybrid_step(back, airframe, compile=False)
+    plain = hybrid_step(dataclasses.replace(back, envelope=env), airframe, compile=False)
+    module = TorchCorrection.from_net(back, structure_of(airframe))
+    rng = np.random.default_rng(3)
+    Z = np.array([np.concatenate([point.x + [0.5, 0.3, 0.0, 0.0] * rng.normal(size=4),
+                                  np.tile(point.u, 2)]) for _ in range(20)])
+    Z[10:, 2] = 0.3 * rng.normal(size=10)  # half of them manoeuvring
+    U = np.tile(point.u, (20, 1))
+    with torch.no_grad():
+        got = module.step(torch.as_tensor(Z), torch.as_tensor(U), torch.as_tensor(airframe.p),
+                          DT).numpy()
+    want = np.array([np.array(hyb(z, u, airframe.p, DT)).ravel() for z, u in zip(Z, U)])
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    without = np.array([np.array(plain(z, u, airframe.p, DT)).ravel() for z, u in zip(Z, U)])
+    assert np.max(np.abs(want - without)) > 1e-9  # the steady box acts on these states
 
 
 def test_weight_file_names_its_guard_and_a_format_3_file_keeps_the_product_tanh_guard(tmp_path):

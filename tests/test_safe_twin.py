@@ -1,8 +1,8 @@
 """The safe trainer's compiled twin (``uavdyn.learned.safe.twin``, issue 32): on a non-preset
-fixed wing with lagged actuators and a non-preset quadrotor, with a gated and bounded network
-and command memory, its window free runs equal torch's and its loss gradient equals torch's
-autograd, to round-off; after the final checks rescale the outputs and the bound, it still
-follows the model."""
+fixed wing with lagged actuators and a non-preset quadrotor, with a gated (with and without
+the steady box) and bounded network and command memory, its window free runs equal torch's
+and its loss gradient equals torch's autograd, to round-off; after the final checks rescale
+the outputs and the bound, it still follows the model."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import torch
 from uavdyn.airframes import load_airframe
 from uavdyn.integrate import find_compiler
 from uavdyn.learned import CorrectionNet
-from uavdyn.learned.envelope import Envelope
+from uavdyn.learned.envelope import Envelope, SteadyBox
 from uavdyn.learned.formulations import CorrectionLayout, network_inputs
 from uavdyn.learned.safe.data import WindowTensors
 from uavdyn.learned.safe.scoring import WindowLoss, torch_rollout
@@ -33,7 +33,8 @@ pytestmark = pytest.mark.skipif(find_compiler() is None, reason="no C compiler")
 
 
 def _model(airframe, point, seed: int, inputs: str = "state",
-           output: str = "acceleration", linear: bool = False) -> TorchCorrection:
+           output: str = "acceleration", linear: bool = False,
+           steady: bool = False) -> TorchCorrection:
     structure = structure_of(airframe)
     n_state = structure.nx() + 2 * len(MEMORY)
     layout = CorrectionLayout(structure, MEMORY, inputs=inputs, output=output)
@@ -55,10 +56,22 @@ def _model(airframe, point, seed: int, inputs: str = "state",
         airframe_hash=airframe.param_hash(), dt=DT, weights=weights, biases=biases,
         in_mean=centre, in_scale=width, out_mean=np.zeros(3), out_scale=np.array([0.5, 2, 3]),
         n_state=n_state, memory_tau=MEMORY,
-        envelope=Envelope(centre - width, centre + width, 0.5 * width),
+        envelope=Envelope(centre - width, centre + width, 0.5 * width,
+                          _steady_box(centre, width) if steady else None),
         out_bound=np.array([1.0, 3.0, 2.0]), inputs=inputs, output=output,
         skip=rng.normal(0, 0.3, (3, n_in)) if linear else None)
     return TorchCorrection.from_net(net, structure)
+
+
+def _steady_box(centre: np.ndarray, width: np.ndarray) -> SteadyBox:
+    """A steady box a third of the envelope's width about the trim, the pitch-rate input
+    (third) free and weighing the steadiness over a twentieth of its width: the windows'
+    pitch rates cross from steady to manoeuvring."""
+    inv_fade = 1.0 / (0.2 * width)
+    inv_fade[2] = 0.0
+    rate = np.zeros(len(width))
+    rate[2] = 1.0 / (0.05 * width[2])
+    return SteadyBox(centre - 0.3 * width, centre + 0.3 * width, inv_fade, rate)
 
 
 def structure_layout_state(airframe, point):
@@ -80,24 +93,30 @@ def _windows(airframe, point, seed: int) -> WindowTensors:
     return WindowTensors(*t)
 
 
-@pytest.mark.parametrize("file, speed, inputs, output, linear", [
-    ("trainer.toml", None, "state", "acceleration", False),
-    ("trainer.toml", None, "physical", "coefficient", True),
-    ("x500.toml", 0.0, "state", "acceleration", True),
-    ("x500.toml", 0.0, "physical", "acceleration", False)])
-def test_twin_free_runs_and_gradients_equal_torchs(file, speed, inputs, output, linear):
+@pytest.mark.parametrize("file, speed, inputs, output, linear, steady", [
+    ("trainer.toml", None, "state", "acceleration", False, False),
+    ("trainer.toml", None, "physical", "coefficient", True, True),
+    ("x500.toml", 0.0, "state", "acceleration", True, False),
+    ("x500.toml", 0.0, "physical", "acceleration", False, True)])
+def test_twin_free_runs_and_gradients_equal_torchs(file, speed, inputs, output, linear, steady):
     airframe = load_airframe(EXAMPLES / file)
     if airframe.kind == "fixed_wing":  # lagged, rate-limited actuators: an augmented state
         airframe = airframe.replace(tau_elevator=0.04, tau_throttle=0.15, slew_throttle=0.5)
     point = trim(airframe, speed)
-    model = _model(airframe, point, 7, inputs, output, linear)
+    model = _model(airframe, point, 7, inputs, output, linear, steady)
     assert (model.skip is not None) == linear
+    assert (model.envelope.steady is not None) == steady
     D = _windows(airframe, point, 4)
     scale, growth = np.array([1.0, 0.5, 0.1, 0.05]), np.linspace(1.0, 3.0, H)
     twin = CompiledTwin(model, H, DT, scale, growth)
     with torch.no_grad():
         expected = torch_rollout(model, D.z0, D.u, D.p.T, DT).numpy()
     np.testing.assert_allclose(twin.predict(model, D), expected, rtol=1e-11, atol=1e-11)
+    if steady:  # the steady box changes these windows' flight (the test is not vacuous)
+        with torch.no_grad():
+            plain = torch_rollout(_model(airframe, point, 7, inputs, output, linear),
+                                  D.z0, D.u, D.p.T, DT).numpy()
+        assert np.max(np.abs(plain - expected)) > 1e-6
 
     loss = WindowLoss(torch.as_tensor(scale), torch.as_tensor(growth), 0.3, DT)
     model.zero_grad()

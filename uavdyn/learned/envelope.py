@@ -54,6 +54,37 @@ def outside_distances(inp, terms, ops=NUMPY_OPS) -> list:
     return [ops.fabs(inp[i] - mid[i]) * r[i] - half[i] * r[i] for i in range(mid.shape[0])]
 
 
+def gate_of_terms(inp, terms, ops=NUMPY_OPS, form: str = GUARDS[DEFAULT_GUARD][0]):
+    """The gate from an envelope's :meth:`Envelope.terms` (numbers or symbols): the box's
+    gate ``g``, and where the terms hold a steady box (rows 3-6, :class:`SteadyBox`),
+    ``g (1 - s (1 - g_steady))`` with the steadiness ``s = 1 - smoothstep(r^2 - 1)`` of
+    ``r^2 = sum_i (rate_i x_i)^2``: 1 while the pitch rate is within the steady flight's, 0
+    from sqrt(2) times it; in manoeuvres the steady box has no say."""
+    gate = gate_of_distances(outside_distances(inp, terms[:3], ops), ops, form)
+    if len(terms) <= 3:
+        return gate
+    steady_gate = gate_of_distances(outside_distances(inp, terms[3:6], ops), ops, form)
+    rate = terms[6]
+    r2 = pairwise_sum([(inp[i] * rate[i]) ** 2 for i in range(rate.shape[0])])
+    steadiness = 1.0 - smoothstep(r2 - 1.0, ops)
+    return gate * (1.0 - steadiness * (1.0 - steady_gate))
+
+
+def steady_samples(rate: np.ndarray, counts: tuple[int, ...], hold: int, limit: float
+                   ) -> np.ndarray:
+    """Which samples ``(N,)`` lie in steady flight: the rate input ``rate`` (the sorties'
+    samples one after another, ``counts`` per sortie) within ``limit`` over ``hold`` samples
+    either side (a pitch rate passing through zero in a manoeuvre is not steady flight)."""
+    out, at = [], 0
+    for n in counts:
+        mag = np.abs(np.asarray(rate[at:at + n], float))
+        padded = np.pad(mag, hold, mode="edge")
+        worst = np.lib.stride_tricks.sliding_window_view(padded, 2 * hold + 1).max(axis=1)
+        out.append(worst <= limit)
+        at += n
+    return np.concatenate(out) if out else np.zeros(0, bool)
+
+
 def gate_of_distances(d: list, ops=NUMPY_OPS, form: str = GUARDS[DEFAULT_GUARD][0]):
     """:meth:`Envelope.gate` from the distances of :func:`outside_distances`."""
     if form == "distance":
@@ -66,6 +97,58 @@ def gate_of_distances(d: list, ops=NUMPY_OPS, form: str = GUARDS[DEFAULT_GUARD][
             out = out * (1.0 - smoothstep(di, ops))
         return out
     raise ValueError(f"unknown gate form '{form}'; expected distance or product")
+
+
+@dataclass(frozen=True)
+class SteadyBox:
+    """Where the training data held steady flight: per input the range ``[low, high]`` of its
+    steady samples and the inverse fade beyond it (0: the input is not held to it, as the
+    rates, which a steady flight has at zero), and per input the weight ``rate`` of the
+    steadiness measure (one over the steady flight's largest pitch rate for the rate input,
+    0 for every other). :func:`gate_of_terms` lets the correction act in steady flight only
+    inside this box: a network fits the moment balance of the steady conditions it was
+    trained on, and between them it has only manoeuvres, where that balance is not seen
+    (issue 40: a calm survey's steady descent at a power no training flight held, made 39 %
+    worse; ``analysis/knockout_residuals.py``)."""
+
+    low: np.ndarray
+    high: np.ndarray
+    inv_fade: np.ndarray
+    rate: np.ndarray
+
+    def __post_init__(self) -> None:
+        arrays = [np.asarray(v, float).ravel() for v in (self.low, self.high, self.inv_fade,
+                                                         self.rate)]
+        if len({len(a) for a in arrays}) != 1 or not all(np.all(np.isfinite(a))
+                                                          for a in arrays):
+            raise ValueError("steady box low, high, inv_fade and rate must be finite and of "
+                             "one length")
+        if np.any(arrays[1] < arrays[0]) or np.any(arrays[2] < 0) or np.any(arrays[3] < 0) \
+                or not np.any(arrays[3] > 0):
+            raise ValueError("steady box needs low <= high, inv_fade >= 0 and a positive rate "
+                             "weight")
+        for name, a in zip(("low", "high", "inv_fade", "rate"), arrays):
+            object.__setattr__(self, name, a)
+
+    @classmethod
+    def from_steady(cls, rows: np.ndarray, checked: np.ndarray | None, free: list[int],
+                    rate_index: int, quantile: float = 0.001) -> SteadyBox:
+        """The box of the steady training samples ``rows`` (``(N, n_in)``), fading as far as
+        any of them or of the steady validation samples ``checked`` lies beyond it
+        (:meth:`Envelope.from_evidence`); the inputs ``free`` (the rates) not held to it; the
+        steadiness weight one over the steady samples' largest rate input."""
+        box = Envelope.from_evidence(rows, checked, quantile)
+        inv = 1.0 / box.fade
+        inv[list(free)] = 0.0
+        rate = np.zeros(box.n_in)
+        limit = float(np.quantile(np.abs(rows[:, rate_index]), 1.0 - quantile))
+        rate[rate_index] = 1.0 / max(limit, 1e-12)
+        return cls(box.low, box.high, inv, rate)
+
+    def terms(self) -> np.ndarray:
+        """``(4, n_in)``: centres, half widths, inverse fades and rate weights."""
+        return np.array([0.5 * (self.low + self.high), 0.5 * (self.high - self.low),
+                         self.inv_fade, self.rate])
 
 
 @dataclass(frozen=True)
@@ -83,9 +166,12 @@ class Envelope:
     low: np.ndarray
     high: np.ndarray
     fade: np.ndarray
+    steady: SteadyBox | None = None
 
     def __post_init__(self) -> None:
         low, high, fade = (np.asarray(v, float).ravel() for v in (self.low, self.high, self.fade))
+        if self.steady is not None and len(self.steady.low) != len(low):
+            raise ValueError("the steady box must have one entry per input of the envelope")
         if not (len(low) == len(high) == len(fade)) or not np.all(np.isfinite(low)) \
                 or not np.all(np.isfinite(high)) or not np.all(np.isfinite(fade)):
             raise ValueError("envelope low, high and fade must be finite and of one length")
@@ -135,10 +221,12 @@ class Envelope:
 
     def terms(self) -> np.ndarray:
         """``(3, n_in)``: each input's box centre, half width and inverse fade width, the
-        numbers :meth:`outside` uses (an input of a Function that takes them as symbols)."""
-        return np.array([[0.5 * (float(lo) + float(hi)) for lo, hi in zip(self.low, self.high)],
-                         [0.5 * (float(hi) - float(lo)) for lo, hi in zip(self.low, self.high)],
-                         [1.0 / float(f) for f in self.fade]])
+        numbers :meth:`outside` uses (an input of a Function that takes them as symbols);
+        ``(7, n_in)`` with the steady box's four rows (:meth:`SteadyBox.terms`)."""
+        box = np.array([[0.5 * (float(lo) + float(hi)) for lo, hi in zip(self.low, self.high)],
+                        [0.5 * (float(hi) - float(lo)) for lo, hi in zip(self.low, self.high)],
+                        [1.0 / float(f) for f in self.fade]])
+        return box if self.steady is None else np.vstack([box, self.steady.terms()])
 
     def outside(self, inp, ops=NUMPY_OPS) -> list:
         """Per input, the distance outside ``[low, high]`` in fade widths (negative inside),
@@ -149,7 +237,7 @@ class Envelope:
         """The gate of a feature-first block ``inp`` (``(n_in,)`` or ``(n_in, batch)``):
         ``distance`` (one smoothstep of the squared distance to the box) or ``product`` (one
         smoothstep per input); see the module docstring."""
-        return gate_of_distances(self.outside(inp, ops), ops, form)
+        return gate_of_terms(inp, self.terms(), ops, form)
 
     def fraction_outside(self, inputs: np.ndarray) -> float:
         """Share of rows of ``inputs (N, n_in)`` outside ``[low, high]`` in any input (where the

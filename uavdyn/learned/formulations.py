@@ -49,6 +49,10 @@ STATE_DIM = 4
 # variables aerodynamics depend on, computed inside the step from the physics at the step's
 # start (:func:`correction_inputs`).
 INPUT_DESIGNS = ("state", "physical")
+# the inputs that are rates (zero in steady flight, whatever the condition): the steady box of
+# the gate does not hold them (uavdyn.learned.envelope.SteadyBox); a pitch rate among them
+# measures how steady the flight is
+DYNAMIC_INPUTS = ("q_hat", "alpha_dot_hat", "q")
 PHYSICAL_INPUTS = {"fixed_wing": ("alpha", "V", "q_hat", "alpha_dot_hat", "C_thrust"),
                    "multirotor": ("u", "w", "q", "thrust_per_weight", "omega_u", "omega_w",
                                   "omega_diff_u", "omega_diff_w")}

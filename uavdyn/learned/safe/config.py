@@ -116,6 +116,12 @@ class SafeConfig:
                                       # (docs/learned_correction.md, turning_correction*.json)
     repair_epochs: int = 40           # the epochs of a stability repair (stability_trims)
     envelope_quantile: float = 0.001
+    steady_gate: bool = False         # in steady flight (pitch rate held near zero) the
+                                      # correction acts only inside the box of the training
+                                      # data's steady flight (SteadyBox): between the steady
+                                      # conditions a network was trained on it has only
+                                      # manoeuvres, which do not show the moment balance
+                                      # (docs/learned_correction.md, knockout_residuals.py)
     envelope_fade: float | None = None  # how far beyond the training box the gate reaches
                                       # 0 (the exact stability check runs out to there).
                                       # None: per input, as far as any training or

@@ -19,8 +19,8 @@ from uavdyn.integrate.start_fit import (
     start_fit_summary,
     with_starts,
 )
-from uavdyn.learned.envelope import Envelope
-from uavdyn.learned.formulations import CorrectionLayout, network_inputs
+from uavdyn.learned.envelope import Envelope, SteadyBox, steady_samples
+from uavdyn.learned.formulations import DYNAMIC_INPUTS, CorrectionLayout, network_inputs
 from uavdyn.learned.safe.config import SafeConfig, SafeSetup, SafeTrainingError
 from uavdyn.learned.torch_model import DTYPE
 from uavdyn.linear.stiffness import step_stiffness
@@ -46,6 +46,7 @@ class TrainingWindows:
     gains: np.ndarray    # (W, 3) what turns the network's outputs into accelerations at
                          # each window's start (1 for an acceleration output)
     start_fit: dict | None = None  # how the physics fitted the starts (start_fit_span)
+    sample_counts: tuple[int, ...] = ()  # samples of each sortie in ``inputs``, in order
 
     @property
     def sortie(self) -> np.ndarray:
@@ -102,7 +103,8 @@ def training_windows(airframe: Airframe, setup: SafeSetup, sorties: list[Sortie]
     pred = _physics_prediction(physics_sim, z0[:, :layout.n_physics], windows.u, p,
                                setup.sample_dt)
     _check_physics_flies(pred.transpose(2, 0, 1), airframe, setup.sample_dt, H)
-    return TrainingWindows(windows, z0, windows.u, windows.y, p, pred, inputs, gains)
+    return TrainingWindows(windows, z0, windows.u, windows.y, p, pred, inputs, gains,
+                           sample_counts=tuple(len(f) for f, _ in features))
 
 
 def _physics_prediction(physics_sim, z0: np.ndarray, u: np.ndarray, p: np.ndarray,
@@ -150,6 +152,12 @@ def _check_physics_flies(pred: np.ndarray, airframe: Airframe, dt: float, horizo
                             f"states{why}")
 
 
+STEADY_RATE_SHARE = 0.1  # a steady sample's pitch rate input: within this share of its spread
+# over the training data (the trainer's level survey legs hold about 0.03 of it, its
+# manoeuvres pass through it for a few samples only)
+STEADY_HOLD_S = 1.0      # ... held this long either side of the sample
+
+
 @dataclass(frozen=True)
 class NetworkScaling:
     """The network's input normalisation, envelope and output scale and bound, from the
@@ -166,11 +174,30 @@ class NetworkScaling:
         return replace(setup.layout, gate=self.envelope.gate, bound=self.bound)
 
 
+def steady_box(tr: TrainingWindows, va: TrainingWindows, names: tuple[str, ...],
+               hold: int, quantile: float) -> SteadyBox | None:
+    """The box of the steady flight in the training data (:class:`SteadyBox`), fading as far
+    as the steady validation samples reach; None where the training data hold no steady
+    stretch of ``2 hold + 1`` samples. A sample is steady while its pitch rate input stays
+    within ``STEADY_RATE_SHARE`` of that input's spread over the training data for ``hold``
+    samples either side."""
+    rate = names.index("q_hat") if "q_hat" in names else names.index("q")
+    free = [i for i, n in enumerate(names) if n in DYNAMIC_INPUTS]
+    limit = STEADY_RATE_SHARE * float(np.std(tr.inputs[:, rate]))
+    mask = steady_samples(tr.inputs[:, rate], tr.sample_counts, hold, limit)
+    if mask.sum() < 2 * hold + 1:
+        return None
+    mask_va = steady_samples(va.inputs[:, rate], va.sample_counts, hold, limit)
+    return SteadyBox.from_steady(tr.inputs[mask], va.inputs[mask_va] if mask_va.any() else None,
+                                 free, rate, quantile)
+
+
 def network_scaling(tr: TrainingWindows, cfg: SafeConfig, dt: float,
-                    checked: np.ndarray | None = None) -> NetworkScaling:
+                    checked: np.ndarray | None = None, steady: SteadyBox | None = None
+                    ) -> NetworkScaling:
     """:class:`NetworkScaling` of the training windows ``tr``; ``checked``: the network's
     inputs on the validation data, which with ``tr``'s set how far the gate reaches
-    (``cfg.envelope_fade`` None)."""
+    (``cfg.envelope_fade`` None); ``steady``: the steady box the gate adds (None: none)."""
     rows = tr.inputs
     in_mean = rows.mean(axis=0)
     in_scale = rows.std(axis=0)
@@ -179,6 +206,8 @@ def network_scaling(tr: TrainingWindows, cfg: SafeConfig, dt: float,
         envelope = Envelope.from_evidence(rows, checked, cfg.envelope_quantile)
     else:
         envelope = Envelope.from_samples(rows, cfg.envelope_quantile, cfg.envelope_fade)
+    if steady is not None:
+        envelope = replace(envelope, steady=steady)
     # the residual acceleration of the first step, in the network's output units
     one_step = (tr.y[:, 0, :3] - tr.physics[:, 0, :3]) / dt / tr.gains
     out_scale = np.sqrt(np.mean(one_step**2, axis=0))

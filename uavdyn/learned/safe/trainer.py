@@ -17,6 +17,7 @@ from uavdyn.learned.formulations import airspeed_input
 from uavdyn.learned.rules import state_noise
 from uavdyn.learned.safe.config import SafeConfig, SafeResult, SafeSetup, safe_setup
 from uavdyn.learned.safe.data import (
+    STEADY_HOLD_S,
     LossScales,
     TrainingWindows,
     WindowTensors,
@@ -25,6 +26,7 @@ from uavdyn.learned.safe.data import (
     physics_fitted,
     physics_rollout,
     start_fit_span,
+    steady_box,
     training_windows,
     window_tensors,
 )
@@ -110,7 +112,10 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     if span:
         va = physics_fitted(va, setup, physics_sim, val_noise)
     fits = {"validation": va.start_fit} if span else {}
-    scaling = network_scaling(tr, cfg, dt, va.inputs)  # from the records' own starts
+    steady = (steady_box(tr, va, setup.layout.input_names(),
+                         max(1, round(STEADY_HOLD_S / setup.sample_dt)), cfg.envelope_quantile)
+              if cfg.steady_gate else None)
+    scaling = network_scaling(tr, cfg, dt, va.inputs, steady)  # from the records' own starts
     layout = scaling.layout(setup)
     if span and cfg.train_start_fit:
         tr = physics_fitted(tr, setup, physics_sim, train_noise)

@@ -25,7 +25,7 @@ import torch
 from uavdyn.integrate import compile_function, rollout
 from uavdyn.integrate.compiler import QUICK_FLAGS
 from uavdyn.integrate.start_fit import StartFits, fit_starts, start_fit_function, with_starts
-from uavdyn.learned.envelope import GUARDS, gate_of_distances, outside_distances
+from uavdyn.learned.envelope import GUARDS, gate_of_terms
 from uavdyn.learned.mlp import mlp_forward
 from uavdyn.learned.safe.data import WindowTensors
 from uavdyn.learned.stability import TrimSample
@@ -71,8 +71,8 @@ def _unpack(vector, shapes: _Shapes) -> tuple[list, list]:
 
 
 def _gate(inp, ops, terms: tuple, form: str):
-    """The envelope's gate with its numbers as symbols (:func:`gate_of_distances`)."""
-    return gate_of_distances(outside_distances(inp, terms, ops), ops, form)
+    """The envelope's gate with its numbers as symbols (:func:`gate_of_terms`)."""
+    return gate_of_terms(inp, terms, ops, form)
 
 
 class CompiledTwin:
@@ -112,7 +112,7 @@ class CompiledTwin:
             layout, rest = replace(layout, bound=rest[0]), rest[1:]
         if self._gate_terms:
             form = GUARDS[layout.guard][0]
-            layout = replace(layout, gate=partial(_gate, terms=tuple(rest[:3]), form=form))
+            layout = replace(layout, gate=partial(_gate, terms=tuple(rest), form=form))
 
         # the linear path, where there is one, is a parameter of its own among the layers'
         at = [i for i, q in enumerate(model.parameters()) if q is model.skip]
@@ -150,7 +150,7 @@ class CompiledTwin:
 
     def _buffers(self, model: TorchCorrection) -> list[np.ndarray]:
         """The normalisation, the output bound (where there is one) and the envelope's
-        centres, half widths and inverse fades (where it gates), as they are now."""
+        terms (where it gates: :meth:`Envelope.terms`), as they are now."""
         arrays = [b.detach().numpy().ravel() for b in (model.in_mean, model.in_scale,
                                                        model.out_mean, model.out_scale)]
         bound = model.layout.bound
