@@ -495,6 +495,53 @@ def test_safe_training_keeps_a_correction_only_under_its_rules(tmp_path):
         assert "physics is kept" in result.reason or "destabilises" in result.reason
 
 
+def test_the_steady_box_is_trained_neutral_and_put_in_for_the_final_checks(tmp_path,
+                                                                           monkeypatch):
+    """``SafeConfig.steady_gate``: the network trains with a neutral steady box (its gate is
+    the envelope's own) and the final checks, and the exported network, have the box of the
+    training data's steady flight."""
+    from emulated_data import emulated_dataset
+
+    from uavdyn.flightdata import load_dataset
+    from uavdyn.learned.safe import SafeConfig, train_safe
+    from uavdyn.learned.safe import trainer as trainer_module
+
+    airframe = load_airframe("aerosonde")
+    truth = airframe.replace(C_m_0=airframe.params.C_m_0 + 0.01)
+    sorties = load_dataset(emulated_dataset(tmp_path / "data", truth, 6, 6.0)).sorties
+    real = trainer_module.steady_box
+    built, seen = [], {}
+
+    def every_sample_steady(tr, va, names, hold, quantile):  # this short data may hold none
+        box = real(tr, va, names, hold, quantile) or SteadyBox.from_steady(
+            tr.inputs, None, [2, 3], 2, quantile)
+        built.append(box)
+        return box
+
+    def screened(model, *args, **kwargs):
+        seen["training"] = model.envelope.steady
+        return screened_start(model, *args, **kwargs)
+
+    def search(checks, run):
+        seen["checks"] = checks.model.envelope.steady
+        seen["layout_gate"] = checks.layout.gate
+        return real_search(checks, run)
+
+    screened_start, real_search = trainer_module.screened_start, trainer_module.search
+    monkeypatch.setattr(trainer_module, "steady_box", every_sample_steady)
+    monkeypatch.setattr(trainer_module, "screened_start", screened)
+    monkeypatch.setattr(trainer_module, "search", search)
+    cfg = SafeConfig(epochs=2, batches_per_epoch=2, batch_windows=8, horizon_s=1.0,
+                     progress=False, steady_gate=True, stability_trims="box")
+    result = train_safe(sorties[:4], sorties[4:], airframe, cfg)
+    box = built[0]
+    assert not np.any(seen["training"].inv_fade)          # neutral while training
+    assert seen["checks"] is box and np.any(box.inv_fade > 0)
+    assert seen["layout_gate"].__self__.steady is box     # the scaled layout gates with it
+    if result.kept:
+        np.testing.assert_array_equal(result.net.envelope.steady.low, box.low)
+
+
 def chosen_state_ok(validation: dict, cfg) -> bool:
     """The kept scale's pooled 1 s error of every body state is within the state limit."""
     row = validation["shrink_tried"][-1]

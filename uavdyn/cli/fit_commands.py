@@ -210,7 +210,7 @@ def training_module():
 
 SAFE_ONLY = ("--stability-weight", "--stability-margin", "--stability-trims", "--horizon",
              "--memory-tau", "--inputs", "--output", "--linear-path", "--min-gain", "--restarts",
-             "--start-fit", "--envelope-fade")
+             "--start-fit", "--envelope-fade", "--steady-gate")
 LEGACY_ONLY = ("--dt", "--rollout-horizon", "--rollout-weight")
 
 
@@ -381,6 +381,12 @@ def add_train(sub) -> None:
                         "candidate at full output fails only the final check, the best of "
                         "them trained on for 40 epochs with the penalty at every trim the "
                         "check runs at (measured: docs/learned_correction.md)")
+    p.add_argument("--steady-gate", choices=("on", "off"), default=None,
+                   help="improved/data: on, in steady flight (pitch rate held near zero) the "
+                        "correction acts only inside the box of the training data's steady "
+                        "flight, fading beyond it as far as the steady validation data reach; "
+                        "off (default), the training box alone (measured: "
+                        "docs/learned_correction.md)")
     p.add_argument("--min-gain", type=number(0.0, 0.5, name="fraction"), default=None,
                    help="improved/data: the least gain a correction must show on the "
                         "validation sorties to be kept (geometric mean of the per-sortie "

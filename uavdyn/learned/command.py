@@ -132,6 +132,8 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
         given["start_fit_s"] = args.start_fit
     if getattr(args, "envelope_fade", None) is not None:
         given["envelope_fade"] = args.envelope_fade
+    if getattr(args, "steady_gate", None) is not None:
+        given["steady_gate"] = args.steady_gate == "on"
     given.update({k: getattr(args, k) for k in ("inputs", "output")
                   if getattr(args, k, None) is not None})
     if "output" in given:  # the design rule, said in terms of the option

@@ -145,6 +145,15 @@ class SteadyBox:
         rate[rate_index] = 1.0 / max(limit, 1e-12)
         return cls(box.low, box.high, inv, rate)
 
+    @classmethod
+    def neutral(cls, n_in: int, rate_index: int) -> SteadyBox:
+        """A box that holds no input (every inverse fade 0): the gate is the envelope's own.
+        A network trained with it has the steady box's terms in its compiled twin, so the
+        real box can be put in for the final checks (:func:`uavdyn.learned.safe.trainer`)."""
+        rate = np.zeros(n_in)
+        rate[rate_index] = 1.0
+        return cls(np.zeros(n_in), np.zeros(n_in), np.zeros(n_in), rate)
+
     def terms(self) -> np.ndarray:
         """``(4, n_in)``: centres, half widths, inverse fades and rate weights."""
         return np.array([0.5 * (self.low + self.high), 0.5 * (self.high - self.low),

@@ -13,6 +13,7 @@ import torch
 from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import StateLayout, find_compiler
+from uavdyn.learned.envelope import SteadyBox
 from uavdyn.learned.formulations import airspeed_input
 from uavdyn.learned.rules import state_noise
 from uavdyn.learned.safe.config import SafeConfig, SafeResult, SafeSetup, safe_setup
@@ -71,6 +72,15 @@ def _refitted_starts(cfg: SafeConfig, span: int, fitter: CompiledTwin | None,
     return lambda net: refitter.starts(net, records)
 
 
+def _with_steady_box(model: TorchCorrection, layout, steady: SteadyBox):
+    """Put the steady box into the trained ``model``'s envelope and gate (and return the
+    layout the final checks scale from, with the same gate)."""
+    envelope = replace(model.envelope, steady=steady)
+    model.envelope = envelope
+    model.layout = replace(model.layout, gate=envelope.gate)
+    return replace(layout, gate=envelope.gate)
+
+
 def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe: Airframe,
                config: SafeConfig | None = None) -> SafeResult:
     """Train the safe correction on top of ``airframe``'s physics (the identified airframe).
@@ -115,7 +125,11 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     steady = (steady_box(tr, va, setup.layout.input_names(),
                          max(1, round(STEADY_HOLD_S / setup.sample_dt)), cfg.envelope_quantile)
               if cfg.steady_gate else None)
-    scaling = network_scaling(tr, cfg, dt, va.inputs, steady)  # from the records' own starts
+    # trained with a neutral steady box (the gate is the envelope's own, the twin already
+    # has the box's terms); the real one is put in for the final checks
+    neutral = (None if steady is None
+               else SteadyBox.neutral(len(steady.low), int(np.argmax(steady.rate))))
+    scaling = network_scaling(tr, cfg, dt, va.inputs, neutral)  # from the records' starts
     layout = scaling.layout(setup)
     if span and cfg.train_start_fit:
         tr = physics_fitted(tr, setup, physics_sim, train_noise)
@@ -150,6 +164,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     loop = screened_start(model, network, data, stab, cfg, rng, start, airframe.name)
     loop.advance(cfg.epochs)
     model, run = loop.model, loop.result()
+    if steady is not None:
+        layout = _with_steady_box(model, layout, steady)
     ref, horizon_s = data.reference, setup.selection_horizon_s
     checks = Checks(model, layout, model.out_scale.clone(), airframe, setup, gates.all,
                     gates.skipped, data.val, ref,
