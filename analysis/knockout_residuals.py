@@ -26,15 +26,13 @@ import json
 import sys
 from pathlib import Path
 
+import bench_knockout as knockout  # the sibling script (run as python analysis/...)
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import bench_knockout as knockout  # noqa: E402
-
-from uavdyn import physics_step  # noqa: E402
-from uavdyn.airframes.loader import load_airframe  # noqa: E402
-from uavdyn.learned.hybrid import hybrid_step  # noqa: E402
-from uavdyn.learned.weights import load_weights  # noqa: E402
+from uavdyn import physics_step
+from uavdyn.airframes.loader import load_airframe
+from uavdyn.learned.hybrid import hybrid_step
+from uavdyn.learned.weights import load_weights
 
 STEADY_Q_BAND = 0.01        # rad/s: pitch rate spread over a steady window
 STEADY_COMMAND_BAND = 0.01  # each command's spread over a steady window (its own units)

@@ -161,13 +161,18 @@ def identify_both(work: Path, data: Path, structure_auto: bool, airframe: str = 
 
 
 def train_options(args) -> list[str]:
-    return [] if args.stability_trims is None else ["--stability-trims", args.stability_trims]
+    """The ``uavdyn train`` options this run gives (none: train's defaults)."""
+    out = [] if args.stability_trims is None else ["--stability-trims", args.stability_trims]
+    return out + ([] if args.steady_gate is None else ["--steady-gate", args.steady_gate])
 
 
 def out_stem(args) -> str:
-    """The file name: the defaults', or the option's; another airframe's with its name."""
-    stem = ("turning_correction" if args.stability_trims is None
-            else f"turning_correction_stability_{args.stability_trims}")
+    """The file name: the defaults', or the options'; another airframe's with its name."""
+    stem = "turning_correction"
+    if args.stability_trims is not None:
+        stem += f"_stability_{args.stability_trims}"
+    if args.steady_gate is not None:
+        stem += f"_steady_gate_{args.steady_gate}"
     return stem if is_default(args.airframe) else f"{stem}_{Path(args.airframe).stem}"
 
 
@@ -280,6 +285,8 @@ def main() -> int:
                         help="seeds of the flights the pipeline never sees")
     parser.add_argument("--stability-trims", choices=STABILITY_TRIMS, default=None,
                         help="uavdyn train --stability-trims (default: train's own)")
+    parser.add_argument("--steady-gate", choices=("on", "off"), default=None,
+                        help="uavdyn train --steady-gate (default: train's own)")
     parser.add_argument("--airframe", default=AIRFRAME,
                         help="the nominal airframe whose truth flies the campaign (default "
                              "%(default)s; another needs Jx, Jz, Jxz for the turns)")

@@ -18,14 +18,18 @@ from uavdyn.linear import trim
 ANALYSIS = Path(__file__).resolve().parent.parent / "analysis"
 
 
-@pytest.fixture(scope="module")
-def residuals():
-    sys.path.insert(0, str(ANALYSIS))
-    spec = importlib.util.spec_from_file_location("knockout_residuals",
-                                                  ANALYSIS / "knockout_residuals.py")
+def _load(name: str):
+    spec = importlib.util.spec_from_file_location(name, ANALYSIS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # the script imports its sibling by name
     spec.loader.exec_module(module)
     return module
+
+
+@pytest.fixture(scope="module")
+def residuals():
+    _load("bench_knockout")
+    return _load("knockout_residuals")
 
 
 def _held_trim(airframe, speed: float, dt: float, n: int) -> Sortie:

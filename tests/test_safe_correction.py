@@ -211,6 +211,9 @@ def test_the_steady_box_gates_steady_flight_only(form):
     assert 0.0 < blend < 1.0
     plain = Envelope(env.low, env.high, env.fade)
     np.testing.assert_array_equal(plain.gate(x, form=form), 1.0)  # the box alone lets all act
+    if form == "distance":  # evaluate's share of samples the steady box held back: 1, 2, 4
+        assert env.fraction_steady_held(x.T) == pytest.approx(3 / 5)
+        assert plain.fraction_steady_held(x.T) is None
     assert env.terms().shape == (7, 2) and plain.terms().shape == (3, 2)
 
 

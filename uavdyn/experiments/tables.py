@@ -299,6 +299,8 @@ def _safety_row(cand: Candidate, physics: Candidate, s: Sortie, net,
         z = cand.solver.model.initial_state(s.states, s.controls, p,
                                             float(np.median(np.diff(s.time))))
         layout = net.layout(correction_structure(cand.airframe, net.kind, net.formulation))
-        row["outside_envelope"] = net.envelope.fraction_outside(
-            network_inputs(layout, z, s.controls, p)[0])
+        inputs = network_inputs(layout, z, s.controls, p)[0]
+        row["outside_envelope"] = net.envelope.fraction_outside(inputs)
+        if net.envelope.steady is not None:  # --steady-gate on: where it held the network
+            row["steady_held"] = net.envelope.fraction_steady_held(inputs)
     return row

@@ -248,6 +248,16 @@ class Envelope:
         smoothstep per input); see the module docstring."""
         return gate_of_terms(inp, self.terms(), ops, form)
 
+    def fraction_steady_held(self, inputs: np.ndarray) -> float | None:
+        """Share of rows of ``inputs (N, n_in)`` where the steady box holds the correction
+        back (the gate below the training box's own); None without a steady box."""
+        if self.steady is None:
+            return None
+        block = np.atleast_2d(np.asarray(inputs, float)).T
+        terms = self.terms()
+        held = gate_of_terms(block, terms) < gate_of_terms(block, terms[:3]) - 1e-12
+        return float(np.mean(held)) if held.size else 0.0
+
     def fraction_outside(self, inputs: np.ndarray) -> float:
         """Share of rows of ``inputs (N, n_in)`` outside ``[low, high]`` in any input (where the
         gate is below 1)."""
