@@ -250,6 +250,19 @@ def test_the_trainer_builds_a_steady_box_from_held_pitch_rates_only():
     assert box.low[2] == pytest.approx(12.0) and box.high[2] == pytest.approx(12.0)
     assert steady_box(windows(rows[200:]), windows(rows[:50]), ("alpha", "q_hat", "V"), 50,
                       0.0) is None
+    # asked for where the data hold no steady flight: said, not silently dropped
+    from types import SimpleNamespace
+
+    from uavdyn.learned.safe import SafeConfig
+    from uavdyn.learned.safe.trainer import _steady
+
+    setup = SimpleNamespace(layout=SimpleNamespace(input_names=lambda: ("alpha", "q_hat", "V")),
+                            sample_dt=0.02)
+    with pytest.warns(UserWarning, match="no steady flight in the training data"):
+        box, note = _steady(SafeConfig(steady_gate=True), setup, windows(rows[200:]),
+                            windows(rows[:50]))
+    assert box is None and "training box alone" in note
+    assert _steady(SafeConfig(), setup, windows(rows), windows(rows)) == (None, "")
 
 
 @pytest.mark.parametrize("guard", ["distance-clamp", "product-tanh"])

@@ -171,4 +171,5 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
             "screened": result.screened, "start_fits": result.start_fits,
             "seconds": round(result.seconds, 1), "validation": result.validation,
             "stability": result.stability.describe() if result.stability else None,
-            "reason": result.reason}
+            "reason": result.reason,
+            **({"steady_gate": result.steady_gate} if result.steady_gate else {})}

@@ -189,6 +189,7 @@ class SafeResult:
     stopped: str = ""  # why the epochs ended (patience, epoch or wall-clock budget)
     screened: list[dict] = field(default_factory=list)  # the starts screened (restarts > 1)
     start_fits: dict = field(default_factory=dict)  # how window starts were fitted, per split
+    steady_gate: str = ""  # what the steady gate found (steady_gate on), one line
 
 
 @dataclass(frozen=True)

@@ -4,6 +4,7 @@ scaling, epochs, final checks, verdict; one module each)."""
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import replace
 
@@ -19,6 +20,7 @@ from uavdyn.learned.rules import state_noise
 from uavdyn.learned.safe.config import SafeConfig, SafeResult, SafeSetup, safe_setup
 from uavdyn.learned.safe.data import (
     STEADY_HOLD_S,
+    STEADY_RATE_SHARE,
     LossScales,
     TrainingWindows,
     WindowTensors,
@@ -72,6 +74,24 @@ def _refitted_starts(cfg: SafeConfig, span: int, fitter: CompiledTwin | None,
     return lambda net: refitter.starts(net, records)
 
 
+def _steady(cfg: SafeConfig, setup: SafeSetup, tr: TrainingWindows, va: TrainingWindows
+            ) -> tuple[SteadyBox | None, str]:
+    """The steady box (``cfg.steady_gate``) and one line on it; a warning where the training
+    data hold no steady flight (the gate is then the training box alone)."""
+    if not cfg.steady_gate:
+        return None, ""
+    box = steady_box(tr, va, setup.layout.input_names(),
+                     max(1, round(STEADY_HOLD_S / setup.sample_dt)), cfg.envelope_quantile)
+    if box is None:
+        note = ("steady gate: no steady flight in the training data (the pitch rate never "
+                f"held within {STEADY_RATE_SHARE:g} of its spread for {STEADY_HOLD_S:g} s "
+                "either side), so the gate is the training box alone")
+        warnings.warn(note, stacklevel=2)
+        return None, note
+    return box, "steady gate: in steady flight the network acts only inside the training "\
+                "data's steady flight"
+
+
 def _with_steady_box(model: TorchCorrection, layout, steady: SteadyBox):
     """Put the steady box into the trained ``model``'s envelope and gate (and return the
     layout the final checks scale from, with the same gate)."""
@@ -122,9 +142,7 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
     if span:
         va = physics_fitted(va, setup, physics_sim, val_noise)
     fits = {"validation": va.start_fit} if span else {}
-    steady = (steady_box(tr, va, setup.layout.input_names(),
-                         max(1, round(STEADY_HOLD_S / setup.sample_dt)), cfg.envelope_quantile)
-              if cfg.steady_gate else None)
+    steady, steady_note = _steady(cfg, setup, tr, va)
     # trained with a neutral steady box (the gate is the envelope's own, the twin already
     # has the box's terms); the real one is put in for the final checks
     neutral = (None if steady is None
@@ -199,9 +217,9 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                              horizon_s)
         return SafeResult(chosen.net, True, reason, run.history, cfg, epoch, seconds,
                           validation, report, run.stopped, run.screened,
-                          fits)
+                          fits, steady_note)
     reason = refusal_reason(tried, cfg, ref.physics_rmse, run.best.selection, report,
                             horizon_s)
     return SafeResult(None, False, reason, run.history, cfg, epoch, seconds, validation,
                       report, run.stopped, run.screened,
-                      fits)
+                      fits, steady_note)
