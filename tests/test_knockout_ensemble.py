@@ -2,34 +2,23 @@
 members' next states (checked on two physics steps of different order, whose next states
 differ), and the re-scoring arithmetic it shares with ``analysis/knockout_fade.py``."""
 
-import importlib.util
 import math
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from analysis_scripts import load_script
 
 from uavdyn.airframes import load_airframe
 from uavdyn.integrate import physics_step
 from uavdyn.integrate.tableau import EULER, RK4
 from uavdyn.linear import trim
 
-ANALYSIS = Path(__file__).resolve().parent.parent / "analysis"
-
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, ANALYSIS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # the ensemble script imports its sibling by name
-    spec.loader.exec_module(module)
-    return module
-
 
 @pytest.fixture(scope="module")
 def ensemble():
-    _load("knockout_fade")
-    return _load("knockout_ensemble")
+    load_script("knockout_fade")
+    return load_script("knockout_ensemble")
 
 
 def test_the_ensemble_step_is_the_mean_of_its_members(ensemble):

@@ -3,33 +3,21 @@ states is zero for the model that flew them and, for a model whose pitching mome
 by a constant, that moment over the inertia (checked at a held trim, where it is the analytic
 ``dC_m qbar S c / Jy``); held trims are steady windows."""
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from analysis_scripts import load_script
 
 from uavdyn.airframes import load_airframe
 from uavdyn.flightdata.sortie import Sortie
 from uavdyn.integrate import physics_step
 from uavdyn.linear import trim
 
-ANALYSIS = Path(__file__).resolve().parent.parent / "analysis"
-
-
-def _load(name: str):
-    spec = importlib.util.spec_from_file_location(name, ANALYSIS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # the script imports its sibling by name
-    spec.loader.exec_module(module)
-    return module
-
 
 @pytest.fixture(scope="module")
 def residuals():
-    _load("bench_knockout")
-    return _load("knockout_residuals")
+    load_script("bench_knockout")
+    return load_script("knockout_residuals")
 
 
 def _held_trim(airframe, speed: float, dt: float, n: int) -> Sortie:

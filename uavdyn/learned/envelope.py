@@ -49,7 +49,9 @@ def smoothstep(t, ops=NUMPY_OPS):
 
 
 def outside_distances(inp, terms, ops=NUMPY_OPS) -> list:
-    """:meth:`Envelope.outside` from its :meth:`Envelope.terms` (numbers or symbols)."""
+    """Per input, the distance outside ``[low, high]`` in fade widths (negative inside),
+    ``(|x - mid| - half) / fade``, from an envelope's :meth:`Envelope.terms` (numbers or
+    symbols): one subtraction, ``fabs`` and multiply-add each."""
     mid, half, r = terms[0], terms[1], terms[2]
     return [ops.fabs(inp[i] - mid[i]) * r[i] - half[i] * r[i] for i in range(mid.shape[0])]
 
@@ -236,11 +238,6 @@ class Envelope:
                         [0.5 * (float(hi) - float(lo)) for lo, hi in zip(self.low, self.high)],
                         [1.0 / float(f) for f in self.fade]])
         return box if self.steady is None else np.vstack([box, self.steady.terms()])
-
-    def outside(self, inp, ops=NUMPY_OPS) -> list:
-        """Per input, the distance outside ``[low, high]`` in fade widths (negative inside),
-        ``(|x - mid| - half) / fade``: one subtraction, ``fabs`` and multiply-add each."""
-        return outside_distances(inp, self.terms(), ops)
 
     def gate(self, inp, ops=NUMPY_OPS, form: str = GUARDS[DEFAULT_GUARD][0]):
         """The gate of a feature-first block ``inp`` (``(n_in,)`` or ``(n_in, batch)``):

@@ -13,11 +13,16 @@ from pathlib import Path
 
 import numpy as np
 
+from uavdyn.learned.envelope import Envelope, SteadyBox
 from uavdyn.safefiles import UnreadableFile, read_regular
 
 MAX_FILE_BYTES = 64 * 2**20          # a weight file is a few kB; refuse before reading more
 MAX_UNCOMPRESSED_BYTES = 256 * 2**20  # zip bombs: bound on the members' declared sizes
 MAX_MEMBERS = 64
+ENVELOPE_KEYS = ("env_low", "env_high", "env_fade")
+# (optional, all four or none) the envelope's steady box (SafeConfig.steady_gate): where the
+# correction may act in steady flight; a file without them gates as before
+STEADY_KEYS = ("env_steady_low", "env_steady_high", "env_steady_inv_fade", "env_steady_rate")
 
 
 class WeightFileError(ValueError):
@@ -185,3 +190,37 @@ def info_key(path: Path, content: dict) -> dict:
         raise WeightFileError(f"{path}: key 'info' must be a JSON object, got "
                               f"{type(info).__name__}")
     return info
+
+
+def envelope_arrays(envelope: Envelope) -> dict[str, np.ndarray]:
+    """The keys a weight file stores an envelope (and its steady box, if any) under."""
+    arrays = dict(zip(ENVELOPE_KEYS, (envelope.low, envelope.high, envelope.fade)))
+    steady = envelope.steady
+    if steady is not None:
+        arrays.update(zip(STEADY_KEYS, (steady.low, steady.high, steady.inv_fade, steady.rate)))
+    return arrays
+
+
+def _all_or_none(path: Path, content: dict, keys: tuple[str, ...], what: str) -> bool:
+    """Whether ``content`` holds the group ``keys`` (refusing a part of it)."""
+    present = [k for k in keys if k in content]
+    if present and len(present) != len(keys):
+        raise WeightFileError(f"{path}: key(s) {sorted(set(keys) - set(present))} missing "
+                              f"beside {present}: {what} needs all {len(keys)}")
+    return bool(present)
+
+
+def read_envelope(path: Path, content: dict) -> Envelope | None:
+    """The envelope (with its steady box where the file has one), or None without one."""
+    if not _all_or_none(path, content, ENVELOPE_KEYS, "the envelope"):
+        return None
+    steady = None
+    if _all_or_none(path, content, STEADY_KEYS, "the steady box"):
+        try:
+            steady = SteadyBox(*(real_key(path, content, k, 1) for k in STEADY_KEYS))
+        except ValueError as exc:
+            raise WeightFileError(f"{path}: keys {', '.join(STEADY_KEYS)}: {exc}") from None
+    try:
+        return Envelope(*(real_key(path, content, k, 1) for k in ENVELOPE_KEYS), steady)
+    except ValueError as exc:
+        raise WeightFileError(f"{path}: key 'env_low'/'env_high'/'env_fade': {exc}") from None

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from uavdyn.learned.envelope import DEFAULT_GUARD, GUARDS, LEGACY_GUARD, Envelope, SteadyBox
+from uavdyn.learned.envelope import DEFAULT_GUARD, GUARDS, LEGACY_GUARD, Envelope
 from uavdyn.learned.formulations import (
     FORMULATIONS,
     PHYSICAL_INPUTS,
@@ -39,12 +39,16 @@ from uavdyn.learned.formulations import (
 )
 from uavdyn.learned.mlp import ACTIVATIONS, folded_forward, folded_layers, mlp_forward
 from uavdyn.learned.weight_archive import (
+    ENVELOPE_KEYS,
     MAX_FILE_BYTES,
     MAX_MEMBERS,
     MAX_UNCOMPRESSED_BYTES,
+    STEADY_KEYS,
     WeightFileError,
+    envelope_arrays,
     info_key,
     integer_key,
+    read_envelope,
     read_npz,
     real_key,
     show,
@@ -73,10 +77,6 @@ REQUIRED_KEYS = (
 # format 6: a multirotor's 'physical' inputs add the front-rear difference of rotor speed
 # times u and w (pitch moments of translational lift and axial inflow); a format-5 file of
 # that design was trained on the earlier inputs and is refused with the reason
-ENVELOPE_KEYS = ("env_low", "env_high", "env_fade")
-# (optional, all four or none) the envelope's steady box (SafeConfig.steady_gate): where the
-# correction may act in steady flight; a file without them gates as before
-STEADY_KEYS = ("env_steady_low", "env_steady_high", "env_steady_inv_fade", "env_steady_rate")
 # 'n_controls' (optional, absent: 2): the step's inputs, 6 for a model with the lateral inputs
 # of turning flight (the controls, then phi, p, r, beta), which the network also sees
 OPTIONAL_KEYS = ("info", "t_range", "n_state", "memory_tau", "out_bound", "guard",
@@ -356,12 +356,7 @@ def save_weights(net: CorrectionNet, path: str | Path) -> Path:
     if net.skip is not None:
         arrays["W_skip"] = np.asarray(net.skip, float)
     if net.envelope is not None:
-        arrays.update(env_low=net.envelope.low, env_high=net.envelope.high,
-                      env_fade=net.envelope.fade)
-        steady = net.envelope.steady
-        if steady is not None:
-            arrays.update(zip(STEADY_KEYS, (steady.low, steady.high, steady.inv_fade,
-                                            steady.rate)))
+        arrays.update(envelope_arrays(net.envelope))
     for i, (w, b) in enumerate(zip(net.weights, net.biases)):
         arrays[f"W{i}"], arrays[f"b{i}"] = np.asarray(w, float), np.asarray(b, float)
     tmp: str | None = None
@@ -387,20 +382,6 @@ def save_weights(net: CorrectionNet, path: str | Path) -> Path:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
     return path
-
-
-def _steady_box(path, content) -> SteadyBox | None:
-    """The envelope's steady box from its four keys (None where the file has none)."""
-    present = [k for k in STEADY_KEYS if k in content]
-    if not present:
-        return None
-    if len(present) != len(STEADY_KEYS):
-        raise WeightFileError(f"{path}: key(s) {sorted(set(STEADY_KEYS) - set(present))} "
-                              f"missing beside {present}: the steady box needs all four")
-    try:
-        return SteadyBox(*(real_key(path, content, k, 1) for k in STEADY_KEYS))
-    except ValueError as exc:
-        raise WeightFileError(f"{path}: keys {', '.join(STEADY_KEYS)}: {exc}") from None
 
 
 def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
@@ -474,17 +455,9 @@ def load_weights(path: str | Path, airframe=None) -> CorrectionNet:
         extra["out_bound"] = real_key(path, content, "out_bound", 1)
     if "W_skip" in content:
         extra["skip"] = real_key(path, content, "W_skip", 2)
-    present = [k for k in ENVELOPE_KEYS if k in content]
-    if present:
-        if len(present) != len(ENVELOPE_KEYS):
-            raise WeightFileError(f"{path}: key(s) {sorted(set(ENVELOPE_KEYS) - set(present))} "
-                                  f"missing beside {present}: the envelope needs all three")
-        low, high, fade = (real_key(path, content, k, 1) for k in ENVELOPE_KEYS)
-        try:
-            extra["envelope"] = Envelope(low, high, fade, _steady_box(path, content))
-        except ValueError as exc:
-            raise WeightFileError(f"{path}: key 'env_low'/'env_high'/'env_fade': {exc}") \
-                from None
+    envelope = read_envelope(path, content)
+    if envelope is not None:
+        extra["envelope"] = envelope
     try:
         net = CorrectionNet(
             formulation=names["formulation"], activation=names["activation"],
