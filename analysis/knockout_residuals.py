@@ -11,6 +11,12 @@ held steady is its moment imbalance at that state: where the corrected model's g
 steady window of the training sorties (pitch rate and every command within a small band over
 the window) show which steady flight conditions the correction was trained on.
 
+A model can have the right moment along the flight and still predict it worse: per sortie
+also each model's pitch damping ``d q_dot / d q`` at every true state, and the 1 s pitch
+RMSE of each model and of the corrected one fed the TRUE pitch rate (``true_rate``,
+:func:`rate_feedback`): where that is about (a)'s while the corrected model's is worse, the
+loss is the network's feedback of the prediction's own pitch-rate error.
+
     python analysis/knockout_residuals.py --knockout docs/benchmarks/bench_knockout.json \
         --case trainer2m/alpha_dot --weights-dir W --out residuals.json
 
@@ -48,6 +54,61 @@ def one_step_errors(model, sortie) -> np.ndarray:
     params = np.tile(np.asarray(model.p, float)[:, None], (1, len(z) - 1))
     z_next = np.asarray(step(z[:-1].T, controls[:-1].T, params, dt))
     return (z_next[2] - body[1:, 2]) / dt
+
+
+def _next(model, z: np.ndarray, controls: np.ndarray, dt: float) -> np.ndarray:
+    """``model``'s step from every row of ``z`` with the matching row of ``controls``."""
+    params = np.tile(np.asarray(model.p, float)[:, None], (1, len(z)))
+    return np.asarray(model.function.map(len(z))(z.T, controls.T, params, dt)).T
+
+
+def pitch_damping(model, sortie, h: float = 1e-5) -> np.ndarray:
+    """``(N,)`` the model's pitch damping ``(d q_next / d q - 1) / dt`` (1/s) at every true
+    state of the sortie (central difference in the pitch rate)."""
+    body, controls = sortie.true_states, sortie.controls
+    dt = float(sortie.dt)
+    z = model.initial_state(body, controls, None, dt)
+    up, down = z.copy(), z.copy()
+    up[:, 2] += h
+    down[:, 2] -= h
+    slope = (_next(model, up, controls, dt)[:, 2]
+             - _next(model, down, controls, dt)[:, 2]) / (2 * h)
+    return (slope - 1.0) / dt
+
+
+def rate_feedback(models: dict, sortie, horizon_s: float = 1.0) -> dict[str, float]:
+    """Pitch RMSE of ``horizon_s`` windows restarted from the true states (as ``uavdyn
+    evaluate``'s horizon_1s) for each model and for the corrected one with its network fed
+    the TRUE pitch rate (``true_rate``): each step is (a)'s physics on the predicted state
+    plus the network's part ``corrected(z~) - a(z~)`` at the predicted state ``z~`` with the
+    true pitch rate. Where ``true_rate`` is about (a)'s and ``corrected`` worse, the loss is
+    the network's feedback of the model's own pitch-rate error, not its output along the
+    flight."""
+    body, controls = sortie.true_states, sortie.controls
+    dt = float(sortie.dt)
+    n = int(round(horizon_s / dt))
+    starts = np.arange(0, len(body) - n, n)
+    phys, corr = models["a"], models["corrected"]
+    n_phys = phys.initial_state(body[:2], controls[:2], None, dt).shape[1]
+
+    def flown(model, true_rate: bool = False) -> float:
+        z = np.array([model.initial_state(body[i:i + n + 1], controls[i:i + n + 1], None,
+                                          dt)[0] for i in starts])
+        sq = []
+        for k in range(n):
+            u = controls[starts + k]
+            nxt = _next(model, z, u, dt)
+            if true_rate:
+                mixed = z.copy()
+                mixed[:, 2] = body[starts + k, 2]
+                nxt[:, :n_phys] = (_next(phys, z[:, :n_phys], u, dt)
+                                   + _next(model, mixed, u, dt)[:, :n_phys]
+                                   - _next(phys, mixed[:, :n_phys], u, dt))
+            z = nxt
+            sq.append((z[:, 3] - body[starts + k + 1, 3]) ** 2)
+        return float(np.sqrt(np.mean(sq)))
+
+    return {**{k: flown(m) for k, m in models.items()}, "true_rate": flown(corr, True)}
 
 
 def windows(sortie, errors: dict[str, np.ndarray], width_s: float) -> list[dict]:
@@ -125,9 +186,16 @@ def main(argv: list[str] | None = None) -> int:
     for name in chosen:
         sortie = by_name[name]
         errors = {k: one_step_errors(m, sortie) for k, m in models.items()}
+        damping = {k: pitch_damping(m, sortie) for k, m in models.items()}
         result["sorties"][name] = {
             "mission": sortie.mission, "condition": sortie.meta.get("condition"),
             "rms": {k: float(np.sqrt(np.mean(e ** 2))) for k, e in errors.items()},
+            "pitch_damping": {k: {"percentiles": dict(zip(("0", "5", "50", "95", "100"),
+                                                          np.percentile(d, [0, 5, 50, 95, 100]
+                                                                        ).tolist())),
+                                  "share_positive": float(np.mean(d > 0))}
+                              for k, d in damping.items()},
+            "rmse_1s_rate_feedback": rate_feedback(models, sortie),
             "windows": windows(sortie, errors, args.window)}
     for sortie in ds.split("train"):
         errors = {k: one_step_errors(m, sortie) for k, m in models.items()}
@@ -162,6 +230,11 @@ def print_table(result: dict) -> None:
         print(f"{name} ({s['mission']}, {s['condition']}): mean one-step pitch-acceleration "
               "error per window (rad/s^2); RMS over the sortie "
               + ", ".join(f"{k} {v:.4f}" for k, v in s["rms"].items()))
+        print("  1 s pitch RMSE (mrad): " + ", ".join(
+            f"{k} {1000 * v:.2f}" for k, v in s["rmse_1s_rate_feedback"].items())
+            + "; pitch damping (1/s) median, largest, share positive: " + "; ".join(
+            f"{k} {d['percentiles']['50']:+.2f}, {d['percentiles']['100']:+.2f}, "
+            f"{100 * d['share_positive']:.0f} %" for k, d in s["pitch_damping"].items()))
         for w in s["windows"]:
             print(row(f"  {w['start_s']:4.0f} s", w))
     span = result["train_steady_range"]

@@ -249,3 +249,29 @@ def test_dataset_building(small_data, aerosonde, f450):
         target_trajectories(train_s, f450, "data", 0.005)
     with pytest.raises(DatasetError, match="unknown target"):
         target_trajectories(train_s, aerosonde, "truth", 0.005)
+
+
+def test_cli_train_damping_weight_is_recorded_and_refused_out_of_range(tmp_path, emulated,
+                                                                       capsys):
+    """``--damping-weight``: the default (10) and a given weight reach the history's config,
+    the history records the damping penalty of every trained epoch; a negative weight, or one
+    for a legacy formulation, is refused in one line naming the option."""
+    import json
+
+    from uavdyn.cli import main
+
+    for given, expected in (([], 10.0), (["--damping-weight", "0"], 0.0)):
+        out = tmp_path / f"d{expected:g}.npz"
+        assert main(["train", "--airframe", "aerosonde", "--dataset", str(emulated),
+                     "--epochs", "2", "--hidden", "4", "--horizon", "0.3", "--quiet",
+                     "--min-gain", "0", *given, "--out", str(out)]) == 0
+        capsys.readouterr()
+        history = json.loads((tmp_path / f"d{expected:g}_history.json").read_text())
+        assert history["config"]["damping_weight"] == expected
+        trained = [h for h in history["history"] if h["epoch"] > 0]
+        assert trained and all(h["damping_penalty"] >= 0.0 for h in trained)
+        if expected == 0.0:  # not computed at all
+            assert all(h["damping_penalty"] == 0.0 for h in trained)
+    _assert_refused_in_one_line(tmp_path, emulated, capsys, "--damping-weight",
+                                (["--damping-weight", "-1"],
+                                 ["--damping-weight", "1", "--formulation", "paper"]))

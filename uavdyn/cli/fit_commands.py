@@ -210,7 +210,7 @@ def training_module():
 
 SAFE_ONLY = ("--stability-weight", "--stability-margin", "--stability-trims", "--horizon",
              "--memory-tau", "--inputs", "--output", "--linear-path", "--min-gain", "--restarts",
-             "--start-fit", "--envelope-fade", "--steady-gate")
+             "--start-fit", "--envelope-fade", "--steady-gate", "--damping-weight")
 LEGACY_ONLY = ("--dt", "--rollout-horizon", "--rollout-weight")
 
 
@@ -370,6 +370,11 @@ def add_train(sub) -> None:
     p.add_argument("--stability-weight", type=number(0.0, name="weight"), default=None,
                    help="improved/data: weight of the stability penalty at trims over the "
                         "training envelope, >= 0 (default 10)")
+    p.add_argument("--damping-weight", type=number(0.0, name="weight"), default=None,
+                   help="improved/data: weight of the damping prior, >= 0: the hybrid's pitch "
+                        "damping at the training windows' starts may weaken the physics' but "
+                        "not turn positive (default 10; 0 switches it off; measured: "
+                        "docs/learned_correction.md)")
     p.add_argument("--stability-margin", type=number(0.0, 1.0, name="fraction"), default=None,
                    help="improved/data: how much a stable physics mode's decay rate may shrink "
                         "(fraction 0..1, default 0.5); a neutral mode may never grow")

@@ -124,7 +124,8 @@ def _run_safe(args, airframe: Airframe, tr, va, te, source: str, out: Path, hist
 
     given = {k: getattr(args, k) for k in ("epochs", "patience", "max_seconds",
                                            "stability_weight", "hidden", "stability_margin",
-                                           "min_gain", "restarts", "stability_trims")
+                                           "min_gain", "restarts", "stability_trims",
+                                           "damping_weight")
              if getattr(args, k, None) is not None}
     if getattr(args, "horizon", None) is not None:
         given["horizon_s"] = args.horizon

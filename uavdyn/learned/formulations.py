@@ -175,6 +175,11 @@ class CorrectionLayout:
         return len(self.input_names())
 
 
+def rate_inputs(layout: CorrectionLayout) -> tuple[int, ...]:
+    """Which of ``layout``'s network inputs are rates (:data:`DYNAMIC_INPUTS`)."""
+    return tuple(i for i, name in enumerate(layout.input_names()) if name in DYNAMIC_INPUTS)
+
+
 def airspeed_input(kind: str, inputs: str) -> int | None:
     """Which network input is the airspeed itself (``V`` among a design's physical inputs,
     :data:`PHYSICAL_INPUTS`), None where the network sees no airspeed and its first two inputs

@@ -47,7 +47,7 @@ class TorchCorrection(nn.Module):
                  in_mean: np.ndarray, in_scale: np.ndarray, out_scale: np.ndarray,
                  dt: float, seed: int = 0, structure: ModelStructure | None = None,
                  layout: CorrectionLayout | None = None, envelope: Envelope | None = None,
-                 linear: bool = False) -> None:
+                 linear: bool = False, linear_only: tuple[int, ...] = ()) -> None:
         super().__init__()
         self.form = get_formulation(formulation)
         if activation not in ("relu", "tanh"):
@@ -73,12 +73,25 @@ class TorchCorrection(nn.Module):
             self.layers.append(layer)
         # the linear path beside the hidden layers (after them in parameters()), from zero
         self.skip = (nn.Parameter(torch.zeros(n_out, n_in, dtype=DTYPE)) if linear else None)
+        # inputs the hidden layers do not see (their first-layer columns held at zero:
+        # :meth:`hold_linear_only` after every optimiser step)
+        self.linear_only = tuple(int(i) for i in linear_only)
+        if self.linear_only and self.skip is None:
+            raise ValueError("inputs seen only through the linear path need one "
+                             "(linear=True)")
+        self.hold_linear_only()
         self.register_buffer("in_mean", torch.as_tensor(in_mean, dtype=DTYPE))
         self.register_buffer("in_scale", torch.as_tensor(in_scale, dtype=DTYPE))
         self.register_buffer("out_mean", torch.zeros(n_out, dtype=DTYPE))
         self.register_buffer("out_scale", torch.as_tensor(out_scale, dtype=DTYPE))
         self.rhs = torch_rhs(structure or (layout.structure if layout is not None
                                            and layout.structure is not None else kind))
+
+    def hold_linear_only(self) -> None:
+        """Zero the first hidden layer's weights from the inputs seen only linearly."""
+        if self.linear_only:
+            with torch.no_grad():
+                self.layers[0].weight[:, list(self.linear_only)] = 0.0
 
     def forward(self, inp: torch.Tensor) -> torch.Tensor:
         """The network on a batch ``(B, n_in)`` -> ``(B, n_out)`` (the one MLP forward)."""
@@ -98,6 +111,15 @@ class TorchCorrection(nn.Module):
         if isinstance(dt, torch.Tensor) and dt.dim() == 2:  # a (B, 1) step size per sample
             dt = dt.T
         return self.form.step(self.rhs, x.T, u.T, p, dt, self._net, torch_ops(), tt,
+                              self.layout).T
+
+    def step_without_network(self, x: torch.Tensor, u: torch.Tensor, p: torch.Tensor, dt
+                             ) -> torch.Tensor:
+        """:meth:`step` with the network's output zero: the physics the correction is added
+        to, on the hybrid's full state (actuator and memory states included)."""
+        def silent(inp_t: torch.Tensor) -> torch.Tensor:
+            return torch.zeros((len(self.out_scale), inp_t.shape[1]), dtype=inp_t.dtype)
+        return self.form.step(self.rhs, x.T, u.T, p, dt, silent, torch_ops(), None,
                               self.layout).T
 
     def physics_step(self, x, u, p, dt) -> torch.Tensor:

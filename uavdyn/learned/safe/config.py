@@ -59,6 +59,11 @@ class SafeConfig:
                                       # benchmark it recovered 0.45 of the trainer's alpha-dot
                                       # term against 0.15 without, 0.56 of the F450's inflow
                                       # term against 0.27
+    rates_linear: bool = False        # the rate inputs (q, q c/2V, alpha_dot c/2V) reach the
+                                      # outputs only through the linear path: a rate enters
+                                      # as a stability derivative does, one constant per
+                                      # output, not a damping the hidden layers vary with
+                                      # the flight condition
     memory_tau: tuple[float, ...] | None = None  # None: (0.05, 0.2) s without actuator states
     horizon_s: float = 2.0            # rollout windows from recorded states, this long
     window_stride_s: float = 0.5
@@ -98,6 +103,14 @@ class SafeConfig:
     pooled_weight: float = 0.0       # share of the loss on the pooled error (rest: per window)
     output_weight: float = 0.0       # weight of the output penalty (mean square output over
                                      # training samples, in output scales; epochs.py)
+    damping_weight: float = 10.0     # weight of the damping prior (epochs.damping_penalty),
+                                     # an exact-penalty hinge as the stability one: the
+                                     # hybrid's pitch damping d(q_dot)/dq at the training
+                                     # windows' starts may weaken the physics' but not turn
+                                     # positive. Without it an X500 network did, on 14 % of
+                                     # a gusty inspection's samples, and its pitch-rate
+                                     # feedback made that flight 15 % worse (4 % with it);
+                                     # 0 switches it off (docs/learned_correction.md)
     stability_weight: float = 10.0
     stability_margin: float = DEFAULT_MARGIN
     stability_trims: str = "repair"   # where the training penalty holds the hybrid's modes:

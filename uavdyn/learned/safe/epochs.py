@@ -126,6 +126,25 @@ def output_penalty(model: TorchCorrection, rows: torch.Tensor) -> torch.Tensor:
     return torch.mean((model(rows) / model.out_scale) ** 2)
 
 
+def damping_penalty(model: TorchCorrection, batch: WindowTensors, dt: float) -> torch.Tensor:
+    """Mean hinge ``relu(M_q,hybrid - max(M_q,physics, 0))`` over the windows' first steps,
+    ``M_q = (d q_next / d q - 1) / dt`` of each step (1/s): a sign prior on the hybrid's pitch
+    damping. A correction may weaken the damping the physics has (the identified one may hold
+    too much of it) but not reverse it: in rollouts a reversed damping feeds the model's own
+    pitch-rate error back into its moment, which no one-step residual shows."""
+    u0, p = batch.u[:, 0], batch.p.T
+
+    def pitch_damping(step) -> torch.Tensor:
+        z = batch.z0.detach().clone().requires_grad_(True)
+        q_next = step(z, u0, p, dt)[:, 2]
+        grad = torch.autograd.grad(q_next.sum(), z, create_graph=True)[0][:, 2]
+        return (grad - 1.0) / dt
+
+    hybrid = pitch_damping(model.step)
+    physics = pitch_damping(model.step_without_network).detach()
+    return torch.mean(torch.relu(hybrid - torch.clamp(physics, min=0.0)))
+
+
 class WeightAverage:
     """An exponential moving average of a network's weights over the optimiser steps (Polyak
     averaging): the network the epochs score and keep when ``cfg.average_decay`` > 0. The
@@ -148,10 +167,10 @@ class WeightAverage:
 
 def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: TrainingData,
                 stab: StabilityTargets, cfg: SafeConfig, rng: np.random.Generator,
-                average: WeightAverage | None = None) -> tuple[float, float]:
+                average: WeightAverage | None = None) -> tuple[float, float, float]:
     """One epoch of ``cfg.batches_per_epoch`` Adam steps (each folded into ``average``); the
-    mean loss and penalty."""
-    sum_l = sum_s = 0.0
+    mean loss, stability penalty and damping penalty."""
+    sum_l = sum_s = sum_d = 0.0
     n_w = data.train.count
     for _ in range(cfg.batches_per_epoch):
         idx = torch.as_tensor(rng.choice(n_w, min(cfg.batch_windows, n_w), replace=False))
@@ -175,11 +194,17 @@ def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: Traini
                                                           min(OUTPUT_ROWS, len(data.inputs)),
                                                           replace=False))]
             (cfg.output_weight * output_penalty(model, rows)).backward()
+        if cfg.damping_weight > 0:  # adds to the gradients too
+            damping = damping_penalty(model, batch, data.loss.dt)
+            (cfg.damping_weight * damping).backward()
+            sum_d += float(damping.detach())
         opt.step()
+        model.hold_linear_only()
         if average is not None:
             average.update(model)
         sum_l, sum_s = sum_l + loss, sum_s + pen
-    return sum_l / cfg.batches_per_epoch, sum_s / cfg.batches_per_epoch
+    n = cfg.batches_per_epoch
+    return sum_l / n, sum_s / n, sum_d / n
 
 
 class EpochLoop:
@@ -223,8 +248,8 @@ class EpochLoop:
         for epoch in bar:
             if self.stopped:
                 break
-            loss, penalty = train_epoch(model, self.opt, data, self.stab, cfg, self.rng,
-                                        self.average)
+            loss, penalty, damping = train_epoch(model, self.opt, data, self.stab, cfg,
+                                                 self.rng, self.average)
             self.sched.step()
             if (data.train_starts is not None and cfg.train_refit_every
                     and epoch % cfg.train_refit_every == 0):
@@ -234,6 +259,7 @@ class EpochLoop:
             elapsed = time.perf_counter() - self.start
             self.history.append({"epoch": epoch, "train_loss": loss,
                                  **fixed_losses(self.scored, data), "stability_penalty": penalty,
+                                 "damping_penalty": damping,
                                  **sel, "physics_val_theta_rmse": physics_val,
                                  "lr": self.sched.get_last_lr()[0], "seconds": elapsed})
             bar.set_postfix(loss=f"{loss:.3g}", val=f"{sel['val_theta_rmse']:.3g}",

@@ -68,9 +68,10 @@ def _plot(result: SafeResult, png_path: Path, data: str) -> None:
     if rest:
         ax.semilogy([h["epoch"] for h in rest], [h["train_loss"] for h in rest], "C1-o", ms=3,
                     label="train loss (physics = 1)")
-        pen = [(h["epoch"], h["stability_penalty"]) for h in rest if h["stability_penalty"] > 0]
-        if pen:
-            ax.semilogy(*zip(*pen), "C3:o", ms=3, label="stability penalty")
+        for key, style in (("stability_penalty", "C3:o"), ("damping_penalty", "C4:s")):
+            pen = [(h["epoch"], h[key]) for h in rest if h.get(key, 0) > 0]
+            if pen:
+                ax.semilogy(*zip(*pen), style, ms=3, label=key.replace("_", " "))
         low, high = ax.get_ylim()
         plain = FuncFormatter(lambda v, _: f"{v:.3g}")  # not 1.07x10^0
         ax.yaxis.set_major_formatter(plain)

@@ -15,7 +15,7 @@ from uavdyn.airframes import Airframe
 from uavdyn.flightdata import Sortie
 from uavdyn.integrate import StateLayout, find_compiler
 from uavdyn.learned.envelope import SteadyBox
-from uavdyn.learned.formulations import airspeed_input
+from uavdyn.learned.formulations import airspeed_input, rate_inputs
 from uavdyn.learned.rules import state_noise
 from uavdyn.learned.safe.config import SafeConfig, SafeResult, SafeSetup, safe_setup
 from uavdyn.learned.safe.data import (
@@ -157,7 +157,8 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
         return TorchCorrection(airframe.kind, "improved", cfg.hidden, cfg.activation,
                                scaling.in_mean, scaling.in_scale, scaling.out_scale, dt,
                                seed=seed, structure=setup.structure, layout=layout,
-                               envelope=scaling.envelope, linear=cfg.linear)
+                               envelope=scaling.envelope, linear=cfg.linear,
+                               linear_only=rate_inputs(layout) if cfg.rates_linear else ())
 
     model = network(cfg.seed)
     scales = loss_scales(tr)
