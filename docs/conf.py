@@ -36,7 +36,8 @@ root_doc = "index"
 # benchmarks/hybrid_correction.md gives it a title and includes it; benchmarks/knockout.md
 # does the same for the bare tables benchmarks/bench_knockout.md and
 # benchmarks/bench_knockout_60_sorties.md, benchmarks/bench_knockout_before_sortie_weights.md,
-# benchmarks/bench_knockout_output_penalty.md and benchmarks/knockout_patience/patience20.md.
+# benchmarks/bench_knockout_output_penalty.md, benchmarks/bench_knockout_before_damping_prior.md
+# and benchmarks/knockout_patience/patience20.md.
 exclude_patterns = [
     "_build",
     "benchmarks/bench_hybrid.md",
@@ -44,6 +45,7 @@ exclude_patterns = [
     "benchmarks/bench_knockout_60_sorties.md",
     "benchmarks/bench_knockout_before_sortie_weights.md",
     "benchmarks/bench_knockout_output_penalty.md",
+    "benchmarks/bench_knockout_before_damping_prior.md",
     "benchmarks/knockout_patience/patience20.md",
     "benchmarks/knockout_restarts/*.md",
     "benchmarks/knockout_start_fit/*.md",
