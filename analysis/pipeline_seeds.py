@@ -67,11 +67,12 @@ def summarise(runs: list[dict]) -> dict:
 
 
 def paired(base: dict, other: dict) -> dict:
-    """The seeds' mean log ratios of ``other`` minus ``base``: mean, standard error, t."""
+    """The seeds' mean log ratios of ``other`` minus ``base``: mean, standard error, t (None
+    where there is no spread: one seed, or ``other`` is ``base``)."""
     d = np.subtract(other["seed_mean_log_ratio"], base["seed_mean_log_ratio"])
-    se = float(np.std(d, ddof=1) / math.sqrt(len(d))) if len(d) > 1 else math.nan
+    se = float(np.std(d, ddof=1) / math.sqrt(len(d))) if len(d) > 1 else 0.0
     return {"mean_log_difference": float(np.mean(d)), "standard_error": se,
-            "t": float(np.mean(d) / se) if se and math.isfinite(se) else math.nan}
+            "t": float(np.mean(d) / se) if se > 0 else None}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -102,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{entry['option']!r}: geometric mean ratio {entry['geomean_ratio']:.3f}, "
               f"{entry['n_worse']} of {entry['n_sorties']} sorties worse by more than "
               f"{100 * WORSE_BY:.0f} %, paired t against the first "
-              f"{entry['against_first']['t']:.2f}")
+              f"{entry['against_first']['t']}")
     tmp = args.out.with_name(args.out.name + ".tmp")
     tmp.write_text(json.dumps(result, indent=1))
     tmp.replace(args.out)

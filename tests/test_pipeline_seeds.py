@@ -31,3 +31,4 @@ def test_summary_and_paired_difference(seeds):
     assert got["mean_log_difference"] == pytest.approx(mean, rel=1e-12)
     assert got["standard_error"] == pytest.approx(se, rel=1e-12)
     assert got["t"] == pytest.approx(mean / se, rel=1e-12)
+    assert seeds.paired(base, base)["t"] is None  # no spread: no t (and valid JSON)

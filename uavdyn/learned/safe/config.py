@@ -107,7 +107,7 @@ class SafeConfig:
                                      # an exact-penalty hinge as the stability one: the
                                      # hybrid's pitch damping d(q_dot)/dq at the training
                                      # windows' starts may weaken the physics' but not turn
-                                     # positive. Without it an X500 network did, on 14 % of
+                                     # positive. Without it an X500 network did, on 16 % of
                                      # a gusty inspection's samples, and its pitch-rate
                                      # feedback made that flight 15 % worse (4 % with it);
                                      # 0 switches it off (docs/learned_correction.md)
