@@ -38,6 +38,7 @@ import numpy as np
 from uavdyn import physics_step
 from uavdyn.airframes.loader import load_airframe
 from uavdyn.learned.hybrid import hybrid_step
+from uavdyn.learned.stability import map_pitch_damping
 from uavdyn.learned.weights import load_weights
 
 STEADY_Q_BAND = 0.01        # rad/s: pitch rate spread over a steady window
@@ -62,18 +63,13 @@ def _next(model, z: np.ndarray, controls: np.ndarray, dt: float) -> np.ndarray:
     return np.asarray(model.function.map(len(z))(z.T, controls.T, params, dt)).T
 
 
-def pitch_damping(model, sortie, h: float = 1e-5) -> np.ndarray:
-    """``(N,)`` the model's pitch damping ``(d q_next / d q - 1) / dt`` (1/s) at every true
-    state of the sortie (central difference in the pitch rate)."""
+def pitch_damping(model, sortie) -> np.ndarray:
+    """``(N,)`` the model's pitch damping (1/s) at every true state of the sortie
+    (:func:`uavdyn.learned.stability.map_pitch_damping`)."""
     body, controls = sortie.true_states, sortie.controls
     dt = float(sortie.dt)
     z = model.initial_state(body, controls, None, dt)
-    up, down = z.copy(), z.copy()
-    up[:, 2] += h
-    down[:, 2] -= h
-    slope = (_next(model, up, controls, dt)[:, 2]
-             - _next(model, down, controls, dt)[:, 2]) / (2 * h)
-    return (slope - 1.0) / dt
+    return map_pitch_damping(model, z, controls, model.p, dt)
 
 
 def rate_feedback(models: dict, sortie, horizon_s: float = 1.0) -> dict[str, float]:

@@ -151,3 +151,37 @@ def test_rates_seen_only_linearly_need_the_linear_path():
     with pytest.raises(ValueError, match="linear path"):
         TorchCorrection("multirotor", "improved", 4, "relu", np.zeros(6), np.ones(6),
                         np.ones(3), DT, linear=False, linear_only=(2,))
+
+
+@pytest.mark.parametrize("gain", [0.0, 3.0])
+def test_map_pitch_damping_moves_by_a_pitch_feedback_gain(gain):
+    """``uavdyn.learned.stability.map_pitch_damping`` (``uavdyn evaluate``'s
+    ``damping_reversed``): a hand-set network ``q_dot += gain q`` moves the CasADi hybrid
+    map's pitch damping from the physics' by ``gain`` at every state of a sortie; the
+    physics' own is the linearisation's ``A[q, q]`` at trim."""
+    from test_safe_correction import MEMORY, _pitch_feedback_net
+
+    from uavdyn.integrate import StateLayout
+    from uavdyn.learned import hybrid_step
+    from uavdyn.learned.stability import map_pitch_damping
+    from uavdyn.linear import linearise
+
+    airframe = load_airframe(EXAMPLES / "trainer.toml")
+    point = trim(airframe, 14.0)
+    rng = np.random.default_rng(2)
+    x = np.asarray(point.x, float) + np.array([0.5, 0.2, 0.05, 0.02]) * rng.normal(size=(20, 4))
+    u = np.tile(np.asarray(point.u, float), (20, 1))
+    layout = StateLayout(structure_of(airframe), MEMORY)
+    z = np.array([layout.states(xi, ui, airframe.p, DT)[0] for xi, ui in zip(x, u)])
+    hybrid = hybrid_step(_pitch_feedback_net(airframe, gain), airframe, compile=False)
+    step = 1e-4  # a short step: the map's damping is the rate's derivative to O(dt A g)
+    got = map_pitch_damping(hybrid, z, u, airframe.p, step)
+    structure = structure_of(airframe)
+    physics = physics_step(structure)
+    own = map_pitch_damping(physics, z[:, :structure.nx()], u, airframe.p, step)
+    np.testing.assert_allclose(got - own, gain, rtol=1e-2, atol=1e-5)
+    z_trim = StateLayout(structure, ()).states(point.x, point.u, airframe.p, step)[0]
+    at_trim = map_pitch_damping(physics, np.atleast_2d(z_trim), np.asarray(point.u)[None],
+                                airframe.p, step)
+    A, _ = linearise(airframe, point, actuators=False)
+    assert at_trim[0] == pytest.approx(A[2, 2], rel=2e-3)

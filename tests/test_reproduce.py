@@ -325,6 +325,7 @@ def test_train_and_evaluate_on_a_hand_written_dataset(tmp_path, capsys):
             assert r[f"{mode}_ratio"] == pytest.approx(ratio, rel=1e-12)
             assert (mode in r["worse"]) == (ratio > 1.0)
         assert 0.0 <= r["outside_envelope"] <= 1.0
+        assert 0.0 <= r["damping_reversed"] <= 1.0
     assert safety[0]["worse_at_1s"] == sum("horizon_1s" in r["worse"]
                                            for r in safety[0]["sorties"])
     assert "Per sortie" in out.with_suffix(".md").read_text()

@@ -388,16 +388,18 @@ def safety_lines(entry: dict) -> list[str]:
              "records, with the pitch noise estimated from them (d theta/dt = q) taken off.",
              "",
              "| sortie | condition | 1 s: physics | corrected | ratio | free run: physics "
-             "| corrected | ratio | pitch noise taken off | outside envelope | worse |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| corrected | ratio | pitch noise taken off | outside envelope "
+             "| pitch damping reversed | worse |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in entry["sorties"]:
-        outside = r.get("outside_envelope")
+        outside, reversed_ = r.get("outside_envelope"), r.get("damping_reversed")
         lines.append(
             f"| {r['sortie']} | {r['condition']} | {f(r['horizon_1s_physics'])} | "
             f"{f(r['horizon_1s_corrected'])} | {f(r['horizon_1s_ratio'])} | "
             f"{f(r['free_run_physics'])} | {f(r['free_run_corrected'])} | "
             f"{f(r['free_run_ratio'])} | {r.get('pitch_noise_std', 0.0):.2g} | "
             f"{'n/a' if outside is None else f'{100 * outside:.1f} %'} | "
+            f"{'n/a' if reversed_ is None else f'{100 * reversed_:.1f} %'} | "
             f"{'**' + ', '.join(r['worse']) + '**' if r['worse'] else ''} |")
     return lines
 

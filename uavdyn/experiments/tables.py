@@ -21,6 +21,7 @@ from uavdyn.flightdata import Sortie, pitch_noise_std
 from uavdyn.learned.formulations import network_inputs
 from uavdyn.learned.hybrid import correction_structure
 from uavdyn.learned.rules import is_worse, sortie_ratio
+from uavdyn.learned.stability import map_pitch_damping
 from uavdyn.model import sortie_params
 
 # ----------------------------------------------------------------------------- Table 1
@@ -303,4 +304,17 @@ def _safety_row(cand: Candidate, physics: Candidate, s: Sortie, net,
         row["outside_envelope"] = net.envelope.fraction_outside(inputs)
         if net.envelope.steady is not None:  # --steady-gate on: where it held the network
             row["steady_held"] = net.envelope.fraction_steady_held(inputs)
+        row["damping_reversed"] = _damping_reversed(cand, physics, s, p, z)
     return row
+
+
+def _damping_reversed(cand: Candidate, physics: Candidate, s: Sortie, p: np.ndarray,
+                      z: np.ndarray) -> float:
+    """The share of the sortie's recorded states where the corrected step's pitch damping
+    is positive beyond the physics' own (the sign the trainer's damping prior holds; ``z``
+    the corrected step's states)."""
+    dt = float(np.median(np.diff(s.time)))
+    z_physics = physics.solver.model.initial_state(s.states, s.controls, p, dt)
+    hybrid = map_pitch_damping(cand.solver.model, z, s.controls, p, dt)
+    own = map_pitch_damping(physics.solver.model, z_physics, s.controls, p, dt)
+    return float(np.mean(hybrid > np.maximum(own, 0.0)))

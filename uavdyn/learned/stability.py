@@ -270,6 +270,23 @@ class StabilityReport:
                            for f in self.findings]}
 
 
+def map_pitch_damping(model: DiscreteModel, z: np.ndarray, controls: np.ndarray,
+                      p: np.ndarray, dt: float, h: float = 1e-5) -> np.ndarray:
+    """The step map's pitch damping ``(d q_next / d q - 1) / dt`` (1/s) at every row of the
+    states ``z`` (``(N, n_state)``, the pitch rate third) with the matching ``controls``
+    (central difference, one mapped call per side). A positive value is a pitch rate that
+    feeds itself: the sign the trainer's damping prior keeps a correction from reversing."""
+    z = np.asarray(z, float)
+    params = np.tile(np.asarray(p, float).reshape(-1, 1), (1, len(z)))
+    step = model.function.map(len(z))
+    up, down = z.copy(), z.copy()
+    up[:, 2] += h
+    down[:, 2] -= h
+    slope = (np.asarray(step(up.T, controls.T, params, dt))[2]
+             - np.asarray(step(down.T, controls.T, params, dt))[2]) / (2 * h)
+    return (slope - 1.0) / dt
+
+
 def check_map_stability(hybrid: DiscreteModel, physics: DiscreteModel, trims: list[TrimSample],
                         dt: float, margin: float = DEFAULT_MARGIN,
                         skipped: list[str] | None = None) -> StabilityReport:
