@@ -100,10 +100,11 @@ def main(argv: list[str] | None = None) -> int:
     base = result["options"][0]
     for entry in result["options"]:
         entry["against_first"] = paired(base, entry)
+        t = entry["against_first"]["t"]
         print(f"{entry['option']!r}: geometric mean ratio {entry['geomean_ratio']:.3f}, "
               f"{entry['n_worse']} of {entry['n_sorties']} sorties worse by more than "
-              f"{100 * WORSE_BY:.0f} %, paired t against the first "
-              f"{entry['against_first']['t']}")
+              f"{100 * WORSE_BY:.0f} %" + ("" if t is None else
+                                          f", paired t against the first {t:.2f}"))
     tmp = args.out.with_name(args.out.name + ".tmp")
     tmp.write_text(json.dumps(result, indent=1))
     tmp.replace(args.out)
