@@ -297,23 +297,22 @@ def _safety_row(cand: Candidate, physics: Candidate, s: Sortie, net,
     row["worse"] = [m for m in ("horizon_1s", "free_run") if is_worse(row[f"{m}_ratio"])]
     if net is not None and net.envelope is not None:
         p = sortie_params(cand.airframe, s.altitude_m)
-        z = cand.solver.model.initial_state(s.states, s.controls, p,
-                                            float(np.median(np.diff(s.time))))
+        dt = float(np.median(np.diff(s.time)))
+        z = cand.solver.model.initial_state(s.states, s.controls, p, dt)
         layout = net.layout(correction_structure(cand.airframe, net.kind, net.formulation))
         inputs = network_inputs(layout, z, s.controls, p)[0]
         row["outside_envelope"] = net.envelope.fraction_outside(inputs)
         if net.envelope.steady is not None:  # --steady-gate on: where it held the network
             row["steady_held"] = net.envelope.fraction_steady_held(inputs)
-        row["damping_reversed"] = _damping_reversed(cand, physics, s, p, z)
+        row["damping_reversed"] = _damping_reversed(cand, physics, s, p, z, dt)
     return row
 
 
 def _damping_reversed(cand: Candidate, physics: Candidate, s: Sortie, p: np.ndarray,
-                      z: np.ndarray) -> float:
+                      z: np.ndarray, dt: float) -> float:
     """The share of the sortie's recorded states where the corrected step's pitch damping
     is positive beyond the physics' own (the sign the trainer's damping prior holds; ``z``
     the corrected step's states)."""
-    dt = float(np.median(np.diff(s.time)))
     z_physics = physics.solver.model.initial_state(s.states, s.controls, p, dt)
     hybrid = map_pitch_damping(cand.solver.model, z, s.controls, p, dt)
     own = map_pitch_damping(physics.solver.model, z_physics, s.controls, p, dt)

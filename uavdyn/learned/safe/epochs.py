@@ -134,14 +134,14 @@ def damping_penalty(model: TorchCorrection, batch: WindowTensors, dt: float) -> 
     pitch-rate error back into its moment, which no one-step residual shows."""
     u0, p = batch.u[:, 0], batch.p.T
 
-    def pitch_damping(step) -> torch.Tensor:
+    def pitch_damping(step, trained: bool) -> torch.Tensor:
         z = batch.z0.detach().clone().requires_grad_(True)
         q_next = step(z, u0, p, dt)[:, 2]
-        grad = torch.autograd.grad(q_next.sum(), z, create_graph=True)[0][:, 2]
+        grad = torch.autograd.grad(q_next.sum(), z, create_graph=trained)[0][:, 2]
         return (grad - 1.0) / dt
 
-    hybrid = pitch_damping(model.step)
-    physics = pitch_damping(model.step_without_network).detach()
+    hybrid = pitch_damping(model.step, True)  # differentiated again, into the weights
+    physics = pitch_damping(model.step_without_network, False).detach()
     return torch.mean(torch.relu(hybrid - torch.clamp(physics, min=0.0)))
 
 
