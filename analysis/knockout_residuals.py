@@ -51,10 +51,7 @@ def one_step_errors(model, sortie) -> np.ndarray:
     body, controls = sortie.true_states, sortie.controls
     dt = float(sortie.dt)
     z = model.initial_state(body, controls, None, dt)
-    step = model.function.map(len(z) - 1)
-    params = np.tile(np.asarray(model.p, float)[:, None], (1, len(z) - 1))
-    z_next = np.asarray(step(z[:-1].T, controls[:-1].T, params, dt))
-    return (z_next[2] - body[1:, 2]) / dt
+    return (_next(model, z[:-1], controls[:-1], dt)[:, 2] - body[1:, 2]) / dt
 
 
 def _next(model, z: np.ndarray, controls: np.ndarray, dt: float) -> np.ndarray:
