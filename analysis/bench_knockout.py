@@ -916,8 +916,9 @@ def save(doc: dict, out: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--airframes", nargs="+", default=list(AIRFRAMES),
-                    help="presets or airframe files (default: %(default)s)")
+    ap.add_argument("--airframes", nargs="+", default=None,
+                    help=f"presets or airframe files (default: {', '.join(AIRFRAMES)}; with "
+                         "--merge, default: every airframe of the files)")
     ap.add_argument("--terms", nargs="+", default=list(TERM_NAMES), choices=TERM_NAMES,
                     help="knocked-out terms (each applies to its airframe kind; default all)")
     ap.add_argument("--sorties", type=int, default=None, help="sorties (default 30; quick 9)")
@@ -971,11 +972,16 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.merge:
         doc = merged(args.merge, args.airframes)
+        if not doc["cases"]:
+            ap.error("--merge: no case of " + (", ".join(args.airframes) if args.airframes
+                                               else "any airframe") + " in "
+                     + ", ".join(str(p) for p in args.merge))
         write_atomic(args.out, json.dumps(json_safe(doc), indent=1) + "\n")
         if args.markdown:
             write_atomic(args.markdown, markdown_table(doc))
         say(f"wrote {args.out}" + (f" and {args.markdown}" if args.markdown else ""))
         return 0
+    args.airframes = args.airframes or list(AIRFRAMES)
     try:
         cfg = safe_config(parse_key_values(args.safe_config), args.quick)
         args.truth = parse_key_values(args.truth, "--truth")

@@ -37,7 +37,7 @@ root_doc = "index"
 # does the same for the bare tables benchmarks/bench_knockout.md and
 # benchmarks/bench_knockout_60_sorties.md, benchmarks/bench_knockout_before_sortie_weights.md,
 # benchmarks/bench_knockout_output_penalty.md, benchmarks/bench_knockout_before_damping_prior.md
-# and benchmarks/knockout_patience/patience20.md.
+# and benchmarks/knockout_patience/patience20.md, and the T-28's benchmarks/knockout_t28/*.md.
 exclude_patterns = [
     "_build",
     "benchmarks/bench_hybrid.md",
@@ -50,6 +50,7 @@ exclude_patterns = [
     "benchmarks/knockout_restarts/*.md",
     "benchmarks/knockout_start_fit/*.md",
     "benchmarks/knockout_fade/*.md",
+    "benchmarks/knockout_t28/*.md",
     "**/*.json",
     "mpc/*",
     "montecarlo/*",

@@ -199,3 +199,19 @@ def test_a_merged_older_case_gets_the_worse_than_the_term_count_from_its_sorties
     score = doc["cases"]["x/t"]["score"]
     assert score["sorties_worse_than_term"] == ["s1"] and score["n_sorties_worse_than_term"] == 1
     assert "n_sorties_worse_than_term" in doc["definitions"]
+
+
+def test_merge_keeps_every_airframe_of_its_files_unless_told(bench, tmp_path, capsys):
+    """``--merge`` without ``--airframes`` keeps an airframe file's cases (a T-28 run was
+    silently dropped when the default list of four filtered the merge); with it, only those;
+    a merge that keeps nothing is refused in one line and writes nothing."""
+    case = {"airframe": "examples/alfa_t28.toml", "score": {}, "per_sortie": []}
+    run = tmp_path / "t28.json"
+    run.write_text(json.dumps({"command": "c", "cases": {"alfa_t28/power": case}}))
+    out = tmp_path / "merged.json"
+    assert bench.main(["--merge", str(run), "--out", str(out)]) == 0
+    assert list(json.loads(out.read_text())["cases"]) == ["alfa_t28/power"]
+    empty = tmp_path / "empty.json"
+    with pytest.raises(SystemExit):
+        bench.main(["--merge", str(run), "--airframes", "aerosonde", "--out", str(empty)])
+    assert "no case of aerosonde" in capsys.readouterr().err and not empty.exists()
