@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import json
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -118,3 +119,30 @@ def test_store_shares_a_model_across_row_names_and_keeps_targets_apart(aerosonde
                                  ("nominal physics", 0.01, "s", ("horizons", (0.1, 1.0)))}
     with pytest.raises(ValueError, match="target"):
         store.trajectory(a, sortie, "truth")
+
+
+def test_two_weight_files_of_one_name_stay_apart_in_the_rows(tmp_path):
+    """`uavdyn evaluate --weights old/f.npz new/f.npz` (an old and a re-trained file): the
+    rows name each file by its path, not by the one name they share."""
+    import shutil
+
+    from test_reproduce import write_hand_dataset
+
+    from uavdyn.airframes import load_airframe
+    from uavdyn.experiments.evaluate import evaluate_dataset
+    from uavdyn.learned import shipped_correction, shipped_identified
+
+    folder = write_hand_dataset(tmp_path / "hand", n_sorties=6, duration=4.0)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    manifest["sorties"][4]["split"] = "test"
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    shipped = shipped_correction("aerosonde")[0]
+    copies = []
+    for sub in ("old", "new"):
+        (tmp_path / sub).mkdir()
+        copies.append(Path(shutil.copy(shipped, tmp_path / sub / "f.npz")))
+    result = evaluate_dataset(load_airframe("aerosonde"), folder, copies,
+                              identified=shipped_identified("aerosonde"))
+    labels = [e["correction"] for e in result["per_sortie"]]
+    assert len(set(labels)) == 2
+    assert all(str(p) in label for p, label in zip(copies, labels))

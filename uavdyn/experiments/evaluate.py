@@ -6,7 +6,7 @@ trained on). Every prediction is made once (:class:`PredictionStore`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +62,9 @@ def evaluate_dataset(airframe: Airframe, dataset: str | Path, weights: list[str 
     physics = physics_rungs(airframe, identified)
     nets = [load_weights(w) for w in weights]
     hybrids = [_hybrid(w, net, physics) for w, net in zip(weights, nets)]
+    names = [Path(h.path).name for h in hybrids]
+    hybrids = [replace(h, shown=str(h.path)) if names.count(Path(h.path).name) > 1 else h
+               for h in hybrids]  # two files of one name: their rows name the paths
     candidates = [Candidate(Solver(f"{label} @ {dt:g} s", physics_step(af), dt), af, tag,
                             label) for label, af, tag in physics for dt in dts]
     candidates += [h.at(dt) for h in hybrids for dt in dts]
@@ -113,10 +116,12 @@ class _Hybrid:
     airframe: Airframe
     physics: str  # "nominal" or "identified"
     formulation: str
+    shown: str = ""  # how the file is named in rows: its name, or its path where two share one
 
     @property
     def name(self) -> str:
-        return f"hybrid {self.formulation} ({Path(self.path).name}) on {self.physics} physics"
+        shown = self.shown or Path(self.path).name
+        return f"hybrid {self.formulation} ({shown}) on {self.physics} physics"
 
     def at(self, dt: float, name: str | None = None) -> Candidate:
         """The hybrid at ``dt`` as a candidate (row ``name``, default ``<name> @ <dt> s``);
