@@ -51,13 +51,7 @@ def one_step_errors(model, sortie) -> np.ndarray:
     body, controls = sortie.true_states, sortie.controls
     dt = float(sortie.dt)
     z = model.initial_state(body, controls, None, dt)
-    return (_next(model, z[:-1], controls[:-1], dt)[:, 2] - body[1:, 2]) / dt
-
-
-def _next(model, z: np.ndarray, controls: np.ndarray, dt: float) -> np.ndarray:
-    """``model``'s step from every row of ``z`` with the matching row of ``controls``."""
-    params = np.tile(np.asarray(model.p, float)[:, None], (1, len(z)))
-    return np.asarray(model.function.map(len(z))(z.T, controls.T, params, dt)).T
+    return (model.step_rows(z[:-1], controls[:-1], model.p, dt)[:, 2] - body[1:, 2]) / dt
 
 
 def pitch_damping(model, sortie) -> np.ndarray:
@@ -90,13 +84,13 @@ def rate_feedback(models: dict, sortie, horizon_s: float = 1.0) -> dict[str, flo
         sq = []
         for k in range(n):
             u = controls[starts + k]
-            nxt = _next(model, z, u, dt)
+            nxt = model.step_rows(z, u, model.p, dt)
             if true_rate:
                 mixed = z.copy()
                 mixed[:, 2] = body[starts + k, 2]
-                nxt[:, :n_phys] = (_next(phys, z[:, :n_phys], u, dt)
-                                   + _next(model, mixed, u, dt)[:, :n_phys]
-                                   - _next(phys, mixed[:, :n_phys], u, dt))
+                nxt[:, :n_phys] = (phys.step_rows(z[:, :n_phys], u, phys.p, dt)
+                                   + model.step_rows(mixed, u, model.p, dt)[:, :n_phys]
+                                   - phys.step_rows(mixed[:, :n_phys], u, phys.p, dt))
             z = nxt
             sq.append((z[:, 3] - body[starts + k + 1, 3]) ** 2)
         return float(np.sqrt(np.mean(sq)))

@@ -255,3 +255,25 @@ def test_evaluation_flags_a_free_run_that_leaves_the_physical_ranges(f450):
     text = "\n".join(table1_lines({"table1": {"flight data": {"sorties": ["hover_tilt"],
                                                                 "rows": [row]}}}))
     assert f"free run of hover_tilt: departed at t = {dep['time_s']:.2f} s" in text
+
+
+def test_step_rows_is_the_step_from_each_row_and_refuses_a_time_taking_formulation():
+    """One mapped call over rows (the trainer example, non-preset) equals the step called row
+    by row; a formulation that takes time has no single t for the rows and is refused."""
+    trainer = uavdyn.load_airframe("examples/trainer.toml")
+    model = uavdyn.physics_step(trainer)
+    x0 = np.asarray(model.initial_state(np.array([[15.0, 1.0, 0.0, 0.05]]),
+                                        np.array([[-0.05, 0.5]]), None, DT))[0]
+    rng = np.random.default_rng(3)
+    z = x0 + rng.normal(0.0, [0.5, 0.2, 0.1, 0.02] + [0.01] * (len(x0) - 4), (7, len(x0)))
+    u = np.column_stack([rng.uniform(-0.1, 0.1, 7), rng.uniform(0.3, 0.8, 7)])
+    rows = model.step_rows(z, u, model.p, DT)
+    one_by_one = np.array([np.asarray(model(z[i], u[i], model.p, DT)).ravel()
+                           for i in range(7)])
+    assert rows.shape == z.shape
+    np.testing.assert_allclose(rows, one_by_one, rtol=1e-12, atol=1e-14)
+    from uavdyn.learned import shipped_weights
+    paper = uavdyn.hybrid_step(shipped_weights("aerosonde", "paper"),
+                               uavdyn.load_airframe("aerosonde"), compile=False)
+    with pytest.raises(ValueError, match="takes time"):
+        paper.step_rows(np.zeros((2, paper.nx)), np.zeros((2, paper.nu)), paper.p, 0.005)

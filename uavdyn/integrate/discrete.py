@@ -261,6 +261,23 @@ class DiscreteModel:
     def __call__(self, *args):
         return self.function(*args)
 
+    def step_rows(self, z: np.ndarray, controls: np.ndarray, p: np.ndarray,
+                  dt: float) -> np.ndarray:
+        """One step from every row of ``z`` (``(N, nx)``) with the matching row of
+        ``controls`` and the parameters ``p``, as ``(N, nx)``: one mapped call, not N.
+
+        Raises
+        ------
+        ValueError
+            For a formulation that takes time (each row would need its own ``t``).
+        """
+        if self.takes_time:
+            raise ValueError(f"model '{self.name}' takes time t: step_rows steps without it")
+        z = np.asarray(z, float)
+        params = np.tile(np.asarray(p, float).reshape(-1, 1), (1, len(z)))
+        return np.asarray(self.function.map(len(z))(z.T, np.asarray(controls, float).T,
+                                                    params, dt)).T
+
     def jacobians(self) -> ca.Function:
         """``(x, u, p, dt[, t]) -> (x_next, A = dx_next/dx, B = dx_next/du)`` by exact
         algorithmic differentiation of the step (built once per model)."""

@@ -277,13 +277,11 @@ def map_pitch_damping(model: DiscreteModel, z: np.ndarray, controls: np.ndarray,
     (central difference, one mapped call per side). A positive value is a pitch rate that
     feeds itself: the sign the trainer's damping prior keeps a correction from reversing."""
     z = np.asarray(z, float)
-    params = np.tile(np.asarray(p, float).reshape(-1, 1), (1, len(z)))
-    step = model.function.map(len(z))
     up, down = z.copy(), z.copy()
     up[:, 2] += h
     down[:, 2] -= h
-    slope = (np.asarray(step(up.T, controls.T, params, dt))[2]
-             - np.asarray(step(down.T, controls.T, params, dt))[2]) / (2 * h)
+    slope = (model.step_rows(up, controls, p, dt)[:, 2]
+             - model.step_rows(down, controls, p, dt)[:, 2]) / (2 * h)
     return (slope - 1.0) / dt
 
 
