@@ -93,6 +93,16 @@ class TorchCorrection(nn.Module):
             with torch.no_grad():
                 self.layers[0].weight[:, list(self.linear_only)] = 0.0
 
+    def drop_hidden_gradients(self) -> None:
+        """Forget the gradients of the hidden layers and of the output layer's weights, so
+        an optimiser step moves only the linear path and the output bias (the linear stage of
+        ``SafeConfig.linear_first_epochs``: the output weights start at zero, so the hidden
+        layers stay silent until they are released, from their initial weights)."""
+        for layer in self.layers[:-1]:
+            for param in layer.parameters():
+                param.grad = None
+        self.layers[-1].weight.grad = None
+
     def forward(self, inp: torch.Tensor) -> torch.Tensor:
         """The network on a batch ``(B, n_in)`` -> ``(B, n_out)`` (the one MLP forward)."""
         return self._net(inp.T).T

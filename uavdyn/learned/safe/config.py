@@ -64,6 +64,13 @@ class SafeConfig:
                                       # as a stability derivative does, one constant per
                                       # output, not a damping the hidden layers vary with
                                       # the flight condition
+    all_linear: bool = False          # every input reaches the outputs only through the
+                                      # linear path (the hidden layers give a constant): the
+                                      # correction is a change of the physics' coefficients
+    linear_first_epochs: int = 0      # > 0: the first this many epochs train the linear path
+                                      # alone (the hidden layers' output held at zero), then
+                                      # the hidden layers join from their initial weights
+                                      # (patience counts from the release)
     memory_tau: tuple[float, ...] | None = None  # None: (0.05, 0.2) s without actuator states
     horizon_s: float = 2.0            # rollout windows from recorded states, this long
     window_stride_s: float = 0.5

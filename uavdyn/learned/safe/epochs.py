@@ -167,9 +167,11 @@ class WeightAverage:
 
 def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: TrainingData,
                 stab: StabilityTargets, cfg: SafeConfig, rng: np.random.Generator,
-                average: WeightAverage | None = None) -> tuple[float, float, float]:
+                average: WeightAverage | None = None, linear_stage: bool = False
+                ) -> tuple[float, float, float]:
     """One epoch of ``cfg.batches_per_epoch`` Adam steps (each folded into ``average``); the
-    mean loss, stability penalty and damping penalty."""
+    mean loss, stability penalty and damping penalty. ``linear_stage``: the hidden layers
+    are not updated (their output weights start at zero, so they stay silent)."""
     sum_l = sum_s = sum_d = 0.0
     n_w = data.train.count
     for _ in range(cfg.batches_per_epoch):
@@ -198,6 +200,8 @@ def train_epoch(model: TorchCorrection, opt: torch.optim.Optimizer, data: Traini
             damping = damping_penalty(model, batch, data.loss.dt)
             (cfg.damping_weight * damping).backward()
             sum_d += float(damping.detach())
+        if linear_stage:
+            model.drop_hidden_gradients()
         opt.step()
         model.hold_linear_only()
         if average is not None:
@@ -249,7 +253,8 @@ class EpochLoop:
             if self.stopped:
                 break
             loss, penalty, damping = train_epoch(model, self.opt, data, self.stab, cfg,
-                                                 self.rng, self.average)
+                                                 self.rng, self.average,
+                                                 epoch <= cfg.linear_first_epochs)
             self.sched.step()
             if (data.train_starts is not None and cfg.train_refit_every
                     and epoch % cfg.train_refit_every == 0):
@@ -268,7 +273,7 @@ class EpochLoop:
                             worst=f"{sel['val_ratio_worst']:.3g}", refresh=False)
             self.epoch = epoch
             self._keep(epoch, sel)
-            if epoch - self.progress >= cfg.patience:
+            if epoch - max(self.progress, cfg.linear_first_epochs) >= cfg.patience:
                 self.stopped = (f"patience: no better validation rank or mean ratio in the "
                                 f"{cfg.patience} epochs after epoch {self.progress}")
             elif elapsed > cfg.max_seconds:

@@ -158,7 +158,9 @@ def train_safe(train_sorties: list[Sortie], val_sorties: list[Sortie], airframe:
                                scaling.in_mean, scaling.in_scale, scaling.out_scale, dt,
                                seed=seed, structure=setup.structure, layout=layout,
                                envelope=scaling.envelope, linear=cfg.linear,
-                               linear_only=rate_inputs(layout) if cfg.rates_linear else ())
+                               linear_only=(tuple(range(layout.n_inputs)) if cfg.all_linear
+                                            else rate_inputs(layout) if cfg.rates_linear
+                                            else ()))
 
     model = network(cfg.seed)
     scales = loss_scales(tr)
