@@ -9,7 +9,9 @@ condition of each window (airspeed, flight-path angle, commands). A one-step err
 held steady is its moment imbalance at that state: where the corrected model's grows while
 (a)'s and (b)'s stay small, the network's output is wrong there. The same numbers for every
 steady window of the training sorties (pitch rate and every command within a small band over
-the window) show which steady flight conditions the correction was trained on.
+the window) show which steady flight conditions the correction was trained on. Per window
+also the pitch acceleration the network puts out, split into its linear path and its hidden
+layers (:func:`network_parts`, before the gate and the bound): which part carries it there.
 
 A model can have the right moment along the flight and still predict it worse: per sortie
 also each model's pitch damping ``d q_dot / d q`` at every true state, and the 1 s pitch
@@ -37,9 +39,12 @@ import numpy as np
 
 from uavdyn import physics_step
 from uavdyn.airframes.loader import load_airframe
+from uavdyn.learned.formulations import network_inputs
 from uavdyn.learned.hybrid import hybrid_step
+from uavdyn.learned.mlp import mlp_forward
 from uavdyn.learned.stability import map_pitch_damping
-from uavdyn.learned.weights import load_weights
+from uavdyn.learned.weights import CorrectionNet, load_weights
+from uavdyn.model import NUMPY_OPS
 
 STEADY_Q_BAND = 0.01        # rad/s: pitch rate spread over a steady window
 STEADY_COMMAND_BAND = 0.01  # each command's spread over a steady window (its own units)
@@ -52,6 +57,30 @@ def one_step_errors(model, sortie) -> np.ndarray:
     dt = float(sortie.dt)
     z = model.initial_state(body, controls, None, dt)
     return (model.step_rows(z[:-1], controls[:-1], model.p, dt)[:, 2] - body[1:, 2]) / dt
+
+
+def network_parts(net: CorrectionNet, model, sortie) -> dict[str, np.ndarray]:
+    """``(N-1,)`` the pitch acceleration (rad/s^2) the network of ``net`` puts out at each true
+    state of the sortie (but the last), split into its linear path (``network_linear``) and
+    its hidden layers with the output biases (``network_hidden``), before the gate and the
+    bound, and the gate's value (``network_gate``, 1 without one). ``model`` is the corrected
+    step (its state layout and parameters)."""
+    body, controls = sortie.true_states[:-1], sortie.controls[:-1]
+    z = model.initial_state(body, controls, None, float(sortie.dt))
+    layout = net.layout(model.structure)
+    inp, gains = network_inputs(layout, z, controls, model.p)
+    x = inp.T
+    full = np.asarray(mlp_forward(net.weights, net.biases, net.in_mean, net.in_scale,
+                                  net.out_mean, net.out_scale, x, NUMPY_OPS, net.activation,
+                                  skip=net.skip), float)
+    linear = (np.zeros_like(full) if net.skip is None else
+              (net.skip @ ((x - net.in_mean[:, None]) / net.in_scale[:, None]))
+              * net.out_scale[:, None])
+    gate = (np.ones(len(z)) if layout.gate is None
+            else np.broadcast_to(np.asarray(layout.gate(x, NUMPY_OPS), float).ravel(), len(z)))
+    return {"network_linear": linear[2] * gains[:, 2],
+            "network_hidden": (full[2] - linear[2]) * gains[:, 2],
+            "network_gate": np.array(gate, float)}
 
 
 def pitch_damping(model, sortie) -> np.ndarray:
@@ -99,8 +128,9 @@ def rate_feedback(models: dict, sortie, horizon_s: float = 1.0) -> dict[str, flo
 
 
 def windows(sortie, errors: dict[str, np.ndarray], width_s: float) -> list[dict]:
-    """Per window of ``width_s``: each model's mean and RMS one-step error, the flight
-    condition, and whether the window is steady."""
+    """Per window of ``width_s``: the mean and RMS of each series of ``errors`` (the models'
+    one-step errors, the network's parts), the flight condition, and whether the window is
+    steady."""
     body, controls = sortie.true_states[1:], sortie.controls[1:]
     t = sortie.time[1:] - sortie.time[0]
     speed = np.hypot(body[:, 0], body[:, 1])
@@ -123,12 +153,17 @@ def windows(sortie, errors: dict[str, np.ndarray], width_s: float) -> list[dict]
     return out
 
 
+def correction_of(case: dict, weights_dir: Path) -> tuple[CorrectionNet, object]:
+    """The case's kept network and the identified airframe (a) it was trained on."""
+    stem = case["airframe_name"] + "_" + case["term"]
+    af_a = load_airframe(weights_dir / f"{stem}.toml")
+    return load_weights(weights_dir / f"{stem}.npz", af_a), af_a
+
+
 def models_of(case: dict, weights_dir: Path) -> dict:
     """The case's three steps: (a) and its kept correction from the weights folder, (b) from
     the nominal airframe with the recorded estimates of the fit with the term."""
-    stem = case["airframe_name"] + "_" + case["term"]
-    af_a = load_airframe(weights_dir / f"{stem}.toml")
-    net = load_weights(weights_dir / f"{stem}.npz", af_a)
+    net, af_a = correction_of(case, weights_dir)
     nominal = load_airframe(knockout.airframe_ref(case["airframe"])[0])
     est = case["identify"]["with"]["estimates"]
     af_b = nominal.replace(**{name: e["value"] for name, e in est.items()})
@@ -165,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     if case["dataset"]["resplit"]["balance_conditions"]:
         knockout.deal_conditions_by_mission(ds)
     models = models_of(case, args.weights_dir)
+    net = correction_of(case, args.weights_dir)[0]
     by_name = {s.name: s for s in ds.sorties}
     chosen = args.sorties or worse_sorties(case)
     command = ["python analysis/knockout_residuals.py"] + list(argv or sys.argv[1:])
@@ -183,11 +219,13 @@ def main(argv: list[str] | None = None) -> int:
                                   "share_positive": float(np.mean(d > 0))}
                               for k, d in damping.items()},
             "rmse_1s_rate_feedback": rate_feedback(models, sortie),
-            "windows": windows(sortie, errors, args.window)}
+            "windows": windows(sortie, errors | network_parts(net, models["corrected"], sortie),
+                               args.window)}
     for sortie in ds.split("train"):
         errors = {k: one_step_errors(m, sortie) for k, m in models.items()}
+        series = errors | network_parts(net, models["corrected"], sortie)
         result["train_steady"] += [{"sortie": sortie.name, **w}
-                                   for w in windows(sortie, errors, args.window) if w["steady"]]
+                                   for w in windows(sortie, series, args.window) if w["steady"]]
     result["train_steady_range"] = steady_range(result["train_steady"])
     print_table(result)
     if args.out:
@@ -212,7 +250,9 @@ def print_table(result: dict) -> None:
         cmds = " ".join(f"{c:+.3f}" for c in w["commands"])
         return (f"{label:16s} V {w['airspeed_mps']:5.2f} gamma {w['gamma_deg']:+5.1f} "
                 f"cmd {cmds}  a {w['mean_a']:+.3f}  b {w['mean_b']:+.3f}  "
-                f"corrected {w['mean_corrected']:+.3f}{'  steady' if w['steady'] else ''}")
+                f"corrected {w['mean_corrected']:+.3f}  network linear "
+                f"{w['mean_network_linear']:+.3f} hidden {w['mean_network_hidden']:+.3f}"
+                f"{'  steady' if w['steady'] else ''}")
     for name, s in result["sorties"].items():
         print(f"{name} ({s['mission']}, {s['condition']}): mean one-step pitch-acceleration "
               "error per window (rad/s^2); RMS over the sortie "

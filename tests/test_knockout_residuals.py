@@ -108,3 +108,46 @@ def test_rate_feedback_separates_a_damping_change_from_a_moment_offset(residuals
     got = residuals.rate_feedback({"a": a, "corrected": damped}, sortie)
     assert got["corrected"] > 1e-4
     assert abs(got["true_rate"] - got["corrected"]) > 0.05 * got["corrected"]
+
+
+def test_network_parts_add_up_to_what_the_hybrid_step_adds(residuals):
+    """The network's pitch acceleration split into its linear path and its hidden layers
+    sums to what the CasADi hybrid step adds to the physics step over one step (over dt; the
+    residual is held over the RK4 step, so up to the damping's effect within it); without a linear path
+    the linear part is zero and the hidden part unchanged."""
+    import dataclasses
+
+    import torch
+
+    from uavdyn.learned.formulations import CorrectionLayout, network_inputs
+    from uavdyn.learned.hybrid import hybrid_step
+    from uavdyn.learned.torch_model import TorchCorrection
+    from uavdyn.model import structure_of
+
+    airframe = load_airframe(EXAMPLES / "trainer.toml")
+    dt = 5e-4  # the physics' pitch damping (about -40 1/s) acts on the held residual
+    sortie = _doublet_flight(airframe, dt, 1000)  # within the step: dt |M_q| / 2 = 1 %
+    structure = structure_of(airframe)
+    layout = CorrectionLayout(structure, (), inputs="physical", output="coefficient")
+    phys = physics_step(airframe)
+    z = phys.initial_state(sortie.true_states[:-1], sortie.controls[:-1], None, dt)
+    inp, _ = network_inputs(layout, z, sortie.controls[:-1], phys.p)
+    model = TorchCorrection("fixed_wing", "improved", 6, "relu", inp.mean(axis=0),
+                            inp.std(axis=0) + 1e-6, np.full(3, 2e-3), dt, seed=2,
+                            structure=structure, layout=layout, linear=True)
+    gen = torch.Generator().manual_seed(4)
+    with torch.no_grad():
+        model.layers[-1].weight.normal_(0.0, 0.5, generator=gen)
+        model.skip.normal_(0.0, 0.5, generator=gen)
+    net = model.export(airframe.param_hash())
+    hybrid = hybrid_step(net, airframe, compile=False)
+    parts = residuals.network_parts(net, hybrid, sortie)
+    added = (hybrid.step_rows(z, sortie.controls[:-1], hybrid.p, dt)[:, 2]
+             - phys.step_rows(z, sortie.controls[:-1], phys.p, dt)[:, 2]) / dt
+    total = parts["network_linear"] + parts["network_hidden"]
+    assert np.ptp(parts["network_linear"]) > 1e-3 and np.ptp(parts["network_hidden"]) > 1e-3
+    np.testing.assert_allclose(added, total, rtol=2e-2, atol=1e-3 * np.abs(total).max())
+    assert np.all(parts["network_gate"] == 1.0)
+    without = residuals.network_parts(dataclasses.replace(net, skip=None), hybrid, sortie)
+    assert np.all(without["network_linear"] == 0.0)
+    np.testing.assert_allclose(without["network_hidden"], parts["network_hidden"], rtol=1e-12)
