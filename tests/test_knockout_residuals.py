@@ -113,8 +113,8 @@ def test_rate_feedback_separates_a_damping_change_from_a_moment_offset(residuals
 def test_network_parts_add_up_to_what_the_hybrid_step_adds(residuals):
     """The network's pitch acceleration split into its linear path and its hidden layers
     sums to what the CasADi hybrid step adds to the physics step over one step (over dt; the
-    residual is held over the RK4 step, so up to the damping's effect within it); without a linear path
-    the linear part is zero and the hidden part unchanged."""
+    residual is held over the RK4 step, so up to the damping's effect within it); without a
+    linear path the linear part is zero and the hidden part unchanged."""
     import dataclasses
 
     import torch
