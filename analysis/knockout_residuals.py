@@ -160,10 +160,9 @@ def correction_of(case: dict, weights_dir: Path) -> tuple[CorrectionNet, object]
     return load_weights(weights_dir / f"{stem}.npz", af_a), af_a
 
 
-def models_of(case: dict, weights_dir: Path) -> dict:
-    """The case's three steps: (a) and its kept correction from the weights folder, (b) from
-    the nominal airframe with the recorded estimates of the fit with the term."""
-    net, af_a = correction_of(case, weights_dir)
+def models_of(case: dict, net: CorrectionNet, af_a) -> dict:
+    """The case's three steps: (a) and its kept correction ``net`` (:func:`correction_of`),
+    (b) from the nominal airframe with the recorded estimates of the fit with the term."""
     nominal = load_airframe(knockout.airframe_ref(case["airframe"])[0])
     est = case["identify"]["with"]["estimates"]
     af_b = nominal.replace(**{name: e["value"] for name, e in est.items()})
@@ -199,8 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     ds = knockout.load_dataset(case["dataset"]["folder"])
     if case["dataset"]["resplit"]["balance_conditions"]:
         knockout.deal_conditions_by_mission(ds)
-    models = models_of(case, args.weights_dir)
-    net = correction_of(case, args.weights_dir)[0]
+    net, af_a = correction_of(case, args.weights_dir)
+    models = models_of(case, net, af_a)
     by_name = {s.name: s for s in ds.sorties}
     chosen = args.sorties or worse_sorties(case)
     command = ["python analysis/knockout_residuals.py"] + list(argv or sys.argv[1:])
