@@ -70,16 +70,18 @@ def network_parts(net: CorrectionNet, model, sortie) -> dict[str, np.ndarray]:
     layout = net.layout(model.structure)
     inp, gains = network_inputs(layout, z, controls, model.p)
     x = inp.T
-    full = np.asarray(mlp_forward(net.weights, net.biases, net.in_mean, net.in_scale,
-                                  net.out_mean, net.out_scale, x, NUMPY_OPS, net.activation,
-                                  skip=net.skip), float)
-    linear = (np.zeros_like(full) if net.skip is None else
-              (net.skip @ ((x - net.in_mean[:, None]) / net.in_scale[:, None]))
-              * net.out_scale[:, None])
+
+    def forward(skip) -> np.ndarray:  # the one MLP forward, with or without the linear path
+        return np.asarray(mlp_forward(net.weights, net.biases, net.in_mean, net.in_scale,
+                                      net.out_mean, net.out_scale, x, NUMPY_OPS,
+                                      net.activation, skip=skip), float)
+
+    hidden = forward(None)
+    linear = forward(net.skip) - hidden if net.skip is not None else np.zeros_like(hidden)
     gate = (np.ones(len(z)) if layout.gate is None
             else np.broadcast_to(np.asarray(layout.gate(x, NUMPY_OPS), float).ravel(), len(z)))
     return {"network_linear": linear[2] * gains[:, 2],
-            "network_hidden": (full[2] - linear[2]) * gains[:, 2],
+            "network_hidden": hidden[2] * gains[:, 2],
             "network_gate": np.array(gate, float)}
 
 

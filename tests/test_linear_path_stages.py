@@ -97,4 +97,5 @@ def test_patience_counts_from_the_release_of_the_hidden_layers(tmp_path):
                         SafeConfig(**base, linear_first_epochs=3))
     assert plain.history[-1]["epoch"] == 2
     assert staged.history[-1]["epoch"] == 4
+    assert "after epoch 3" in staged.stopped and "after epoch 1" in plain.stopped
     assert staged.config.linear_first_epochs == 3

@@ -273,9 +273,10 @@ class EpochLoop:
                             worst=f"{sel['val_ratio_worst']:.3g}", refresh=False)
             self.epoch = epoch
             self._keep(epoch, sel)
-            if epoch - max(self.progress, cfg.linear_first_epochs) >= cfg.patience:
+            counted_from = max(self.progress, cfg.linear_first_epochs)  # or the release
+            if epoch - counted_from >= cfg.patience:
                 self.stopped = (f"patience: no better validation rank or mean ratio in the "
-                                f"{cfg.patience} epochs after epoch {self.progress}")
+                                f"{cfg.patience} epochs after epoch {counted_from}")
             elif elapsed > cfg.max_seconds:
                 self.stopped = f"wall-clock budget: {elapsed:.0f} s > {cfg.max_seconds:g} s"
         bar.close()
